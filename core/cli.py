@@ -1,0 +1,208 @@
+"""The ``stratamap`` command line (typer + rich)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from stratamap.core.errors import StratamapError
+from stratamap.core.hookspecs import hookimpl
+
+app = typer.Typer(
+    name="stratamap",
+    help="Layered robot maps from indoor scans: occupancy, geometry, panoptic semantics, completed objects, contact graph.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console(stderr=True)
+out_console = Console()
+
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", "-s", help="Override a key by its path, value parsed as YAML: --set stages[0].params.voxel_size=0.02"),
+]
+
+
+def repo_root() -> Path:
+    """The checkout that holds configs/ (the CLI also works from an installed wheel with explicit paths)."""
+    return Path(__file__).resolve().parent.parent
+
+
+class RichProgress:
+    """Observer: a rich progress bar per stage, fed by the pipeline's event hooks."""
+
+    def __init__(self, console: Console):
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+            transient=False,
+            disable=not console.is_terminal,
+        )
+        self.tasks: dict[int, Any] = {}
+        self.console = console
+
+    @hookimpl
+    def stratamap_pipeline_start(self, pipeline: Any) -> None:
+        self.progress.start()
+
+    @hookimpl
+    def stratamap_stage_start(self, pipeline: Any, stage: Any, index: int) -> None:
+        self.tasks[id(stage)] = self.progress.add_task(f"{stage.kind[:-1]} {stage.name}", total=None)
+
+    @hookimpl
+    def stratamap_stage_progress(self, stage: Any, completed: int, total: int | None, description: str) -> None:
+        task = self.tasks.get(id(stage))
+        if task is not None:
+            self.progress.update(task, completed=completed, total=total, description=description)
+
+    @hookimpl
+    def stratamap_stage_end(self, pipeline: Any, stage: Any, index: int, seconds: float) -> None:
+        task = self.tasks.get(id(stage))
+        if task is not None:
+            t = self.progress.tasks[task]
+            self.progress.update(task, total=t.total or 1, completed=t.total or 1)
+        if not self.console.is_terminal:
+            self.console.print(f"  {stage.kind[:-1]:<9} {stage.name:<16} {seconds:8.2f} s")
+
+    @hookimpl
+    def stratamap_pipeline_end(self, pipeline: Any, report: dict) -> None:
+        self.progress.stop()
+
+
+def _fail(exc: BaseException) -> None:
+    console.print(f"[bold red]error:[/] {exc}", highlight=False)
+    raise typer.Exit(code=2)
+
+
+def _run(config: Path, out: Path | None, overrides: list[str] | None) -> dict:
+    from stratamap.core.config import load_pipeline
+    from stratamap.core.pipeline import Pipeline
+    from stratamap.core.registry import default_registry
+
+    registry = default_registry()
+    for failure in registry.failures:
+        console.print(f"[yellow]warning:[/] {failure}", highlight=False)
+    try:
+        validated = load_pipeline(config, overrides, registry)
+    except StratamapError as exc:
+        _fail(exc)
+    pipeline = Pipeline(validated, registry)
+    observer = RichProgress(console)
+    registry.plugin_manager.register(observer, name="rich-progress")
+    try:
+        report = pipeline.run(out)
+    except StratamapError as exc:
+        _fail(exc)
+    finally:
+        registry.plugin_manager.unregister(observer)
+    return report
+
+
+def _print_report(report: dict, out: Path) -> None:
+    table = Table(title=f"stratamap run -> {out}", show_header=True)
+    table.add_column("stage")
+    table.add_column("plugin")
+    table.add_column("seconds", justify="right")
+    for st in report["stages"]:
+        table.add_row(st["name"], st["plugin"], f"{st['seconds']:.2f}")
+    out_console.print(table)
+    for family, values in report.get("metrics", {}).items():
+        flat = {k: v for k, v in values.items() if isinstance(v, (int, float))}
+        out_console.print(f"[bold]{family}[/]: " + ", ".join(f"{k}={v:.3g}" for k, v in flat.items()))
+    for w in report.get("warnings", []):
+        out_console.print(f"[yellow]warning:[/] {w}", highlight=False)
+
+
+@app.command()
+def run(
+    config: Annotated[Path, typer.Argument(help="Pipeline YAML file.")],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (map/, export/, report.json).")] = None,
+    overrides: SetOption = None,
+) -> None:
+    """Run a pipeline: read, segment, map, complete, export; write map/, export/ and report.json."""
+    report = _run(config, out, overrides)
+    _print_report(report, out or Path("."))
+
+
+@app.command()
+def validate(
+    config: Annotated[Path, typer.Argument(help="Pipeline YAML file.")],
+    overrides: SetOption = None,
+) -> None:
+    """Check a pipeline file (structure, every plugin's parameters, data flow) without running it."""
+    from stratamap.core.config import load_pipeline
+
+    try:
+        v = load_pipeline(config, overrides)
+    except StratamapError as exc:
+        _fail(exc)
+    names = " -> ".join([v.source.spec.plugin] + [s.spec.plugin for s in v.stages])
+    out_console.print(f"[green]ok[/] {config}: {names}")
+
+
+@app.command()
+def plugins(as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list.")] = False) -> None:
+    """List installed stage plugins (kind, name, distribution, description)."""
+    from stratamap.core.registry import default_registry
+
+    registry = default_registry()
+    entries = [info.to_dict() for info in registry.all()]
+    if as_json:
+        sys.stdout.write(json.dumps(entries, indent=2) + "\n")
+    else:
+        table = Table(show_header=True)
+        for col in ("kind", "name", "distribution", "description"):
+            table.add_column(col)
+        for e in entries:
+            table.add_row(e["kind"], e["name"], e["distribution"], e["description"])
+        out_console.print(table)
+    for failure in registry.failures:
+        console.print(f"[yellow]warning:[/] {failure}", highlight=False)
+
+
+@app.command()
+def schema(
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Write the schema here instead of stdout.")] = None,
+) -> None:
+    """Print the JSON Schema of pipeline files, with every installed plugin's parameters."""
+    from stratamap.core.schema import pipeline_schema
+
+    text = json.dumps(pipeline_schema(), indent=2) + "\n"
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        from stratamap.core.atomic import write_text
+
+        write_text(out, text)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out/demo"),
+    overrides: SetOption = None,
+) -> None:
+    """Run configs/demo.yaml: a synthetic room, mapped, completed and exported."""
+    config = repo_root() / "configs" / "demo.yaml"
+    if not config.is_file():
+        _fail(StratamapError(f"{config} not found: run the demo from a stratamap checkout"))
+    report = _run(config, out, overrides)
+    _print_report(report, out)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

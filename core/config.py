@@ -1,0 +1,295 @@
+"""Pipeline files: YAML structure, ``--set`` overrides, and validation before anything runs.
+
+A pipeline file has three top-level keys::
+
+    source: {plugin: synthetic, params: {frames: 40}}
+    stages:
+      - {plugin: oracle}
+      - {plugin: tsdf, params: {voxel_size: 0.02}}
+    output: {save_map: true}
+
+Validation has three phases, each reporting every problem with its YAML path:
+
+1. structure (this module's pydantic models);
+2. each plugin's own ``Config`` (``stages[1].params.voxel_sise: extra field``);
+3. data flow: every layer a stage requires is provided by the source or an earlier stage.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from stratamap.core.errors import ConfigError, PluginError
+from stratamap.core.registry import PluginInfo, Registry, default_registry
+from stratamap.core.stages import KINDS, LAYERS, Stage, StageConfig
+
+
+class StageSpec(BaseModel):
+    """One stage of a pipeline: a plugin by name, and its parameters."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    plugin: str = Field(description="Name of the stage plugin (see `stratamap plugins`).")
+    kind: str | None = Field(
+        default=None,
+        description="Stage kind (segmenters, mappers, completers, exporters); needed only when two kinds share the name.",
+    )
+    params: dict[str, Any] = Field(default_factory=dict, description="Parameters of the plugin's Config.")
+
+
+class OutputSpec(BaseModel):
+    """Where and what a run writes."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    dir: str | None = Field(default=None, description="Output folder; `--out` on the command line overrides it.")
+    save_map: bool = Field(default=True, description="Save the layered map to OUT/map/ (manifest.json + layers).")
+    export_dir: str = Field(default="export", description="Sub-folder of the output folder that exporters write into.")
+    report: bool = Field(default=True, description="Write OUT/report.json with stage timings, layer counts and metrics.")
+    metrics: bool = Field(default=True, description="Evaluate the map against ground truth when the source has it.")
+
+
+class PipelineSpec(BaseModel):
+    """A pipeline file."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    source: StageSpec = Field(description="The source stage that reads sensor data.")
+    stages: list[StageSpec] = Field(default_factory=list, description="Stages run in order after the source.")
+    output: OutputSpec = Field(default_factory=OutputSpec, description="Output settings.")
+
+
+@dataclass
+class ResolvedStage:
+    """A validated stage: its spec, YAML path, registered class and parsed config."""
+
+    path: str  # "source" or "stages[2]"
+    spec: StageSpec
+    info: PluginInfo
+    config: StageConfig
+
+    def instantiate(self) -> Stage:
+        return self.info.cls(self.config)
+
+
+@dataclass
+class ValidatedPipeline:
+    spec: PipelineSpec
+    source: ResolvedStage
+    stages: list[ResolvedStage]
+    origin: str | None = None  # file the pipeline came from
+
+
+# ------------------------------------------------------------------------------------------
+# YAML paths and overrides
+
+_TOKEN = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
+
+
+def parse_path(path: str) -> list[str | int]:
+    """``stages[0].params.voxel_size`` -> ``["stages", 0, "params", "voxel_size"]``."""
+    parts: list[str | int] = []
+    pos = 0
+    path = path.strip()
+    while pos < len(path):
+        if path[pos] == ".":
+            pos += 1
+            continue
+        m = _TOKEN.match(path, pos)
+        if not m:
+            raise ConfigError([(path, f"cannot parse key path at {path[pos:]!r}")])
+        parts.append(m.group(1) if m.group(1) is not None else int(m.group(2)))
+        pos = m.end()
+    if not parts:
+        raise ConfigError([(path, "empty key path")])
+    return parts
+
+
+def format_path(parts: tuple[Any, ...] | list[Any]) -> str:
+    out = ""
+    for p in parts:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        else:
+            out += ("." if out else "") + str(p)
+    return out
+
+
+def apply_override(doc: dict[str, Any], assignment: str) -> None:
+    """Apply ``path=value`` (value parsed as YAML) to a loaded pipeline document in place."""
+    if "=" not in assignment:
+        raise ConfigError([(assignment, "override must look like key.path=value")])
+    key, raw = assignment.split("=", 1)
+    parts = parse_path(key)
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as exc:
+        raise ConfigError([(key, f"value {raw!r} is not valid YAML ({exc})")]) from exc
+    node: Any = doc
+    for i, part in enumerate(parts[:-1]):
+        nxt = parts[i + 1]
+        here = format_path(parts[: i + 1])
+        if isinstance(part, int):
+            if not isinstance(node, list) or part >= len(node):
+                size = len(node) if isinstance(node, list) else 0
+                raise ConfigError([(here, f"index {part} out of range (the list has {size} items)")])
+            node = node[part]
+        else:
+            if not isinstance(node, dict):
+                raise ConfigError([(here, "cannot set a key inside a non-mapping value")])
+            if node.get(part) is None:
+                node[part] = [] if isinstance(nxt, int) else {}
+            node = node[part]
+    last = parts[-1]
+    if isinstance(last, int):
+        if not isinstance(node, list) or last > len(node):
+            raise ConfigError([(key, "index out of range")])
+        if last == len(node):
+            node.append(value)
+        else:
+            node[last] = value
+    else:
+        if not isinstance(node, dict):
+            raise ConfigError([(key, "cannot set a key inside a non-mapping value")])
+        node[last] = value
+
+
+def load_document(path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError([("", f"pipeline file not found: {path}")])
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError([("", f"not valid YAML: {exc}")], source=str(path)) from exc
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise ConfigError([("", f"a pipeline file must be a mapping, got {type(doc).__name__}")], source=str(path))
+    for assignment in overrides or []:
+        apply_override(doc, assignment)
+    return doc
+
+
+# ------------------------------------------------------------------------------------------
+# Validation
+
+
+def _pydantic_problems(exc: ValidationError, prefix: tuple[Any, ...] = ()) -> list[tuple[str, str]]:
+    problems = []
+    for err in exc.errors():
+        loc = tuple(prefix) + tuple(err["loc"])
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "extra field (not a parameter of this plugin)" if "params" in prefix else "extra field"
+        elif err["type"] == "missing":
+            msg = "required field missing"
+        problems.append((format_path(loc), msg))
+    return problems
+
+
+def _resolve_plugin(
+    registry: Registry, spec: StageSpec, path: str, kinds: tuple[str, ...]
+) -> tuple[PluginInfo | None, list[tuple[str, str]]]:
+    if spec.kind is not None:
+        if spec.kind not in kinds:
+            return None, [(f"{path}.kind", f"must be one of {list(kinds)}")]
+        kinds = (spec.kind,)
+    matches = registry.find(spec.plugin, kinds)
+    if not matches:
+        known = sorted({n for k in kinds for n in registry.stages[k]})
+        hint = ""
+        broken = [f for f in registry.failures if f.entry_point == spec.plugin]
+        if broken:
+            hint = f"; {broken[0]}"
+        return None, [(f"{path}.plugin", f"no plugin named {spec.plugin!r} (installed: {', '.join(known)}){hint}")]
+    if len(matches) > 1:
+        return None, [
+            (
+                f"{path}.plugin",
+                f"{spec.plugin!r} is a plugin of several kinds ({', '.join(m.kind for m in matches)}); add `kind:`",
+            )
+        ]
+    return matches[0], []
+
+
+def validate(doc: dict[str, Any], registry: Registry | None = None, origin: str | None = None) -> ValidatedPipeline:
+    """Validate a loaded pipeline document; raise :class:`ConfigError` listing every problem."""
+    registry = registry or default_registry()
+    try:
+        spec = PipelineSpec.model_validate(doc)
+    except ValidationError as exc:
+        raise ConfigError(_pydantic_problems(exc), source=origin) from None
+
+    problems: list[tuple[str, str]] = []
+    resolved: list[ResolvedStage] = []
+    entries = [("source", spec.source, ("sources",))] + [
+        (f"stages[{i}]", s, tuple(k for k in KINDS if k != "sources")) for i, s in enumerate(spec.stages)
+    ]
+    for path, stage_spec, kinds in entries:
+        info, errs = _resolve_plugin(registry, stage_spec, path, kinds)
+        problems += errs
+        if info is None:
+            continue
+        try:
+            config = info.cls.Config.model_validate(stage_spec.params)
+        except ValidationError as exc:
+            problems += _pydantic_problems(exc, prefix=(*parse_path(path), "params"))
+            continue
+        resolved.append(ResolvedStage(path, stage_spec, info, config))
+    if problems:
+        raise ConfigError(problems, source=origin)
+
+    source, stages = resolved[0], resolved[1:]
+    problems += check_data_flow(source, stages, registry)
+    if problems:
+        raise ConfigError(problems, source=origin)
+    return ValidatedPipeline(spec, source, stages, origin)
+
+
+def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry: Registry) -> list[tuple[str, str]]:
+    """Every required layer must be provided by the source or an earlier stage."""
+    problems = []
+    available = set(source.info.cls.provides)
+    for st in stages:
+        missing = sorted(set(st.info.cls.requires) - available)
+        for layer in missing:
+            providers = sorted(
+                f"{info.name} ({info.kind})" for info in registry.all() if layer in info.cls.provides
+            )
+            later = [s.spec.plugin for s in stages[stages.index(st) + 1 :] if layer in s.info.cls.provides]
+            hint = f"; it comes later from {', '.join(later)}: reorder the stages" if later else ""
+            problems.append(
+                (
+                    f"{st.path}.plugin",
+                    f"stage {st.spec.plugin!r} requires layer {layer!r}, which no earlier stage provides "
+                    f"(could provide it: {', '.join(providers) or 'no installed plugin'}){hint}",
+                )
+            )
+        available |= set(st.info.cls.provides)
+    return problems
+
+
+def load_pipeline(
+    path: str | Path, overrides: list[str] | None = None, registry: Registry | None = None
+) -> ValidatedPipeline:
+    """Read, override and validate a pipeline file."""
+    doc = load_document(path, overrides)
+    return validate(doc, registry=registry, origin=str(path))
+
+
+def known_layers() -> list[str]:
+    return sorted(LAYERS)
+
+
+def ensure_plugin(registry: Registry, kind: str, name: str) -> PluginInfo:
+    try:
+        return registry.get(kind, name)
+    except PluginError as exc:
+        raise ConfigError([("", str(exc))]) from None

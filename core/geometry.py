@@ -1,0 +1,106 @@
+"""Small geometric helpers shared by stages: boxes, footprints, overlaps."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from stratamap.core.layers import OrientedBox
+
+
+def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Minimum-area enclosing rectangle of 2D points (rotating calipers over the convex hull).
+
+    Returns ``(center_xy, yaw, size_xy)`` with ``size_xy[0] >= size_xy[1]`` and yaw in [-pi/2, pi/2).
+    """
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) == 0:
+        raise ValueError("min_area_rectangle needs at least one point")
+    try:
+        hull = xy[ConvexHull(xy).vertices]
+    except (QhullError, ValueError):
+        hull = xy  # collinear or too few points: the edges of the raw set still work
+    if len(hull) == 1:
+        return hull[0].copy(), 0.0, np.zeros(2)
+    edges = np.roll(hull, -1, axis=0) - hull
+    angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+    c, s = np.cos(angles), np.sin(angles)
+    # Rotate the hull by -angle for every candidate at once: (A, H)
+    rx = hull[None, :, 0] * c[:, None] + hull[None, :, 1] * s[:, None]
+    ry = -hull[None, :, 0] * s[:, None] + hull[None, :, 1] * c[:, None]
+    w = rx.max(1) - rx.min(1)
+    h = ry.max(1) - ry.min(1)
+    best = int(np.argmin(w * h))
+    a = angles[best]
+    cx_r = (rx[best].max() + rx[best].min()) / 2
+    cy_r = (ry[best].max() + ry[best].min()) / 2
+    center = np.array([cx_r * np.cos(a) - cy_r * np.sin(a), cx_r * np.sin(a) + cy_r * np.cos(a)])
+    size = np.array([w[best], h[best]])
+    if size[1] > size[0]:
+        size = size[::-1].copy()
+        a += np.pi / 2
+    yaw = (a + np.pi / 2) % np.pi - np.pi / 2
+    return center, float(yaw), size
+
+
+def gravity_aligned_box(points: np.ndarray, z_range: tuple[float, float] | None = None) -> OrientedBox:
+    """The gravity-aligned minimal box of points: footprint by min-area rectangle, z from min to max."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    center_xy, yaw, size_xy = min_area_rectangle(points[:, :2])
+    z0, z1 = z_range if z_range is not None else (points[:, 2].min(), points[:, 2].max())
+    return OrientedBox(np.array([center_xy[0], center_xy[1], (z0 + z1) / 2]), yaw, np.array([*size_xy, z1 - z0]))
+
+
+def footprint_overlap(a: OrientedBox, b: OrientedBox, samples: int = 24) -> float:
+    """Area of the intersection of two box footprints (m^2), by polygon clipping."""
+    return polygon_area(clip_polygon(a.corners_2d(), b.corners_2d()))
+
+
+def polygon_area(poly: np.ndarray) -> float:
+    if len(poly) < 3:
+        return 0.0
+    x, y = poly[:, 0], poly[:, 1]
+    return float(0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def clip_polygon(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman clipping of a polygon by a convex counter-clockwise polygon."""
+    output = [tuple(p) for p in subject]
+    n = len(clip)
+    for i in range(n):
+        a, b = clip[i], clip[(i + 1) % n]
+        inputs, output = output, []
+        if not inputs:
+            break
+
+        def inside(p: tuple[float, float]) -> bool:
+            return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) >= -1e-12
+
+        def intersect(p: tuple[float, float], q: tuple[float, float]) -> tuple[float, float]:
+            d1 = np.subtract(q, p)
+            d2 = b - a
+            denom = d1[0] * d2[1] - d1[1] * d2[0]
+            if abs(denom) < 1e-15:
+                return q
+            t = ((a[0] - p[0]) * d2[1] - (a[1] - p[1]) * d2[0]) / denom
+            return (p[0] + t * d1[0], p[1] + t * d1[1])
+
+        prev = inputs[-1]
+        for cur in inputs:
+            if inside(cur):
+                if not inside(prev):
+                    output.append(intersect(prev, cur))
+                output.append(cur)
+            elif inside(prev):
+                output.append(intersect(prev, cur))
+            prev = cur
+    return np.array(output, dtype=np.float64).reshape(-1, 2)
+
+
+def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
+    """IoU of two gravity-aligned boxes (exact: footprint polygon intersection times z overlap)."""
+    inter_xy = footprint_overlap(a, b)
+    inter_z = max(0.0, min(a.top_z, b.top_z) - max(a.bottom_z, b.bottom_z))
+    inter = inter_xy * inter_z
+    union = float(np.prod(a.size) + np.prod(b.size)) - inter
+    return inter / union if union > 0 else 0.0

@@ -1,0 +1,298 @@
+"""Plugin discovery: entry points, pluggy hooks, and the stage registry.
+
+Every plugin -- built-in or third-party -- is a module declared under one entry-point group per
+kind (``stratamap.sources``, ``stratamap.segmenters``, ``stratamap.mappers``,
+``stratamap.completers``, ``stratamap.exporters``) that implements the matching
+``stratamap_register_<kind>`` hook. An entry point may also name a stage class directly.
+
+Environment variables:
+
+``STRATAMAP_DISABLE_PLUGIN_AUTOLOAD=1``
+    load only stratamap's own entry points, skipping every third-party distribution.
+``STRATAMAP_PLUGINS=mod_a,path/to/mod_b.py``
+    also load these unpackaged plugin modules (importable names or file paths).
+
+A third-party plugin that fails to import is reported (with its distribution name) and skipped;
+two stages of one kind with one name is an error that names both.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+import os
+import sys
+import traceback
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pluggy
+
+from stratamap.core import hookspecs
+from stratamap.core.errors import PluginError
+from stratamap.core.stages import KIND_BASES, KINDS, Stage
+
+DISTRIBUTION = "stratamap"
+AUTOLOAD_ENV = "STRATAMAP_DISABLE_PLUGIN_AUTOLOAD"
+EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
+
+#: The built-in plugin modules, by kind; pyproject.toml declares exactly these as entry points
+#: (tests/test_packaging.py keeps the two in step).
+BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
+    "sources": ("stratamap.plugins.sources.synthetic",),
+    "segmenters": ("stratamap.plugins.segmenters.oracle",),
+    "mappers": (
+        "stratamap.plugins.mappers.tsdf",
+        "stratamap.plugins.mappers.occupancy",
+        "stratamap.plugins.mappers.contact_graph",
+    ),
+    "completers": ("stratamap.plugins.completers.bbox",),
+    "exporters": ("stratamap.plugins.exporters.urdf", "stratamap.plugins.exporters.nav2_map"),
+}
+
+
+def group_name(kind: str) -> str:
+    return f"stratamap.{kind}"
+
+
+@dataclass(frozen=True)
+class PluginInfo:
+    """A registered stage class and where it came from."""
+
+    kind: str
+    name: str
+    cls: type[Stage]
+    distribution: str
+    module: str
+
+    @property
+    def description(self) -> str:
+        return self.cls.summary()
+
+    def to_dict(self) -> dict[str, str]:
+        return {
+            "kind": self.kind,
+            "name": self.name,
+            "distribution": self.distribution,
+            "module": self.module,
+            "description": self.description,
+        }
+
+
+@dataclass(frozen=True)
+class LoadFailure:
+    """A plugin that could not be loaded; the run goes on without it."""
+
+    distribution: str
+    entry_point: str
+    error: str
+
+    def __str__(self) -> str:
+        return f"plugin {self.entry_point!r} from distribution {self.distribution!r} failed to load: {self.error}"
+
+
+@dataclass
+class Registry:
+    """Stage classes by kind and name, plus the plugin manager that carries event hooks."""
+
+    plugin_manager: pluggy.PluginManager
+    stages: dict[str, dict[str, PluginInfo]] = field(default_factory=lambda: {k: {} for k in KINDS})
+    failures: list[LoadFailure] = field(default_factory=list)
+
+    def get(self, kind: str, name: str) -> PluginInfo:
+        if kind not in self.stages:
+            raise PluginError(f"unknown stage kind {kind!r}; kinds are {list(KINDS)}")
+        try:
+            return self.stages[kind][name]
+        except KeyError:
+            known = ", ".join(sorted(self.stages[kind])) or "none"
+            hint = ""
+            broken = [f for f in self.failures if f.entry_point == name]
+            if broken:
+                hint = f" ({broken[0]})"
+            raise PluginError(f"no {kind[:-1]} plugin named {name!r}; installed: {known}{hint}") from None
+
+    def find(self, name: str, kinds: Iterable[str] = KINDS) -> list[PluginInfo]:
+        """All registered stages called ``name`` among ``kinds``."""
+        return [self.stages[k][name] for k in kinds if name in self.stages[k]]
+
+    def all(self) -> list[PluginInfo]:
+        return [info for kind in KINDS for _, info in sorted(self.stages[kind].items())]
+
+    @property
+    def hook(self) -> Any:
+        return self.plugin_manager.hook
+
+
+def _new_plugin_manager() -> pluggy.PluginManager:
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    return pm
+
+
+class _ClassPlugin:
+    """Adapts an entry point that names a stage class directly to the register hook."""
+
+    def __init__(self, cls: type[Stage]):
+        self.cls = cls
+        self.__name__ = f"{cls.__module__}.{cls.__qualname__}"
+        setattr(self, f"stratamap_register_{cls.kind}", hookspecs.hookimpl(lambda: [cls]))
+
+
+def _load_module_from_path(path: str) -> ModuleType:
+    p = Path(path)
+    if not p.is_file():
+        raise ImportError(f"{EXTRA_PLUGINS_ENV}: no such file {path}")
+    name = f"stratamap_local_plugin_{p.stem}"
+    spec = importlib.util.spec_from_file_location(name, p)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{EXTRA_PLUGINS_ENV}: cannot import {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _distribution_of(ep: EntryPoint) -> str:
+    dist = getattr(ep, "dist", None)
+    return dist.name if dist is not None else "<unknown>"
+
+
+def build_registry(
+    eps: Iterable[EntryPoint] | None = None,
+    extra_modules: Iterable[str] | None = None,
+    autoload: bool | None = None,
+) -> Registry:
+    """Discover plugins and build the registry.
+
+    ``eps`` replaces the installed entry points (tests pass fake ``EntryPoint`` objects);
+    ``extra_modules`` defaults to ``$STRATAMAP_PLUGINS``; ``autoload`` defaults to the negation of
+    ``$STRATAMAP_DISABLE_PLUGIN_AUTOLOAD``.
+    """
+    if autoload is None:
+        autoload = os.environ.get(AUTOLOAD_ENV, "").strip().lower() in ("", "0", "false", "no")
+    if eps is None:
+        eps = [ep for kind in KINDS for ep in entry_points(group=group_name(kind))]
+    if extra_modules is None:
+        extra_modules = [m.strip() for m in os.environ.get(EXTRA_PLUGINS_ENV, "").split(",") if m.strip()]
+
+    pm = _new_plugin_manager()
+    registry = Registry(plugin_manager=pm)
+    origins: dict[str, tuple[str, str]] = {}  # plugin name in pm -> (distribution, module)
+    seen_eps: set[tuple[str, str]] = set()
+
+    for ep in eps:
+        dist = _distribution_of(ep)
+        if (ep.group, ep.value) in seen_eps:
+            continue  # the same module listed twice (e.g. editable + regular install)
+        seen_eps.add((ep.group, ep.value))
+        if not autoload and dist != DISTRIBUTION:
+            continue
+        try:
+            obj = ep.load()
+        except Exception as exc:  # a broken plugin must not take the run down
+            registry.failures.append(LoadFailure(dist, ep.name, f"{type(exc).__name__}: {exc}"))
+            continue
+        _register_object(pm, obj, dist, origins, registry, ep.name)
+
+    for spec in extra_modules:
+        try:
+            module = _load_module_from_path(spec) if spec.endswith(".py") else importlib.import_module(spec)
+        except Exception as exc:
+            registry.failures.append(LoadFailure(f"<{EXTRA_PLUGINS_ENV}>", spec, f"{type(exc).__name__}: {exc}"))
+            continue
+        _register_object(pm, module, f"<{EXTRA_PLUGINS_ENV}>", origins, registry, spec)
+
+    for kind in KINDS:
+        hook = getattr(pm.hook, f"stratamap_register_{kind}")
+        for impl in hook.get_hookimpls():
+            dist, module = origins.get(impl.plugin_name, ("<unknown>", impl.plugin_name))
+            try:
+                classes = impl.function() or []
+            except Exception as exc:
+                registry.failures.append(LoadFailure(dist, module, f"stratamap_register_{kind} raised {exc!r}"))
+                continue
+            for cls in classes:
+                _add_stage(registry, kind, cls, dist, module)
+    return registry
+
+
+def _register_object(
+    pm: pluggy.PluginManager,
+    obj: Any,
+    dist: str,
+    origins: dict[str, tuple[str, str]],
+    registry: Registry,
+    ep_name: str,
+) -> None:
+    if inspect.isclass(obj) and issubclass(obj, Stage):
+        plugin: Any = _ClassPlugin(obj)
+        module_name = obj.__module__
+    elif isinstance(obj, ModuleType):
+        plugin, module_name = obj, obj.__name__
+    else:
+        registry.failures.append(
+            LoadFailure(dist, ep_name, f"entry point must name a module or a Stage class, got {type(obj).__name__}")
+        )
+        return
+    if pm.is_registered(plugin):
+        return
+    try:
+        name = pm.register(plugin, name=f"{dist}:{module_name}:{ep_name}")
+    except ValueError:
+        return  # the same module under two entry-point names: registered once is enough
+    except pluggy.PluginValidationError as exc:
+        registry.failures.append(LoadFailure(dist, ep_name, str(exc)))
+        return
+    if name is not None:
+        origins[name] = (dist, module_name)
+
+
+def _add_stage(registry: Registry, kind: str, cls: Any, dist: str, module: str) -> None:
+    base = KIND_BASES[kind]
+    if not (inspect.isclass(cls) and issubclass(cls, base)):
+        registry.failures.append(LoadFailure(dist, module, f"{cls!r} is not a subclass of {base.__name__}"))
+        return
+    if not cls.name:
+        registry.failures.append(LoadFailure(dist, module, f"{cls.__qualname__} has no 'name'"))
+        return
+    existing = registry.stages[kind].get(cls.name)
+    if existing is not None:
+        if existing.cls is cls:
+            return
+        raise PluginError(
+            f"two {kind} plugins are named {cls.name!r}: {existing.module}.{existing.cls.__qualname__} "
+            f"(distribution {existing.distribution}) and {cls.__module__}.{cls.__qualname__} "
+            f"(distribution {dist}); uninstall one of them"
+        )
+    registry.stages[kind][cls.name] = PluginInfo(kind, cls.name, cls, dist, module)
+
+
+_DEFAULT: Registry | None = None
+
+
+def default_registry(refresh: bool = False) -> Registry:
+    """The process-wide registry of installed plugins (built on first use)."""
+    global _DEFAULT
+    if _DEFAULT is None or refresh:
+        _DEFAULT = build_registry()
+    return _DEFAULT
+
+
+def builtin_entry_points() -> list[EntryPoint]:
+    """Entry points of the built-in plugins as pyproject.toml declares them (for tests and
+    source checkouts run without installation)."""
+    return [
+        EntryPoint(name=mod.rsplit(".", 1)[1], value=mod, group=group_name(kind))
+        for kind, mods in BUILTIN_PLUGINS.items()
+        for mod in mods
+    ]
+
+
+def format_failure(exc: BaseException) -> str:
+    return "".join(traceback.format_exception_only(type(exc), exc)).strip()

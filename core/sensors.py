@@ -1,0 +1,143 @@
+"""Sensor data types. All poses are camera-to-world (or sensor-to-world) SE(3), world z up, metres.
+
+Camera images follow the optical convention (x right, y down, z forward); depth is metric float32
+with 0 marking a pixel with no measurement.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole camera model."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def scaled(self, factor: float) -> CameraIntrinsics:
+        """Intrinsics of the image resized by ``factor`` (e.g. 0.5 for half resolution)."""
+        return CameraIntrinsics(
+            width=int(round(self.width * factor)),
+            height=int(round(self.height * factor)),
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=(self.cx + 0.5) * factor - 0.5,
+            cy=(self.cy + 0.5) * factor - 0.5,
+        )
+
+    def backproject(self, depth: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-frame points of valid depth pixels and their flat pixel indices."""
+        h, w = depth.shape
+        vs, us = np.mgrid[0:h:stride, 0:w:stride]
+        z = depth[vs, us]
+        valid = np.isfinite(z) & (z > 0)
+        us, vs, z = us[valid], vs[valid], z[valid]
+        pts = np.stack([(us - self.cx) * z / self.fx, (vs - self.cy) * z / self.fy, z], axis=1)
+        return pts.astype(np.float64), (vs * w + us).astype(np.int64)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in ("width", "height", "fx", "fy", "cx", "cy")}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CameraIntrinsics:
+        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))
+
+
+@dataclass
+class RGBDFrame:
+    """One RGB-D image pair. ``depth`` is metric float32 (0 = no measurement)."""
+
+    index: int
+    timestamp: float
+    rgb: np.ndarray  # (H, W, 3) uint8
+    depth: np.ndarray  # (H, W) float32, metres
+    pose: np.ndarray | None = None  # (4, 4) camera(optical)-to-world, None when unknown
+
+
+@dataclass
+class LaserScan:
+    """A planar 2D laser scan taken at ``pose`` (sensor-to-world; the scan plane is the sensor's x-y)."""
+
+    timestamp: float
+    angle_min: float
+    angle_increment: float
+    ranges: np.ndarray  # (N,) float32 metres; inf = no return
+    range_max: float
+    pose: np.ndarray | None = None
+
+    @property
+    def angles(self) -> np.ndarray:
+        return self.angle_min + self.angle_increment * np.arange(len(self.ranges))
+
+
+@dataclass
+class LidarScan:
+    """A 3D LiDAR sweep: points in the sensor frame."""
+
+    timestamp: float
+    points: np.ndarray  # (N, 3) float64
+    pose: np.ndarray | None = None
+    intensities: np.ndarray | None = None
+
+
+@dataclass
+class SensorStream:
+    """What a source yields: RGB-D frames, laser and LiDAR scans, and static point clouds.
+
+    ``frames`` may be any sequence (a list, or a lazy loader that reads images on access).
+    """
+
+    name: str
+    intrinsics: CameraIntrinsics | None = None
+    frames: Sequence[RGBDFrame] = field(default_factory=list)
+    laser_scans: list[LaserScan] = field(default_factory=list)
+    lidar_scans: list[LidarScan] = field(default_factory=list)
+    points: np.ndarray | None = None  # static cloud (N, 3), when the input is a point cloud
+    point_colors: np.ndarray | None = None  # (N, 3) float 0..1
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+@dataclass
+class FrameSegmentation:
+    """Per-pixel labels of one frame: class ids (vocabulary ids) and instance ids (0 = none)."""
+
+    frame_index: int
+    class_ids: np.ndarray  # (H, W) uint16
+    instance_ids: np.ndarray  # (H, W) int32, unique per frame; consistent across frames only if the segmenter tracks
+    scores: np.ndarray | None = None  # (H, W) float32 confidence, optional
+
+
+@dataclass
+class FrameLabels:
+    """The segmenter's output for a stream, aligned with ``SensorStream.frames``."""
+
+    segmenter: str
+    frames: list[FrameSegmentation] = field(default_factory=list)
+    #: True when instance ids are consistent across frames (oracle, trackers) so the mapper may fuse them directly.
+    tracked_instances: bool = False
+
+    def __len__(self) -> int:
+        return len(self.frames)

@@ -1,0 +1,253 @@
+"""Stage protocols: the five kinds of pipeline stage and the data they exchange.
+
+Every stage class declares
+
+* ``name`` -- how pipelines refer to it (unique within its kind),
+* ``Config`` -- a pydantic model of its parameters (extra keys forbidden, every field described),
+* ``requires`` / ``optional`` / ``provides`` -- the data layers it reads and writes (see ``LAYERS``),
+
+and implements the one verb of its kind:
+
+==============  ===========================================  ==========================
+kind            verb                                         returns
+==============  ===========================================  ==========================
+``sources``     ``read() -> dict``                           ``frames`` (+ ``ground_truth``)
+``segmenters``  ``segment(data) -> dict``                    labels for frames or points
+``mappers``     ``map(data) -> dict``                        map layers
+``completers``  ``complete(data) -> dict``                   ``instances`` (+ ``augmented``)
+``exporters``   ``export(data, out_dir) -> list[Path]``      the files written
+==============  ===========================================  ==========================
+
+The returned dict maps layer names to values; its keys must be a subset of ``provides``.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, TypeVar
+
+from pydantic import BaseModel, ConfigDict
+
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.layers import (
+    MAP_LAYERS,
+    ContactGraph,
+    Geometry,
+    LayeredMap,
+    ObjectInstances,
+    OccupancyMaps,
+    Semantics,
+)
+from stratamap.core.sensors import FrameLabels, SensorStream
+
+KINDS = ("sources", "segmenters", "mappers", "completers", "exporters")
+
+#: Every data layer a stage may require or provide, with its type.
+LAYERS: dict[str, type] = {
+    "frames": SensorStream,
+    "frame_labels": FrameLabels,
+    "ground_truth": GroundTruth,
+    "occupancy": OccupancyMaps,
+    "geometry": Geometry,
+    "semantics": Semantics,
+    "instances": ObjectInstances,
+    "contact_graph": ContactGraph,
+    "augmented": Geometry,
+}
+
+T = TypeVar("T")
+
+
+class StageConfig(BaseModel):
+    """Base of every stage's parameters: unknown keys are errors, instances are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass
+class PipelineData:
+    """The blackboard stages read from and write to during one run."""
+
+    stream: SensorStream | None = None
+    frame_labels: FrameLabels | None = None
+    ground_truth: GroundTruth | None = None
+    map: LayeredMap = field(default_factory=LayeredMap)
+    warnings: list[str] = field(default_factory=list)
+    #: Free-form facts stages report (e.g. a gravity re-alignment); copied into report.json.
+    notes: dict[str, Any] = field(default_factory=dict)
+
+    def get(self, layer: str) -> Any:
+        if layer == "frames":
+            return self.stream
+        if layer in ("frame_labels", "ground_truth"):
+            return getattr(self, layer)
+        return self.map.get(layer)
+
+    def set(self, layer: str, value: Any, producer: str) -> None:
+        if layer not in LAYERS:
+            raise KeyError(f"unknown layer {layer!r}; layers are {sorted(LAYERS)}")
+        if layer == "frames":
+            self.stream = value
+        elif layer in ("frame_labels", "ground_truth"):
+            setattr(self, layer, value)
+        else:
+            self.map.set(layer, value, producer)
+
+    def has(self, layer: str) -> bool:
+        return self.get(layer) is not None
+
+    def available(self) -> set[str]:
+        return {name for name in LAYERS if self.has(name)}
+
+
+class Stage:
+    """Base class of all stages. Subclass one of :class:`Source`, :class:`Segmenter`,
+    :class:`Mapper`, :class:`Completer`, :class:`Exporter`."""
+
+    kind: ClassVar[str] = ""
+    name: ClassVar[str] = ""
+    #: One line shown by ``stratamap plugins``; defaults to the first line of the class docstring.
+    description: ClassVar[str] = ""
+    Config: ClassVar[type[StageConfig]] = StageConfig
+    requires: ClassVar[frozenset[str]] = frozenset()
+    optional: ClassVar[frozenset[str]] = frozenset()
+    provides: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, config: StageConfig | None = None, **params: Any):
+        if config is not None and params:
+            raise TypeError("pass either a Config instance or keyword parameters, not both")
+        self.config = config if config is not None else self.Config(**params)
+        if not isinstance(self.config, self.Config):
+            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(self.config).__name__}")
+        self._hook = None  # set by the pipeline: the pluggy hook relay for progress events
+        self._data: PipelineData | None = None
+
+    @classmethod
+    def summary(cls) -> str:
+        if cls.description:
+            return cls.description
+        doc = inspect.getdoc(cls) or ""
+        return doc.strip().splitlines()[0] if doc.strip() else ""
+
+    # ------------------------------------------------------------------ helpers for stage authors
+
+    def progress(self, items: Iterable[T], total: int | None = None, description: str = "") -> Iterator[T]:
+        """Iterate ``items``, reporting progress to observers (rich progress bars in the CLI)."""
+        if total is None:
+            try:
+                total = len(items)  # type: ignore[arg-type]
+            except TypeError:
+                total = None
+        description = description or self.name
+        for i, item in enumerate(items):
+            yield item
+            if self._hook is not None:
+                self._hook.stratamap_stage_progress(stage=self, completed=i + 1, total=total, description=description)
+
+    def warn(self, message: str) -> None:
+        """Record a warning that ends up in ``report.json`` (the run goes on)."""
+        text = f"{self.kind}.{self.name}: {message}"
+        if self._data is not None:
+            self._data.warnings.append(text)
+        else:
+            import warnings
+
+            warnings.warn(text, stacklevel=2)
+
+    def note(self, key: str, value: Any) -> None:
+        """Record a fact for the report (e.g. ``gravity_alignment``)."""
+        if self._data is not None:
+            self._data.notes.setdefault(self.name, {})[key] = value
+
+    # ------------------------------------------------------------------ dispatch
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> dict[str, Any] | list[Path]:
+        """Call this stage's verb on ``data`` (used by the pipeline and the conformance kit)."""
+        raise NotImplementedError
+
+
+class Source(Stage):
+    """Reads sensor data. Verb: ``read() -> {"frames": SensorStream, "ground_truth"?: GroundTruth}``."""
+
+    kind = "sources"
+    provides = frozenset({"frames"})
+
+    def read(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> dict[str, Any]:
+        self._data = data
+        return self.read()
+
+
+class Segmenter(Stage):
+    """Labels frames or points. Verb: ``segment(data) -> {"frame_labels": FrameLabels}`` (or ``semantics``)."""
+
+    kind = "segmenters"
+    requires = frozenset({"frames"})
+    provides = frozenset({"frame_labels"})
+
+    def segment(self, data: PipelineData) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> dict[str, Any]:
+        self._data = data
+        return self.segment(data)
+
+
+class Mapper(Stage):
+    """Builds map layers. Verb: ``map(data) -> {layer: value}``."""
+
+    kind = "mappers"
+
+    def map(self, data: PipelineData) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> dict[str, Any]:
+        self._data = data
+        return self.map(data)
+
+
+class Completer(Stage):
+    """Completes partially observed objects. Verb: ``complete(data) -> {"instances": ..., "augmented"?: ...}``."""
+
+    kind = "completers"
+    requires = frozenset({"instances"})
+    provides = frozenset({"instances"})
+
+    def complete(self, data: PipelineData) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> dict[str, Any]:
+        self._data = data
+        return self.complete(data)
+
+
+class Exporter(Stage):
+    """Writes files robot software loads. Verb: ``export(data, out_dir) -> list[Path]``; writes atomically."""
+
+    kind = "exporters"
+
+    def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
+        raise NotImplementedError
+
+    def run(self, data: PipelineData, out_dir: Path | None = None) -> list[Path]:
+        self._data = data
+        if out_dir is None:
+            raise ValueError(f"exporter {self.name!r} needs an output directory")
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        return self.export(data, Path(out_dir))
+
+
+KIND_BASES: dict[str, type[Stage]] = {
+    "sources": Source,
+    "segmenters": Segmenter,
+    "mappers": Mapper,
+    "completers": Completer,
+    "exporters": Exporter,
+}
+
+__all__ = ["KINDS", "KIND_BASES", "LAYERS", "MAP_LAYERS", "PipelineData", "Stage", "StageConfig"]

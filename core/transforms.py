@@ -1,0 +1,74 @@
+"""SE(3) helpers. Poses are 4x4 float64 matrices mapping a local frame into the world (z up, metres)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+#: Optical camera frame (x right, y down, z forward) expressed in a z-up body frame
+#: (x forward, y left, z up), as REP-103 defines it.
+OPTICAL_TO_BODY = np.array(
+    [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+
+
+def make_pose(translation=(0.0, 0.0, 0.0), yaw: float = 0.0, rotation: np.ndarray | None = None) -> np.ndarray:
+    """Pose from a translation and either a yaw about +z or a 3x3 rotation."""
+    pose = np.eye(4)
+    if rotation is not None:
+        pose[:3, :3] = rotation
+    else:
+        c, s = np.cos(yaw), np.sin(yaw)
+        pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:3, 3] = translation
+    return pose
+
+
+def invert(pose: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    r = pose[:3, :3]
+    out[:3, :3] = r.T
+    out[:3, 3] = -r.T @ pose[:3, 3]
+    return out
+
+
+def apply(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Transform an (N, 3) array of points."""
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def yaw_of(pose: np.ndarray) -> float:
+    return float(np.arctan2(pose[1, 0], pose[0, 0]))
+
+
+def rpy_of(pose: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (URDF convention: fixed-axis XYZ)."""
+    r, p, y = Rotation.from_matrix(pose[:3, :3]).as_euler("xyz")
+    return float(r), float(p), float(y)
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world pose of an *optical* camera at ``eye`` looking at ``target``."""
+    eye = np.asarray(eye, float)
+    forward = np.asarray(target, float) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(up, float))
+    if np.linalg.norm(right) < 1e-9:
+        right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, eye
+    return pose
+
+
+def quat_xyzw_to_matrix(q) -> np.ndarray:
+    return Rotation.from_quat(np.asarray(q, float)).as_matrix()
+
+
+def matrix_to_quat_xyzw(r: np.ndarray) -> np.ndarray:
+    return Rotation.from_matrix(r).as_quat()
+
+
+def wrap_angle(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi

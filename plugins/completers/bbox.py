@@ -1,0 +1,47 @@
+"""Completer ``bbox``: each object becomes its gravity-aligned box, the baseline every smarter completer must beat."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import trimesh
+from pydantic import Field
+
+from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
+from stratamap.core.layers import Completion
+
+
+class BBoxConfig(StageConfig):
+    classes: list[str] | None = Field(default=None, description="Complete only these classes (default: every object).")
+    min_points: int = Field(default=10, ge=1, description="Objects with fewer observed points are left uncompleted.")
+
+
+class BBoxCompleter(Completer):
+    """Replaces every object by its gravity-aligned minimal box."""
+
+    name = "bbox"
+    Config = BBoxConfig
+
+    def complete(self, data: PipelineData) -> dict[str, Any]:
+        cfg: BBoxConfig = self.config  # type: ignore[assignment]
+        insts = data.map.instances.copy()  # type: ignore[union-attr]
+        for inst in insts:
+            if cfg.classes is not None and inst.class_name not in cfg.classes:
+                continue
+            if len(inst.points) < cfg.min_points:
+                self.warn(f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points; not completed")
+                continue
+            box = inst.box
+            size = np.maximum(box.size, 1e-3)
+            mesh = trimesh.creation.box(extents=size)
+            mesh.apply_translation((0.0, 0.0, size[2] / 2))  # object frame: origin at the bottom center
+            pose = box.pose
+            pose[2, 3] = box.bottom_z
+            inst.completion = Completion(mesh=mesh, pose=pose, completer=self.name, model_id=None, scale=size, score=1.0)
+        return {"instances": insts}
+
+
+@hookimpl
+def stratamap_register_completers():
+    return [BBoxCompleter]
