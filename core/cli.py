@@ -81,7 +81,7 @@ class RichProgress:
 
 
 def _fail(exc: BaseException) -> None:
-    console.print(f"[bold red]error:[/] {exc}", highlight=False)
+    console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -92,7 +92,7 @@ def _run(config: Path, out: Path | None, overrides: list[str] | None) -> dict:
 
     registry = default_registry()
     for failure in registry.failures:
-        console.print(f"[yellow]warning:[/] {failure}", highlight=False)
+        console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
     try:
         validated = load_pipeline(config, overrides, registry)
     except StratamapError as exc:
@@ -168,7 +168,7 @@ def plugins(as_json: Annotated[bool, typer.Option("--json", help="Print a JSON l
             table.add_row(e["kind"], e["name"], e["distribution"], e["description"])
         out_console.print(table)
     for failure in registry.failures:
-        console.print(f"[yellow]warning:[/] {failure}", highlight=False)
+        console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
 
 
 @app.command()

@@ -261,9 +261,15 @@ def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry
         missing = sorted(set(st.info.cls.requires) - available)
         for layer in missing:
             providers = sorted(
-                f"{info.name} ({info.kind})" for info in registry.all() if layer in info.cls.provides
+                f"{info.name} ({info.kind})"
+                for info in registry.all()
+                if layer in info.cls.provides and layer not in info.cls.requires
             )
-            later = [s.spec.plugin for s in stages[stages.index(st) + 1 :] if layer in s.info.cls.provides]
+            later = [
+                s.spec.plugin
+                for s in stages[stages.index(st) + 1 :]
+                if layer in s.info.cls.provides and layer not in s.info.cls.requires
+            ]
             hint = f"; it comes later from {', '.join(later)}: reorder the stages" if later else ""
             problems.append(
                 (

@@ -38,6 +38,18 @@ def unpack_voxel_centers(keys: np.ndarray, voxel_size: float) -> np.ndarray:
     return (idx.astype(np.float64) + 0.5) * voxel_size
 
 
+def canonical_mesh(
+    vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Vertices sorted lexicographically and faces sorted, so equal surfaces compare equal."""
+    order = np.lexsort(vertices.T[::-1])
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    faces = rank[faces]
+    faces = faces[np.lexsort(faces.T[::-1])] if len(faces) else faces
+    return vertices[order], faces, None if vertex_colors is None else vertex_colors[order]
+
+
 class LabelVotes:
     """Counts of (voxel, label) observations, reduced as they arrive so memory stays bounded."""
 
@@ -163,9 +175,12 @@ class TSDFMapper(Mapper):
         if integrated == 0:
             raise DataError(f"tsdf: no frame of {stream.name!r} had valid depth and a pose")
 
+        # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
         pcd = vbg.extract_point_cloud()
         points = pcd.point.positions.numpy().astype(np.float64)
-        colors = np.clip(pcd.point.colors.numpy(), 0, 1) if "colors" in pcd.point else None
+        order = np.lexsort(points.T[::-1])
+        points = points[order]
+        colors = np.clip(pcd.point.colors.numpy()[order], 0, 1) if "colors" in pcd.point else None
         mesh = None
         if cfg.extract_mesh:
             tmesh = vbg.extract_triangle_mesh()
@@ -174,6 +189,7 @@ class TSDFMapper(Mapper):
             vcol = None
             if "colors" in tmesh.vertex:
                 vcol = (np.clip(tmesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
+            verts, faces, vcol = canonical_mesh(verts, faces, vcol)
             mesh = trimesh.Trimesh(verts, faces, vertex_colors=vcol, process=False)
         geometry = Geometry(points=points, colors=colors, mesh=mesh, voxel_size=cfg.voxel_size)
         self.note("frames_integrated", integrated)

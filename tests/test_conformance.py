@@ -1,0 +1,15 @@
+"""Every built-in stage passes the conformance kit that plugin authors run on theirs."""
+
+from stratamap.core.registry import build_registry, builtin_entry_points
+from stratamap.core.testing import parametrize_with_checks
+
+BUILTIN_STAGES = [info.cls for info in build_registry(eps=builtin_entry_points(), extra_modules=[], autoload=True).all()]
+
+
+def test_every_kind_has_a_builtin_stage():
+    assert {cls.kind for cls in BUILTIN_STAGES} == {"sources", "segmenters", "mappers", "completers", "exporters"}
+
+
+@parametrize_with_checks(BUILTIN_STAGES)
+def test_builtin_stage_conforms(stage_cls, check):
+    check(stage_cls)

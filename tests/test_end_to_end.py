@@ -1,0 +1,114 @@
+"""The demo pipeline end to end (smaller images), and its outputs opened by the software robots run."""
+
+from __future__ import annotations
+
+import json
+import sys
+from importlib.metadata import EntryPoint
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stratamap.core.config import load_pipeline
+from stratamap.core.layers import LayeredMap
+from stratamap.core.nav2 import read_map
+from stratamap.core.pipeline import Pipeline
+from stratamap.core.registry import build_registry, builtin_entry_points
+
+REPO = Path(__file__).resolve().parent.parent
+SMALL = ["source.params.frames=16", "source.params.camera={width: 320, height: 240}"]
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    report = Pipeline(load_pipeline(REPO / "configs" / "demo.yaml", SMALL)).run(out)
+    return out, report
+
+
+def test_demo_writes_the_documented_layout(demo_run):
+    out, report = demo_run
+    for rel in ("map/manifest.json", "export/scene.urdf", "export/map.yaml", "export/map.pgm", "report.json"):
+        assert (out / rel).is_file(), rel
+    on_disk = json.loads((out / "report.json").read_text())
+    assert on_disk["stages"][0] == {**on_disk["stages"][0], "plugin": "synthetic"}
+    assert all({"name", "plugin", "seconds"} <= set(s) for s in on_disk["stages"])
+    assert on_disk["layers"]["instances"]["objects"] >= 4
+    det = on_disk["metrics"]["detection"]
+    assert {"precision", "recall", "f1"} <= set(det)
+    assert det["f1"] >= 0.9, det  # oracle labels on a clean synthetic room
+
+
+def test_saved_map_loads_with_every_layer(demo_run):
+    out, _ = demo_run
+    m = LayeredMap.load(out / "map")
+    assert m.geometry is not None and len(m.geometry) > 1000 and m.geometry.mesh is not None
+    assert m.semantics is not None and len(m.semantics) == len(m.geometry)
+    assert m.instances is not None and all(i.completion is not None for i in m.instances)
+    assert m.contact_graph is not None and m.contact_graph.is_tree()
+    assert set(m.occupancy) == {"slam", "objects", "multimap"}
+    assert m.provenance["instances"] == "bbox" and m.provenance["geometry"] == "tsdf"
+
+
+def test_nav2_files_round_trip_to_the_occupancy_layer(demo_run):
+    out, _ = demo_run
+    m = LayeredMap.load(out / "map")
+    for layer, name in (("slam", "map"), ("multimap", "multimap")):
+        grid = read_map(out / "export" / f"{name}.yaml")
+        np.testing.assert_array_equal(grid.data, m.occupancy[layer].data)
+        assert grid.origin == m.occupancy[layer].origin
+
+
+def test_multimap_marks_what_the_laser_misses(demo_run):
+    out, _ = demo_run
+    slam = read_map(out / "export" / "map.yaml").data
+    multi = read_map(out / "export" / "multimap.yaml").data
+    assert ((multi == 100) & (slam == 0)).sum() > 20  # tabletops and chair seats above the laser
+    assert not ((slam == 100) & (multi != 100)).any()
+
+
+def test_contact_graph_puts_boxes_on_the_table(demo_run):
+    out, _ = demo_run
+    m = LayeredMap.load(out / "map")
+    g = m.contact_graph
+    for inst in m.instances:
+        parent = g.parent(inst.id)
+        if inst.class_name == "box":
+            assert m.instances[parent].class_name == "table"
+        else:
+            assert parent == "floor"
+
+
+def test_urdf_parses_with_yourdfpy_and_loads_in_pybullet(demo_run):
+    yourdfpy = pytest.importorskip("yourdfpy")
+    pybullet = pytest.importorskip("pybullet")
+    out, _ = demo_run
+    urdf_path = out / "export" / "scene.urdf"
+    robot = yourdfpy.URDF.load(str(urdf_path), build_scene_graph=True, load_meshes=True)
+    assert robot.validate()
+    m = LayeredMap.load(out / "map")
+    assert len(robot.robot.links) == len(m.instances) + 1
+    # Every link's mesh, placed by the URDF's joints, sits where the map's completion is.
+    for inst in m.instances:
+        name = f"{inst.class_name}_{inst.id}"
+        np.testing.assert_allclose(robot.get_transform(name, "world"), inst.completion.pose, atol=1e-5)
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(urdf_path), useFixedBase=True, physicsClientId=client)
+        assert pybullet.getNumJoints(body, physicsClientId=client) == len(m.instances)
+    finally:
+        pybullet.disconnect(client)
+
+
+def test_template_plugin_swaps_in_for_bbox(tmp_path, monkeypatch):
+    """The example third-party package, registered by entry point, replaces bbox in the demo."""
+    monkeypatch.syspath_prepend(str(REPO / "examples" / "plugin-template"))
+    sys.modules.pop("stratamap_hull", None)
+    eps = builtin_entry_points() + [EntryPoint("hull", "stratamap_hull", "stratamap.completers")]
+    registry = build_registry(eps=eps, extra_modules=[], autoload=True)
+    validated = load_pipeline(REPO / "configs" / "demo.yaml", [*SMALL, "stages[3].plugin=hull"], registry)
+    report = Pipeline(validated, registry).run(tmp_path)
+    assert [s["plugin"] for s in report["stages"]][4] == "hull"
+    m = LayeredMap.load(tmp_path / "map")
+    assert {i.completion.completer for i in m.instances} == {"hull"}

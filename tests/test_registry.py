@@ -1,0 +1,141 @@
+"""Plugin discovery with fake entry points: third-party, broken, duplicate, autoload, local modules."""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+import types
+from importlib.metadata import EntryPoint
+
+import pytest
+
+from stratamap.core import Completer, hookimpl
+from stratamap.core.errors import PluginError
+from stratamap.core.registry import build_registry, builtin_entry_points
+
+
+class _Dist:
+    def __init__(self, name: str):
+        self.name = name
+
+
+def ep(name: str, value: str, group: str, dist: str) -> EntryPoint:
+    return EntryPoint(name=name, value=value, group=group)._for(_Dist(dist))
+
+
+def builtin() -> list[EntryPoint]:
+    return [ep(e.name, e.value, e.group, "stratamap") for e in builtin_entry_points()]
+
+
+class FancyCompleter(Completer):
+    """A third-party completer."""
+
+    name = "fancy"
+
+    def complete(self, data):
+        return {"instances": data.map.instances.copy()}
+
+
+class ImpostorCompleter(Completer):
+    """Another completer that claims the bbox name."""
+
+    name = "bbox"
+
+    def complete(self, data):
+        return {"instances": data.map.instances.copy()}
+
+
+@pytest.fixture
+def third_party_module():
+    mod = types.ModuleType("acme_fancy")
+
+    @hookimpl
+    def stratamap_register_completers():
+        return [FancyCompleter]
+
+    mod.stratamap_register_completers = stratamap_register_completers
+    sys.modules["acme_fancy"] = mod
+    yield "acme_fancy"
+    del sys.modules["acme_fancy"]
+
+
+def test_builtins_register_through_entry_points():
+    reg = build_registry(eps=builtin(), extra_modules=[], autoload=True)
+    kinds = {info.kind for info in reg.all()}
+    assert kinds == {"sources", "segmenters", "mappers", "completers", "exporters"}
+    assert reg.get("completers", "bbox").distribution == "stratamap"
+    assert not reg.failures
+
+
+def test_third_party_plugin_is_listed_with_its_distribution(third_party_module):
+    eps = builtin() + [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
+    reg = build_registry(eps=eps, extra_modules=[], autoload=True)
+    info = reg.get("completers", "fancy")
+    assert info.cls is FancyCompleter and info.distribution == "acme-fancy"
+    assert info.to_dict()["description"] == "A third-party completer."
+
+
+def test_entry_point_may_name_a_stage_class():
+    eps = builtin() + [ep("fancy", f"{__name__}:FancyCompleter", "stratamap.completers", "acme-fancy")]
+    reg = build_registry(eps=eps, extra_modules=[], autoload=True)
+    assert reg.get("completers", "fancy").cls is FancyCompleter
+
+
+def test_broken_plugin_is_reported_and_the_rest_loads():
+    eps = builtin() + [ep("broken", "acme_does_not_exist.plugin", "stratamap.mappers", "acme-broken")]
+    reg = build_registry(eps=eps, extra_modules=[], autoload=True)
+    assert reg.get("completers", "bbox")
+    assert len(reg.failures) == 1
+    text = str(reg.failures[0])
+    assert "acme-broken" in text and "broken" in text and "ModuleNotFoundError" in text
+    with pytest.raises(PluginError, match="acme-broken"):
+        reg.get("mappers", "broken")
+
+
+def test_duplicate_names_are_an_error_naming_both():
+    eps = builtin() + [ep("bbox2", f"{__name__}:ImpostorCompleter", "stratamap.completers", "acme-impostor")]
+    with pytest.raises(PluginError) as exc:
+        build_registry(eps=eps, extra_modules=[], autoload=True)
+    msg = str(exc.value)
+    assert "'bbox'" in msg and "stratamap.plugins.completers.bbox" in msg and "ImpostorCompleter" in msg
+    assert "acme-impostor" in msg and "distribution stratamap" in msg
+
+
+def test_autoload_off_skips_third_party(third_party_module, monkeypatch):
+    eps = builtin() + [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
+    monkeypatch.setenv("STRATAMAP_DISABLE_PLUGIN_AUTOLOAD", "1")
+    reg = build_registry(eps=eps, extra_modules=[])
+    assert "fancy" not in reg.stages["completers"]
+    assert "bbox" in reg.stages["completers"]
+
+
+def test_unpackaged_module_from_environment(tmp_path, monkeypatch):
+    plugin = tmp_path / "my_local_plugin.py"
+    plugin.write_text(
+        textwrap.dedent(
+            '''
+            from stratamap.core import Completer, hookimpl
+
+            class LocalCompleter(Completer):
+                """Loaded from a file path."""
+                name = "local"
+                def complete(self, data):
+                    return {"instances": data.map.instances.copy()}
+
+            @hookimpl
+            def stratamap_register_completers():
+                return [LocalCompleter]
+            '''
+        )
+    )
+    monkeypatch.setenv("STRATAMAP_PLUGINS", f"{plugin},not_a_module_anywhere")
+    reg = build_registry(eps=builtin())
+    assert reg.get("completers", "local").distribution == "<STRATAMAP_PLUGINS>"
+    assert any("not_a_module_anywhere" in str(f) for f in reg.failures)
+
+
+def test_installed_registry_has_every_kind():
+    from stratamap.core.registry import default_registry
+
+    reg = default_registry(refresh=True)
+    assert {i.kind for i in reg.all()} >= {"sources", "segmenters", "mappers", "completers", "exporters"}
