@@ -34,6 +34,7 @@ DEFAULT_CLASSES: tuple[tuple[str, bool], ...] = (
     ("bottle", True),
     ("plant", True),
     ("object", True),
+    ("bench", True),
 )
 
 LAYOUT_CLASSES = ("floor", "wall", "ceiling")
