@@ -97,7 +97,19 @@ def _reference_data() -> PipelineData:
 
     registry = build_registry(eps=builtin_entry_points(), extra_modules=[], autoload=True)
     stages = [
-        ("sources", "synthetic", {"frames": 10, "camera": {"width": 160, "height": 120}, "scene": {"seed": 1, "chairs": 2, "boxes": 1}}),
+        (
+            "sources",
+            "synthetic",
+            {
+                "scene": {
+                    "type": "room",
+                    "seed": 1,
+                    "objects": {"table": 1, "chair": 2, "box": 1},
+                    "camera": {"width": 160, "height": 120},
+                    "trajectory": {"type": "orbit", "frames": 10},
+                }
+            },
+        ),
         ("segmenters", "oracle", {}),
         ("mappers", "tsdf", {"voxel_size": 0.04}),
         ("mappers", "occupancy", {}),

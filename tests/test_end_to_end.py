@@ -17,7 +17,7 @@ from stratamap.core.pipeline import Pipeline
 from stratamap.core.registry import build_registry, builtin_entry_points
 
 REPO = Path(__file__).resolve().parent.parent
-SMALL = ["source.params.frames=16", "source.params.camera={width: 320, height: 240}"]
+SMALL = ["source.params.frames=16", "source.params.scene.camera={width: 320, height: 240}"]
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Source ``synthetic``: a procedural room rendered as RGB-D frames, with full ground truth."""
+"""Source ``synthetic``: a procedural scene rendered as RGB-D frames (plus laser and LiDAR), with full ground truth."""
 
 from __future__ import annotations
 
@@ -7,28 +7,36 @@ from typing import Any
 from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
-from stratamap.core.synthetic import CameraSpec, SceneSpec, generate_sequence
+from stratamap.core.synthetic import SceneSpec, generate_sequence
 
 
 class SyntheticConfig(StageConfig):
-    scene: SceneSpec = Field(default_factory=SceneSpec, description="The procedural scene (room size, object counts, seed).")
-    scene_file: str | None = Field(default=None, description="A scene spec YAML file; when set it replaces `scene`.")
-    camera: CameraSpec = Field(default_factory=CameraSpec, description="The simulated RGB-D camera.")
-    frames: int = Field(default=40, ge=1, le=100000, description="Number of frames rendered along the camera path.")
+    scene: SceneSpec = Field(default_factory=SceneSpec, description="The procedural scene: type, objects, seed, sensors, trajectory, noise.")
+    scene_file: str | None = Field(default=None, description="A scene spec YAML file (configs/scenes/*.yaml); when set it replaces `scene`.")
+    frames: int | None = Field(default=None, ge=1, le=100000, description="Override the number of frames of the trajectory.")
+    seed: int | None = Field(default=None, description="Override the scene's seed.")
 
 
 class SyntheticSource(Source):
-    """Procedural room rendered by ray casting, with per-pixel labels, object meshes and poses as ground truth."""
+    """Procedural scene rendered by ray casting, with per-pixel labels, object meshes, poses and support as ground truth."""
 
     name = "synthetic"
     Config = SyntheticConfig
     provides = frozenset({"frames", "ground_truth"})
 
-    def read(self) -> dict[str, Any]:
+    def spec(self) -> SceneSpec:
         cfg: SyntheticConfig = self.config  # type: ignore[assignment]
         spec = SceneSpec.from_yaml(cfg.scene_file) if cfg.scene_file else cfg.scene
-        seq = generate_sequence(spec, cfg.camera, cfg.frames)
-        self.note("scene", {"objects": len(seq.ground_truth.objects), "frames": len(seq.stream)})
+        updates: dict[str, Any] = {}
+        if cfg.seed is not None:
+            updates["seed"] = cfg.seed
+        if cfg.frames is not None:
+            updates["trajectory"] = spec.trajectory.model_copy(update={"frames": cfg.frames})
+        return spec.model_copy(update=updates) if updates else spec
+
+    def read(self) -> dict[str, Any]:
+        seq = generate_sequence(self.spec())
+        self.note("scene", {"objects": len(seq.ground_truth.objects), "frames": len(seq.stream), "skipped": seq.scene.skipped})
         return {"frames": seq.stream, "ground_truth": seq.ground_truth}
 
 
