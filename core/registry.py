@@ -44,7 +44,7 @@ EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
 #: The built-in plugin modules, by kind; pyproject.toml declares exactly these as entry points
 #: (tests/test_packaging.py keeps the two in step).
 BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
-    "sources": ("stratamap.plugins.sources.synthetic",),
+    "sources": ("stratamap.plugins.sources.synthetic", "stratamap.plugins.sources.tum"),
     "segmenters": ("stratamap.plugins.segmenters.oracle",),
     "mappers": (
         "stratamap.plugins.mappers.tsdf",
@@ -52,7 +52,11 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.mappers.contact_graph",
     ),
     "completers": ("stratamap.plugins.completers.bbox",),
-    "exporters": ("stratamap.plugins.exporters.urdf", "stratamap.plugins.exporters.nav2_map"),
+    "exporters": (
+        "stratamap.plugins.exporters.urdf",
+        "stratamap.plugins.exporters.nav2_map",
+        "stratamap.plugins.exporters.ply",
+    ),
 }
 
 

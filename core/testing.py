@@ -14,7 +14,9 @@ itself, it declares what it requires and provides, its verb accepts the declared
 returns the declared ones (of the right types), it leaves its inputs untouched, and it is
 deterministic. Inputs come from a small synthetic scene run through stratamap's built-in stages.
 
-A stage whose ``Config`` has required fields sets ``example_params`` (a dict) on the class.
+A stage whose ``Config`` has required fields sets ``example_params`` on the class: a dict, or a
+classmethod that prepares example inputs (for a file reader: writes a small dataset) and returns
+the parameters.
 """
 
 from __future__ import annotations
@@ -148,8 +150,20 @@ def _clear(data: PipelineData, layer: str) -> None:
         setattr(data.map, layer, None)
 
 
+def example_params(stage_cls: type[Stage]) -> dict[str, Any]:
+    """``example_params`` of a stage: a dict, or a classmethod that prepares inputs (e.g. writes a
+    small dataset) and returns the parameters that read them. Computed once per class."""
+    if stage_cls not in _EXAMPLE_PARAMS:
+        params = getattr(stage_cls, "example_params", {})
+        _EXAMPLE_PARAMS[stage_cls] = dict(params() if callable(params) else params)
+    return dict(_EXAMPLE_PARAMS[stage_cls])
+
+
+_EXAMPLE_PARAMS: dict[type, dict[str, Any]] = {}
+
+
 def make_stage(stage_cls: type[Stage]) -> Stage:
-    return stage_cls(**getattr(stage_cls, "example_params", {}))
+    return stage_cls(**example_params(stage_cls))
 
 
 def run_stage(stage_cls: type[Stage], data: PipelineData | None = None) -> tuple[Any, PipelineData, Path | None]:
@@ -183,7 +197,7 @@ def check_declarations(stage_cls: type[Stage]) -> None:
 def check_config_forbids_extra(stage_cls: type[Stage]) -> None:
     """The Config rejects unknown keys (a misspelt parameter must be an error, not ignored)."""
     assert stage_cls.Config.model_config.get("extra") == "forbid", "Config must set extra='forbid'"
-    params = dict(getattr(stage_cls, "example_params", {}))
+    params = example_params(stage_cls)
     params["definitely_not_a_parameter"] = 1
     try:
         stage_cls.Config(**params)

@@ -4,17 +4,33 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from stratamap.core.stages import PipelineData
 
 
 def evaluate(data: PipelineData) -> dict[str, Any]:
     """Metrics grouped by family for whatever layers ``data`` holds and its ground truth covers."""
-    from stratamap.core.metrics import detection
+    from stratamap.core.metrics import detection, panoptic
 
     gt = data.ground_truth
     out: dict[str, Any] = {}
     if gt is None:
         return out
-    if data.map.instances is not None and gt.objects:
-        out["detection"] = detection.evaluate_instances(data.map.instances, gt.objects)
+    m = data.map
+    if m.instances is not None and gt.objects:
+        out["detection"] = detection.evaluate_instances(m.instances, gt.objects)
+    if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
+        gt_cls, gt_inst = panoptic.ground_truth_point_labels(m.geometry.points, gt)
+        pq = panoptic.panoptic_quality(m.semantics.class_ids, m.semantics.instance_ids, gt_cls, gt_inst, m.semantics.vocabulary)
+        inst = pq.pop("instances")
+        p, r = inst["precision"], inst["recall"]
+        out["panoptic"] = pq
+        out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
+    odometry = (data.stream.metadata.get("odometry") if data.stream is not None else None) or {}
+    if "ate_rmse_m" in odometry:
+        out["trajectory"] = {k: v for k, v in odometry.items() if k.startswith(("ate", "rpe"))}
     return out
+
+
+__all__ = ["evaluate", "np"]

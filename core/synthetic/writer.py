@@ -13,6 +13,7 @@
     DIR/lidar_poses.txt        sensor-to-world poses of the sweeps, TUM format
     DIR/gt/class/<t>.png       16-bit class ids (stratamap vocabulary, listed in gt/scene.json)
     DIR/gt/instance/<t>.png    16-bit instance ids (0 = stuff)
+    DIR/gt/trajectory.txt      the true camera poses again (for trajectory error when groundtruth.txt is withheld)
     DIR/gt/scene.json          spec, room layout, vocabulary, objects (id, class, family, model, params, pose, parent, joints, mesh)
     DIR/gt/meshes/<id>.ply     each object's full mesh in its object frame
     DIR/gt/contact_graph.json  node-link JSON of the support graph
@@ -86,7 +87,9 @@ def write_sequence(world: SyntheticWorld, out: str | Path, progress: Callable[[i
         write_text(d / "rgb.txt", "# color images\n" + header + "".join(f"{s} rgb/{s}.png\n" for s in stamps))
         write_text(d / "depth.txt", "# depth maps\n" + header + "".join(f"{s} depth/{s}.png\n" for s in stamps))
         gt_header = "# ground truth trajectory: camera (optical frame) to world\n# timestamp tx ty tz qx qy qz qw\n"
-        write_text(d / "groundtruth.txt", gt_header + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.true_poses)))
+        trajectory = gt_header + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.true_poses))
+        write_text(d / "groundtruth.txt", trajectory)
+        write_text(d / "gt" / "trajectory.txt", trajectory)  # kept when users drop groundtruth.txt to test odometry
         if world.spec.noise.pose_drift > 0:
             write_text(d / "odometry.txt", "# drifting reported poses\n# timestamp tx ty tz qx qy qz qw\n" + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.reported_poses)))
         if world.laser_scans:

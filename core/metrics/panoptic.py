@@ -1,0 +1,140 @@
+"""Panoptic quality of a 3D map (functional-scenes paper, eq. 15; Kirillov et al. 2019).
+
+Ground-truth labels of map points come from the closest ground-truth surface (object meshes and
+the room's floor, walls and ceiling); points farther than ``max_distance`` from every surface are
+void and ignored. Segments are instances for *thing* classes and one segment per class for
+*stuff*. A predicted segment matches a ground-truth segment of the same class with IoU > 0.5
+(unique by construction). Per class::
+
+    PQ = sum_TP IoU / (|TP| + |FP|/2 + |FN|/2) = SQ x RQ
+
+reported averaged over the classes present, over things, over stuff, and per class. Predicted
+segments made mostly (> 50%) of void points are not counted as false positives.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.vocabulary import Vocabulary
+
+VOID = -1
+
+
+def ground_truth_point_labels(points: np.ndarray, gt: GroundTruth, max_distance: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Class and instance of the closest ground-truth surface for each point (class -1: void)."""
+    from stratamap.core.synthetic.scene import room_layout
+
+    scene = o3d.t.geometry.RaycastingScene()
+    classes, instances = [], []
+    meshes = []
+    for obj in gt.objects:
+        meshes.append((obj.world_mesh(), obj.class_name, obj.id))
+    if "room_size" in gt.layout:
+        transform = np.asarray(gt.layout.get("world_transform", np.eye(4)))
+        for el in room_layout(tuple(gt.layout["room_size"])):
+            mesh = el.mesh.copy()
+            mesh.apply_transform(transform)
+            meshes.append((mesh, el.class_name, 0))
+    for mesh, class_name, iid in meshes:
+        scene.add_triangles(o3c.Tensor(mesh.vertices.astype(np.float32)), o3c.Tensor(mesh.faces.astype(np.uint32)))
+        classes.append(gt.vocabulary.id(class_name))
+        instances.append(iid)
+    if not meshes or len(points) == 0:
+        return np.full(len(points), VOID, np.int32), np.zeros(len(points), np.int32)
+    query = o3c.Tensor(np.asarray(points, dtype=np.float32))
+    closest = scene.compute_closest_points(query)
+    gid = closest["geometry_ids"].numpy().astype(np.int64)
+    dist = np.linalg.norm(closest["points"].numpy() - np.asarray(points, dtype=np.float32), axis=1)
+    cls = np.asarray(classes, np.int32)[gid]
+    inst = np.asarray(instances, np.int32)[gid]
+    void = dist > max_distance
+    cls[void] = VOID
+    inst[void] = 0
+    return cls, inst
+
+
+def _segments(cls: np.ndarray, inst: np.ndarray, vocab: Vocabulary) -> np.ndarray:
+    """A segment key per point: (class << 32 | instance) for things, (class << 32) for stuff, -1 for none."""
+    is_thing = np.asarray(vocab.is_thing)[np.clip(cls, 0, len(vocab) - 1)]
+    key = (cls.astype(np.int64) << 32) | np.where(is_thing, inst, 0).astype(np.int64)
+    key[cls <= 0] = -1
+    key[is_thing & (inst <= 0)] = -1  # a thing point without an instance belongs to no segment
+    return key
+
+
+def panoptic_quality(
+    pred_class: np.ndarray, pred_instance: np.ndarray, gt_class: np.ndarray, gt_instance: np.ndarray, vocab: Vocabulary, iou_threshold: float = 0.5
+) -> dict[str, Any]:
+    valid = gt_class != VOID
+    gt_key = _segments(np.where(valid, gt_class, 0), gt_instance, vocab)
+    pred_key = _segments(pred_class, pred_instance, vocab)
+    gt_ids, gt_sizes = np.unique(gt_key[gt_key >= 0], return_counts=True)
+    gt_size = dict(zip(gt_ids.tolist(), gt_sizes.tolist(), strict=True))
+    pred_all, pred_all_sizes = np.unique(pred_key[pred_key >= 0], return_counts=True)
+    pred_size = dict(zip(pred_all.tolist(), pred_all_sizes.tolist(), strict=True))
+    pv, pv_sizes = np.unique(pred_key[(pred_key >= 0) & ~valid], return_counts=True)
+    pred_void = dict(zip(pv.tolist(), pv_sizes.tolist(), strict=True))
+    both = (gt_key >= 0) & (pred_key >= 0)
+    pairs, inter = np.unique(np.stack([pred_key[both], gt_key[both]], 1), axis=0, return_counts=True)
+
+    matched_pred: set[int] = set()
+    matched_gt: set[int] = set()
+    stats: dict[int, dict[str, float]] = defaultdict(lambda: {"tp": 0, "fp": 0, "fn": 0, "iou": 0.0})
+    for (p, g), n in zip(pairs.tolist(), inter.tolist(), strict=True):
+        if (p >> 32) != (g >> 32):
+            continue
+        union = pred_size[p] - pred_void.get(p, 0) + gt_size[g] - n
+        iou = n / union if union > 0 else 0.0
+        if iou > iou_threshold:
+            matched_pred.add(p)
+            matched_gt.add(g)
+            c = g >> 32
+            stats[c]["tp"] += 1
+            stats[c]["iou"] += iou
+    for g in gt_size:
+        if g not in matched_gt:
+            stats[g >> 32]["fn"] += 1
+    for p, size in pred_size.items():
+        if p not in matched_pred and pred_void.get(p, 0) <= 0.5 * size:
+            stats[p >> 32]["fp"] += 1
+
+    per_class = {}
+    for c, s in sorted(stats.items()):
+        denom = s["tp"] + 0.5 * s["fp"] + 0.5 * s["fn"]
+        pq = s["iou"] / denom if denom else 0.0
+        sq = s["iou"] / s["tp"] if s["tp"] else 0.0
+        rq = s["tp"] / denom if denom else 0.0
+        per_class[vocab.name(c)] = {"pq": pq, "sq": sq, "rq": rq, "tp": int(s["tp"]), "fp": int(s["fp"]), "fn": int(s["fn"])}
+
+    def mean(names: list[str], key: str) -> float:
+        return float(np.mean([per_class[n][key] for n in names])) if names else 0.0
+
+    things = [n for n in per_class if vocab.is_thing[vocab.id(n)]]
+    stuff = [n for n in per_class if not vocab.is_thing[vocab.id(n)]]
+    names = list(per_class)
+    tp = sum(s["tp"] for s in stats.values())
+    fp = sum(s["fp"] for s in stats.values())
+    fn = sum(s["fn"] for s in stats.values())
+    thing_tp = sum(per_class[n]["tp"] for n in things)
+    thing_fp = sum(per_class[n]["fp"] for n in things)
+    thing_fn = sum(per_class[n]["fn"] for n in things)
+    return {
+        "pq": mean(names, "pq"),
+        "sq": mean(names, "sq"),
+        "rq": mean(names, "rq"),
+        "pq_things": mean(things, "pq"),
+        "pq_stuff": mean(stuff, "pq"),
+        "segments": {"tp": tp, "fp": fp, "fn": fn},
+        "instances": {
+            "precision": thing_tp / (thing_tp + thing_fp) if thing_tp + thing_fp else 0.0,
+            "recall": thing_tp / (thing_tp + thing_fn) if thing_tp + thing_fn else 0.0,
+        },
+        "by_class": per_class,
+    }

@@ -1,0 +1,130 @@
+"""Source ``tum``: TUM RGB-D folders (rgb/, depth/, rgb.txt, depth.txt, groundtruth.txt).
+
+RGB and depth are associated by nearest timestamp within ``association_tolerance``; poses come
+from ``groundtruth.txt`` (interpolated to the depth timestamps) when it exists, else from
+odometry. Intrinsics: ``camera.json`` beside the sequence (keys width, height, fx, fy, cx, cy,
+depth_scale) when present, else ``intrinsics`` in the params, else the TUM defaults (Freiburg 1).
+A ``gt/`` folder written by ``stratamap synth`` is loaded as ground truth (labels, meshes, graph).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field
+
+from stratamap.core import hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.gt_io import load_ground_truth
+from stratamap.core.rgbd_io import associate, check_depth_scale, interpolate_poses, parse_tum_poses, read_depth, read_rgb, read_timestamped_list
+from stratamap.core.sensors import CameraIntrinsics, SensorStream
+from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+
+TUM_DEFAULT = {"width": 640, "height": 480, "fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "depth_scale": 5000.0}
+
+
+class TUMConfig(SequenceConfig):
+    depth_scale: float | None = Field(default=None, gt=0, description="Depth units per metre; default: camera.json, else 5000 (TUM).")
+    intrinsics: dict[str, float] | None = Field(default=None, description="width, height, fx, fy, cx, cy when there is no camera.json.")
+    association_tolerance: float = Field(default=0.02, gt=0, description="Max time between an rgb and a depth image to pair them, seconds.")
+    pose_tolerance: float = Field(default=0.02, gt=0, description="Max time to the nearest ground-truth pose outside interpolation, seconds.")
+    load_ground_truth: bool = Field(default=True, description="Load a gt/ folder beside the sequence when present.")
+
+
+class TUMSource(SequenceSource):
+    """TUM RGB-D folders: timestamp association, groundtruth.txt poses, camera.json intrinsics, gt/ ground truth."""
+
+    name = "tum"
+    Config = TUMConfig
+
+    @classmethod
+    def example_params(cls) -> dict:
+        """For the conformance kit: a tiny synthetic sequence written in the TUM layout."""
+        import tempfile
+
+        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+        from stratamap.core.synthetic.writer import write_sequence
+
+        folder = Path(tempfile.mkdtemp(prefix="stratamap-tum-example-")) / "seq"
+        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 6}})
+        write_sequence(SyntheticWorld(spec), folder)
+        return {"path": str(folder)}
+
+    def _intrinsics(self, root: Path) -> tuple[CameraIntrinsics, float]:
+        cfg: TUMConfig = self.config  # type: ignore[assignment]
+        cam_file = root / "camera.json"
+        if cam_file.is_file():
+            try:
+                cam = json.loads(cam_file.read_text())
+                intr = CameraIntrinsics.from_dict(cam)
+            except (json.JSONDecodeError, KeyError, ValueError, TypeError) as exc:
+                raise DataError(f"{cam_file}: expected keys width, height, fx, fy, cx, cy, depth_scale ({exc!r})") from exc
+            scale = cfg.depth_scale or float(cam.get("depth_scale", TUM_DEFAULT["depth_scale"]))
+            return intr, scale
+        if cfg.intrinsics is not None:
+            try:
+                return CameraIntrinsics.from_dict(cfg.intrinsics), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
+            except (KeyError, ValueError) as exc:
+                raise DataError(f"intrinsics: expected width, height, fx, fy, cx, cy ({exc!r})") from exc
+        self.warn(f"{root}: no camera.json and no intrinsics given; using the TUM Freiburg-1 defaults")
+        return CameraIntrinsics.from_dict(TUM_DEFAULT), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
+
+    def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg: TUMConfig = self.config  # type: ignore[assignment]
+        root = Path(cfg.path).expanduser()
+        if not root.is_dir():
+            raise DataError(f"{root}: sequence folder not found")
+        intr, scale = self._intrinsics(root)
+        rgb_rows = read_timestamped_list(root / "rgb.txt")
+        depth_rows = read_timestamped_list(root / "depth.txt")
+        rgb_t = np.array([t for t, _ in rgb_rows])
+        depth_t = np.array([t for t, _ in depth_rows])
+        pairs = associate(depth_t, rgb_t, cfg.association_tolerance)
+        if not pairs:
+            raise DataError(
+                f"{root}: no rgb/depth pair within {cfg.association_tolerance} s (rgb.txt {rgb_t[0]:.3f}..{rgb_t[-1]:.3f}, depth.txt {depth_t[0]:.3f}..{depth_t[-1]:.3f})"
+            )
+        if len(pairs) < 0.5 * len(depth_rows):
+            self.warn(f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within {cfg.association_tolerance} s")
+        chosen = select(list(range(len(pairs))), cfg.stride, cfg.max_frames)
+        pairs = [pairs[i] for i in chosen]
+        times = [float(depth_t[d]) for d, _ in pairs]
+        rgb_files = [root / rgb_rows[r][1][0] for _, r in pairs]
+        depth_files = [root / depth_rows[d][1][0] for d, _ in pairs]
+        shape = (intr.height, intr.width)
+
+        def read(k: int):
+            depth = read_depth(depth_files[k], scale, shape)
+            rgb = read_rgb(rgb_files[k], shape)
+            return rgb, depth
+
+        check_depth_scale(read_depth(depth_files[0], scale, shape), depth_files[0], scale)
+        poses: list = [None] * len(times)
+        gt_file = root / "groundtruth.txt"
+        if gt_file.is_file():
+            gt_times, gt_poses = parse_tum_poses(gt_file)
+            poses = interpolate_poses(gt_times, gt_poses, np.array(times), cfg.pose_tolerance)
+            missing = sum(p is None for p in poses)
+            if missing:
+                self.warn(f"{gt_file}: no pose within {cfg.pose_tolerance} s for {missing} of {len(poses)} frames")
+        frames = PosedFrames(times, read, poses)
+        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "depth_scale": scale, "format": "tum"})
+        gt = None
+        if cfg.load_ground_truth and (root / "gt").is_dir():
+            stamps = [Path(f).stem for f in rgb_files]
+            gt = load_ground_truth(root / "gt", stamps)
+            traj = root / "gt" / "trajectory.txt"
+            if traj.is_file():
+                tt, tp = parse_tum_poses(traj)
+                true = interpolate_poses(tt, tp, np.array(times), cfg.pose_tolerance)
+                if all(p is not None for p in true):
+                    gt.layout["true_poses"] = [p.tolist() for p in true]
+        return stream, frames, gt
+
+
+@hookimpl
+def stratamap_register_sources():
+    return [TUMSource]
