@@ -17,9 +17,9 @@ Per frame:
 3. Label merging: when a segment also covers most of another label's voxels in view
    (shared-voxel ratio >= ``merge_ratio``) in ``merge_votes`` frames, the two labels merge.
 4. Voxels take the segment's label (Voxblox++'s confidence rule: agree +1, disagree -1, replace at 0).
-5. Instances: a thing segment's global instance is the one its label has voted for most
-   (argmax_p sum_c Phi(l, c, p)), unless another segment of the frame claimed it; else a new one.
-   Then Phi(l, c_s, p_s) += 1.
+5. Instances: a thing segment's global instance is the one the labels it overlaps stand for,
+   weighted by overlap (each label stands for argmax_p sum_c Phi(l, c, p)), unless another segment
+   of the frame claimed it first; else a new one. Then Phi(l, c_s, p_s) += 1.
 6. Instance merging (eq. 5): two instances merge when one label's votes are split between them,
    each holding at least ``instance_merge_ratio`` of that label's votes.
 7. Extraction (eq. 6): every label takes (c*, p*) = argmax Phi(l, c, p); voxels, hence map points,
@@ -58,6 +58,7 @@ class PanopticState:
     merged_into: dict[int, int] = field(default_factory=dict)
     next_label: int = 1
     next_instance: int = 1
+    voxels_per_block: int = 512
 
     def new_label(self) -> int:
         label = self.next_label
@@ -71,10 +72,20 @@ class PanopticState:
 
     # ---------------------------------------------------------------- per frame
 
-    def fuse_frame(self, voxel_labels: np.ndarray, voxel_conf: np.ndarray, flat: np.ndarray, seg_class: np.ndarray, seg_instance: np.ndarray) -> None:
+    def fuse_frame(
+        self,
+        voxel_labels: np.ndarray,
+        voxel_conf: np.ndarray,
+        flat: np.ndarray,
+        seg_class: np.ndarray,
+        seg_instance: np.ndarray,
+        active: np.ndarray | None = None,
+    ) -> None:
         """Fuse one frame. ``flat`` are the voxel indices of the frame's sampled pixels (one per voxel),
         ``seg_class``/``seg_instance`` the segmenter's labels of those pixels; ``voxel_labels`` and
-        ``voxel_conf`` are writable views of the TSDF's label attributes."""
+        ``voxel_conf`` are writable views of the TSDF's label attributes, shaped (blocks, voxels per
+        block) or flat; ``active`` lists the allocated blocks (merges only scan those)."""
+        self._active = active
         if len(flat) == 0:
             return
         p = self.params
@@ -109,7 +120,7 @@ class PanopticState:
             keep = assigned.get(s)
             if keep is None or keep == l:
                 continue
-            if counts[idx] >= p.merge_ratio * visible[l] and counts[idx] >= 10:
+            if counts[idx] >= p.merge_ratio * visible[l] and counts[idx] >= 3:
                 key = (keep, l)
                 self.merge_votes[key] += 1
                 if self.merge_votes[key] >= p.merge_votes:
@@ -130,23 +141,30 @@ class PanopticState:
         voxel_labels[flat] = cur.astype(voxel_labels.dtype)
         voxel_conf[flat] = conf.astype(voxel_conf.dtype)
 
-        # Instance association and the count Phi(l, c, p).
+        # Instance association: a mask's instance is the one the labels it overlaps vote for,
+        # weighted by overlap (Voxblox++); then the count Phi(l, c, p).
+        label_best: dict[int, int] = {}
+        for l in set(pair_label.tolist()):
+            label_best[l] = self.best_instance(l)
+        seg_votes: dict[int, Counter] = defaultdict(Counter)
+        for idx in range(len(pairs)):
+            best = label_best[int(pair_label[idx])]
+            if best > 0:
+                seg_votes[int(pair_seg[idx])][best] += int(counts[idx])
         claimed: set[int] = set()
-        order = np.argsort(-seg_sizes, kind="stable")
-        for s in order:
+        for s in np.argsort(-seg_sizes, kind="stable"):
             s = int(s)
             c = int(seg_codes[s] >> 32)
             inst_2d = int(seg_codes[s] & 0xFFFFFFFF)
-            label = assigned[s]
+            label = self.resolve(assigned[s])
             if c == 0:
                 continue
             if not self.vocabulary.is_thing[c] or inst_2d == 0:
                 self.phi[label][(c, 0)] += 1
                 continue
-            votes: Counter = Counter()
-            for (cc, pp), n in self.phi[label].items():
-                if pp > 0:
-                    votes[pp] += n
+            votes = seg_votes.get(s, Counter())
+            if not votes:
+                votes = Counter({pp: n for (cc, pp), n in self.phi[label].items() if pp > 0})
             inst = next((pp for pp, _ in votes.most_common() if pp not in claimed), None)
             if inst is None:
                 inst = self.next_instance
@@ -154,11 +172,25 @@ class PanopticState:
             claimed.add(inst)
             self.phi[label][(c, inst)] += 1
 
+    def best_instance(self, label: int) -> int:
+        by_inst: Counter = Counter()
+        for (_, pp), n in self.phi.get(self.resolve(label), Counter()).items():
+            if pp > 0:
+                by_inst[pp] += n
+        return by_inst.most_common(1)[0][0] if by_inst else 0
+
     def _merge_labels(self, keep: int, drop: int, voxel_labels: np.ndarray) -> None:
         keep, drop = self.resolve(keep), self.resolve(drop)
         if keep == drop:
             return
-        voxel_labels[voxel_labels == drop] = keep
+        active = getattr(self, "_active", None)
+        if active is not None and voxel_labels.ndim == 1:
+            blocks = voxel_labels.reshape(-1, self.voxels_per_block)
+            sub = blocks[active]
+            sub[sub == drop] = keep
+            blocks[active] = sub
+        else:
+            voxel_labels[voxel_labels == drop] = keep
         self.phi[keep].update(self.phi.pop(drop, Counter()))
         self.merged_into[drop] = keep
 

@@ -29,15 +29,32 @@ from stratamap.core.transforms import apply, invert
 NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
 
 
+def position_order(points: np.ndarray) -> np.ndarray:
+    """A stable order of points by position (x, then y, then z on a 0.1 mm grid), via one int64 key."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    q = np.round(points / 1e-4).astype(np.int64)
+    q -= q.min(0)
+    span = q.max(0) + 1
+    if np.prod(span.astype(float)) < 2**62:
+        return np.argsort((q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2], kind="stable")
+    return np.lexsort(points.T[::-1])
+
+
 def canonical_mesh(
     vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices sorted lexicographically and faces sorted, so equal surfaces compare equal."""
-    order = np.lexsort(vertices.T[::-1])
+    """Vertices sorted by position and faces sorted, so equal surfaces compare equal whatever
+    order Open3D's threads produced them in."""
+    order = position_order(vertices)
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     faces = rank[faces]
-    faces = faces[np.lexsort(faces.T[::-1])] if len(faces) else faces
+    n = np.int64(max(len(vertices), 1))
+    if len(faces) and float(n) ** 3 < 2**62:
+        faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2], kind="stable")]
+    elif len(faces):
+        faces = faces[np.lexsort(faces.T[::-1])]
     return vertices[order], faces, None if vertex_colors is None else vertex_colors[order]
 
 
@@ -46,9 +63,11 @@ class TSDFConfig(StageConfig):
     truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels (Open3D's trunc_voxel_multiplier).")
     depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres (noise grows with range).")
     depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
-    block_resolution: int = Field(default=16, ge=4, le=32, description="Voxels per block edge of the hash map.")
-    block_count: int = Field(default=40000, ge=1000, description="Initial number of hashed blocks (grows as needed).")
-    label_stride: int = Field(default=2, ge=1, le=8, description="Every n-th pixel (in x and y) takes part in label fusion.")
+    block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map (8: little memory spent on free space).")
+    block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (the hash map grows as needed).")
+    label_stride: int = Field(
+        default=4, ge=1, le=8, description="Every n-th pixel (in x and y) takes part in label fusion (4: about one sample per 2 cm voxel at 2-3 m)."
+    )
     associate_ratio: float = Field(default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label.")
     merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
     merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
@@ -91,7 +110,9 @@ class TSDFMapper(Mapper):
         )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         state = PanopticState(
-            PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio), vocab
+            PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio),
+            vocab,
+            voxels_per_block=cfg.block_resolution**3,
         )
         intr = stream.intrinsics
         K = o3c.Tensor(intr.matrix, o3c.float64)
@@ -122,7 +143,7 @@ class TSDFMapper(Mapper):
         # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
         pcd = vbg.extract_point_cloud()
         points = pcd.point.positions.numpy().astype(np.float64)
-        order = np.lexsort(points.T[::-1])
+        order = position_order(points)
         points = points[order]
         colors = np.clip(pcd.point.colors.numpy()[order], 0, 1) if "colors" in pcd.point else None
         mesh = None
@@ -144,8 +165,18 @@ class TSDFMapper(Mapper):
         merged = state.merge_instances()
         classes, instances = state.label_table()
         point_labels = self._point_labels(vbg, points, cfg)
-        semantics = Semantics(classes[point_labels], instances[point_labels], vocab)
-        self.note("panoptic", {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged)})
+        point_class, point_instance = classes[point_labels], instances[point_labels]
+        # Instances too small to keep leave no fragments behind in the semantics layer either.
+        ids, sizes = np.unique(point_instance[point_instance > 0], return_counts=True)
+        small = ids[sizes < cfg.min_instance_points]
+        if len(small):
+            drop = np.isin(point_instance, small)
+            point_class[drop], point_instance[drop] = 0, 0
+        semantics = Semantics(point_class, point_instance, vocab)
+        self.note(
+            "panoptic",
+            {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged), "small_instances_dropped": len(small)},
+        )
         out["semantics"] = semantics
         out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points)
         return out
@@ -176,7 +207,8 @@ class TSDFMapper(Mapper):
         flat, first = np.unique(flat, return_index=True)  # one observation per voxel per frame
         label_view = vbg.attribute("label").numpy().reshape(-1)
         conf_view = vbg.attribute("conf").numpy().reshape(-1)
-        state.fuse_frame(label_view, conf_view, flat, cls[first], inst[first])
+        active = vbg.hashmap().active_buf_indices().numpy().astype(np.int64)
+        state.fuse_frame(label_view, conf_view, flat, cls[first], inst[first], active)
 
     def _point_labels(self, vbg: Any, points: np.ndarray, cfg: TSDFConfig) -> np.ndarray:
         """The segment label of each map point: its voxel's, or the nearest labelled neighbour's."""
