@@ -143,17 +143,17 @@ def find_floor(
     return normal, float(-np.dot(normal, centroid)), len(pts)
 
 
-def estimate_alignment(stream: SensorStream, up_hint: np.ndarray | None = None) -> GravityAlignment:
+def estimate_alignment(stream: SensorStream, up_hint: np.ndarray | None = None, max_angle_deg: float = 35.0) -> GravityAlignment:
     pts = sample_points(stream)
     if len(pts) < 100:
         raise DataError(f"{stream.name}: too few valid depth points to find the floor ({len(pts)})")
     hint = up_hint if up_hint is not None else camera_up_hint(stream)
     if hint is None:
         hint = np.array([0.0, 0.0, 1.0])
-    floor = find_floor(pts, hint)
+    floor = find_floor(pts, hint, max_angle_deg=max_angle_deg)
     if floor is None:
         raise DataError(
-            f"{stream.name}: no floor plane found (no large plane within 35 deg of the up hint {np.round(hint, 2).tolist()}); "
+            f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint {np.round(hint, 2).tolist()}); "
             "if the input is already z-up set `gravity: off`"
         )
     normal, d, inliers = floor

@@ -51,6 +51,9 @@ class GroundTruth:
     contact_graph: ContactGraph | None = None
     layout: dict[str, Any] = field(default_factory=dict)  # room size, floor height, wall segments
     occupancy: OccupancyMaps = field(default_factory=OccupancyMaps)
+    #: Per-point labels of a static cloud (``SensorStream.points``), when the dataset annotates points.
+    point_class_ids: np.ndarray | None = None
+    point_instance_ids: np.ndarray | None = None
 
     def object(self, object_id: int) -> GroundTruthObject:
         for obj in self.objects:

@@ -44,10 +44,16 @@ EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
 #: The built-in plugin modules, by kind; pyproject.toml declares exactly these as entry points
 #: (tests/test_packaging.py keeps the two in step).
 BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
-    "sources": ("stratamap.plugins.sources.synthetic", "stratamap.plugins.sources.tum"),
+    "sources": (
+        "stratamap.plugins.sources.synthetic",
+        "stratamap.plugins.sources.tum",
+        "stratamap.plugins.sources.pointcloud",
+        "stratamap.plugins.sources.rosbag",
+    ),
     "segmenters": ("stratamap.plugins.segmenters.oracle",),
     "mappers": (
         "stratamap.plugins.mappers.tsdf",
+        "stratamap.plugins.mappers.points",
         "stratamap.plugins.mappers.occupancy",
         "stratamap.plugins.mappers.contact_graph",
     ),

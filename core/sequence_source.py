@@ -77,8 +77,11 @@ class SequenceSource(Source):
         raise NotImplementedError
 
     def read(self) -> dict[str, Any]:
+        return self.finish(*self.load())
+
+    def finish(self, stream: SensorStream, frames: PosedFrames, gt: GroundTruth | None) -> dict[str, Any]:
+        """Odometry where poses are missing, gravity alignment, and the layers to return."""
         cfg: SequenceConfig = self.config  # type: ignore[assignment]
-        stream, frames, gt = self.load()
         if len(frames) == 0:
             raise DataError(f"{cfg.path}: no frames to read")
         given = [None if p is None else p.copy() for p in frames.poses]

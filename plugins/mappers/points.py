@@ -1,0 +1,61 @@
+"""Mapper ``points``: a static point cloud (or accumulated LiDAR sweeps) as the geometry layer."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+from pydantic import Field
+
+from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.layers import Geometry
+from stratamap.core.transforms import apply
+
+
+class PointsConfig(StageConfig):
+    voxel_size: float = Field(default=0.0, ge=0.0, description="Voxel-grid downsampling, metres (0 keeps every point, so per-point labels stay aligned).")
+    normals_radius: float = Field(default=0.03, ge=0.0, description="Radius for normal estimation, metres (0: no normals).")
+
+
+class PointsMapper(Mapper):
+    """Static clouds or LiDAR sweeps (posed) into the geometry layer, with normals."""
+
+    name = "points"
+    Config = PointsConfig
+    requires = frozenset({"frames"})
+    provides = frozenset({"geometry"})
+
+    def map(self, data: PipelineData) -> dict[str, Any]:
+        cfg: PointsConfig = self.config  # type: ignore[assignment]
+        stream = data.stream
+        assert stream is not None
+        colors = stream.point_colors
+        if stream.points is not None and len(stream.points):
+            pts = np.asarray(stream.points, dtype=np.float64)
+        elif stream.lidar_scans:
+            missing = [k for k, s in enumerate(stream.lidar_scans) if s.pose is None]
+            if missing:
+                raise DataError(f"points: {len(missing)} LiDAR sweeps have no pose; enable odometry")
+            pts = np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans])
+            colors = None
+        else:
+            raise DataError(f"points: the stream {stream.name!r} has neither a point cloud nor LiDAR sweeps (use tsdf for RGB-D)")
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        if colors is not None:
+            pcd.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64))
+        if cfg.voxel_size > 0:
+            pcd = pcd.voxel_down_sample(cfg.voxel_size)
+        normals = None
+        if cfg.normals_radius > 0:
+            pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normals_radius, max_nn=30))
+            pcd.orient_normals_to_align_with_direction(np.array([0.0, 0.0, 1.0]))
+            normals = np.asarray(pcd.normals)
+        out_colors = np.asarray(pcd.colors) if pcd.has_colors() else None
+        return {"geometry": Geometry(points=np.asarray(pcd.points), colors=out_colors, normals=normals, voxel_size=cfg.voxel_size or None)}
+
+
+@hookimpl
+def stratamap_register_mappers():
+    return [PointsMapper]

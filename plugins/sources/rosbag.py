@@ -1,0 +1,287 @@
+"""Source ``rosbag``: ROS 1 (.bag) and ROS 2 (folder with metadata.yaml) bags, read with the
+``rosbags`` library (no ROS install).
+
+RGB-D: depth (``sensor_msgs/Image``, 16UC1 in millimetres or 32FC1 in metres), color
+(rgb8, bgr8, rgba8, bgra8, mono8) paired by nearest stamp, intrinsics from ``CameraInfo``, and
+camera poses from ``/tf`` (+ ``/tf_static``): the chain from ``world_frame`` to the image's
+frame at the image's stamp (image frames are optical frames, as ROS defines them).
+LiDAR: ``sensor_msgs/PointCloud2`` sweeps (x, y, z fields), posed from ``/tf`` when available.
+Topics are found by message type when not named.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+from scipy.spatial.transform import Rotation
+
+from stratamap.core import hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.rgbd_io import associate
+from stratamap.core.sensors import CameraIntrinsics, LidarScan, SensorStream
+from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+
+IMAGE = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
+INFO = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
+CLOUD = {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2"}
+TF = {"tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage"}
+DEPTH_ENCODINGS = {"16UC1", "mono16", "32FC1"}
+COLOR_ENCODINGS = {"rgb8", "bgr8", "rgba8", "bgra8", "mono8"}
+PC2_TYPES = {1: np.int8, 2: np.uint8, 3: np.int16, 4: np.uint16, 5: np.int32, 6: np.uint32, 7: np.float32, 8: np.float64}
+
+
+class RosbagConfig(SequenceConfig):
+    depth_topic: str | None = Field(default=None, description="Depth image topic (default: the first 16UC1/32FC1 image topic).")
+    color_topic: str | None = Field(default=None, description="Color image topic (default: the first rgb8/bgr8 image topic).")
+    camera_info_topic: str | None = Field(default=None, description="CameraInfo topic (default: the first one).")
+    pointcloud_topic: str | None = Field(default=None, description="PointCloud2 topic for LiDAR input (default: the first one, if no depth images).")
+    world_frame: str = Field(default="map", description="The tf frame poses are expressed in (falls back to the root of the tf tree).")
+    sync_tolerance: float = Field(default=0.02, gt=0, description="Max stamp difference between a depth and a color image, seconds.")
+
+
+def stamp_of(msg: Any) -> float:
+    st = msg.header.stamp
+    return float(st.sec) + float(getattr(st, "nanosec", getattr(st, "nsec", 0))) * 1e-9
+
+
+def image_array(msg: Any, topic: str) -> np.ndarray:
+    enc = msg.encoding
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    h, w = int(msg.height), int(msg.width)
+    if enc in ("16UC1", "mono16"):
+        arr = data.view(">u2" if msg.is_bigendian else "<u2").reshape(h, msg.step // 2)[:, :w]
+        return arr.astype(np.float32) / 1000.0
+    if enc == "32FC1":
+        arr = data.view(">f4" if msg.is_bigendian else "<f4").reshape(h, msg.step // 4)[:, :w].astype(np.float32)
+        arr[~np.isfinite(arr)] = 0.0
+        return arr
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}.get(enc)
+    if channels is None:
+        raise DataError(f"{topic}: unsupported image encoding {enc!r} (depth: 16UC1, 32FC1; color: {sorted(COLOR_ENCODINGS)})")
+    arr = data.reshape(h, msg.step)[:, : w * channels].reshape(h, w, channels)
+    if enc.startswith("bgr"):
+        arr = arr[..., [2, 1, 0]]
+    elif enc == "mono8":
+        arr = np.repeat(arr, 3, axis=2)
+    return np.ascontiguousarray(arr[..., :3])
+
+
+def cloud_array(msg: Any, topic: str) -> np.ndarray:
+    fields = {f.name: f for f in msg.fields}
+    if not {"x", "y", "z"} <= set(fields):
+        raise DataError(f"{topic}: PointCloud2 without x, y, z fields (has {sorted(fields)})")
+    endian = ">" if msg.is_bigendian else "<"
+    dtype = np.dtype(
+        {
+            "names": ["x", "y", "z"],
+            "formats": [np.dtype(PC2_TYPES[fields[k].datatype]).newbyteorder(endian) for k in "xyz"],
+            "offsets": [fields[k].offset for k in "xyz"],
+            "itemsize": msg.point_step,
+        }
+    )
+    raw = np.frombuffer(bytes(msg.data), dtype=dtype, count=int(msg.width) * int(msg.height))
+    pts = np.stack([raw["x"], raw["y"], raw["z"]], 1).astype(np.float64)
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
+def transform_matrix(tf: Any) -> np.ndarray:
+    t, q = tf.transform.translation, tf.transform.rotation
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    pose[:3, 3] = [t.x, t.y, t.z]
+    return pose
+
+
+@dataclass
+class TfBuffer:
+    """Transforms parent -> child over time; lookups take the latest at or before a stamp."""
+
+    edges: dict[str, list[tuple[float, str, np.ndarray]]]  # child -> [(stamp, parent, T_parent_child)]
+
+    def parent_at(self, child: str, t: float) -> tuple[str, np.ndarray] | None:
+        entries = self.edges.get(child)
+        if not entries:
+            return None
+        best = None
+        for stamp, parent, T in entries:
+            if stamp <= t + 1e-9 or stamp == 0.0:  # stamp 0: static transforms
+                best = (parent, T)
+        if best is None:
+            best = (entries[0][1], entries[0][2])
+        return best
+
+    def lookup(self, world: str, frame: str, t: float) -> np.ndarray | None:
+        pose = np.eye(4)
+        node = frame
+        for _ in range(64):
+            if node == world:
+                return pose
+            step = self.parent_at(node, t)
+            if step is None:
+                return pose if world == "" else None
+            parent, T = step
+            pose = T @ pose
+            node = parent
+        return None
+
+    def roots(self) -> set[str]:
+        children = set(self.edges)
+        parents = {p for entries in self.edges.values() for _, p, _ in entries}
+        return parents - children
+
+
+class RosbagSource(SequenceSource):
+    """ROS 1 and ROS 2 bags without ROS: depth + color + camera_info + tf, or PointCloud2 for LiDAR."""
+
+    name = "rosbag"
+    Config = RosbagConfig
+
+    @classmethod
+    def example_params(cls) -> dict:
+        import tempfile
+
+        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+        from stratamap.core.rosbag_io import write_rgbd_bag
+
+        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 96, "height": 72}, "trajectory": {"type": "orbit", "frames": 5}})
+        world = SyntheticWorld(spec)
+        path = Path(tempfile.mkdtemp(prefix="stratamap-bag-")) / "bag"
+        write_rgbd_bag(path, world.stream(), ros_version=2)
+        return {"path": str(path), "world_frame": "map"}
+
+    def _read_bag(self, path: Path) -> dict[str, Any]:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+
+        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        if not path.exists():
+            raise DataError(f"{path}: bag not found")
+        typestore = get_typestore(Stores.ROS2_HUMBLE)
+        try:
+            reader = AnyReader([path], default_typestore=typestore)
+            reader.open()
+        except Exception as exc:  # rosbags raises several reader errors
+            raise DataError(f"{path}: cannot open as a ROS 1 or ROS 2 bag ({exc})") from exc
+        try:
+            by_type: dict[str, list[str]] = {}
+            for c in reader.connections:
+                by_type.setdefault(c.msgtype, []).append(c.topic)
+            images, infos, clouds, tfs = [], [], [], []
+            edges: dict[str, list[tuple[float, str, np.ndarray]]] = {}
+            wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | INFO | CLOUD | TF}
+            conns = [c for c in reader.connections if c.topic in wanted]
+            for conn, _, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if conn.msgtype in TF:
+                    static = conn.topic.endswith("tf_static")
+                    for tf in msg.transforms:
+                        child = tf.child_frame_id.lstrip("/")
+                        edges.setdefault(child, []).append((0.0 if static else stamp_of(tf), tf.header.frame_id.lstrip("/"), transform_matrix(tf)))
+                elif conn.msgtype in IMAGE:
+                    images.append((conn.topic, stamp_of(msg), msg))
+                elif conn.msgtype in INFO:
+                    infos.append((conn.topic, msg))
+                elif conn.msgtype in CLOUD:
+                    clouds.append((conn.topic, stamp_of(msg), msg))
+        finally:
+            reader.close()
+        for v in edges.values():
+            v.sort(key=lambda e: e[0])
+        return {"types": by_type, "images": images, "infos": infos, "clouds": clouds, "tf": TfBuffer(edges), "cfg": cfg}
+
+    def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        path = Path(cfg.path).expanduser()
+        bag = self._read_bag(path)
+        images = bag["images"]
+        encodings: dict[str, str] = {}
+        for topic, _, msg in images:
+            encodings.setdefault(topic, msg.encoding)
+        depth_topic = cfg.depth_topic or next((t for t, e in encodings.items() if e in DEPTH_ENCODINGS), None)
+        color_topic = cfg.color_topic or next((t for t, e in encodings.items() if e in COLOR_ENCODINGS), None)
+        tf: TfBuffer = bag["tf"]
+        world = cfg.world_frame if cfg.world_frame in tf.roots() or cfg.world_frame in tf.edges else (sorted(tf.roots()) or [""])[0]
+        if depth_topic is None:
+            return self._load_lidar(path, bag, tf, world)
+        if depth_topic not in encodings:
+            raise DataError(f"{path}: no messages on depth topic {depth_topic!r}; image topics: {sorted(encodings)}")
+        if color_topic is None:
+            raise DataError(f"{path}: no color image topic (rgb8/bgr8/...) to pair with {depth_topic!r}")
+        infos = bag["infos"]
+        info_topic = cfg.camera_info_topic or (infos[0][0] if infos else None)
+        info = next((m for t, m in infos if t == info_topic), None)
+        if info is None:
+            raise DataError(f"{path}: no CameraInfo message (topics: {sorted(bag['types'])}); intrinsics are needed")
+        k = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=float).reshape(3, 3)  # ROS 2 / ROS 1 field names
+        intr = CameraIntrinsics(int(info.width), int(info.height), k[0, 0], k[1, 1], k[0, 2], k[1, 2])
+        depth_msgs = [(t, m) for tp, t, m in images if tp == depth_topic]
+        color_msgs = [(t, m) for tp, t, m in images if tp == color_topic]
+        pairs = associate(np.array([t for t, _ in depth_msgs]), np.array([t for t, _ in color_msgs]), cfg.sync_tolerance)
+        if not pairs:
+            raise DataError(f"{path}: no depth/color pair within {cfg.sync_tolerance} s")
+        pairs = [pairs[i] for i in select(list(range(len(pairs))), cfg.stride, cfg.max_frames)]
+        times = [depth_msgs[d][0] for d, _ in pairs]
+        shape = (intr.height, intr.width)
+
+        def read(k: int):
+            d_msg, c_msg = depth_msgs[pairs[k][0]][1], color_msgs[pairs[k][1]][1]
+            depth = image_array(d_msg, depth_topic)
+            rgb = image_array(c_msg, color_topic)
+            if depth.shape != shape or rgb.shape[:2] != shape:
+                raise DataError(f"{path}: image size {depth.shape} / {rgb.shape[:2]} differs from CameraInfo {shape}")
+            return rgb, depth
+
+        frame_id = depth_msgs[0][1].header.frame_id.lstrip("/")
+        poses = [tf.lookup(world, frame_id, t) for t in times] if tf.edges else [None] * len(times)
+        frames = PosedFrames(times, read, poses)
+        stream = SensorStream(name=path.stem, intrinsics=intr, frames=frames, metadata={"path": str(path), "format": "rosbag", "world_frame": world, "depth_topic": depth_topic, "color_topic": color_topic})
+        return stream, frames, None
+
+    def _load_lidar(self, path: Path, bag: dict, tf: TfBuffer, world: str) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        clouds = bag["clouds"]
+        topic = cfg.pointcloud_topic or (clouds[0][0] if clouds else None)
+        sweeps = [(t, m) for tp, t, m in clouds if tp == topic]
+        if not sweeps:
+            raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {sorted(bag['types'])})")
+        sweeps = [sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames)]
+        scans = []
+        for t, msg in sweeps:
+            pose = tf.lookup(world, msg.header.frame_id.lstrip("/"), t) if tf.edges else None
+            scans.append(LidarScan(t, cloud_array(msg, topic), pose))
+        if any(s.pose is None for s in scans):
+            if cfg.odometry == "never":
+                raise DataError(f"{path}: LiDAR sweeps without tf poses and odometry is 'never'")
+            from stratamap.core.odometry import lidar_odometry
+
+            for s, pose in zip(scans, lidar_odometry([s.points for s in scans], [s.timestamp for s in scans]), strict=True):
+                s.pose = pose
+            self.note("odometry", {"method": "kiss-icp", "sweeps": len(scans)})
+        stream = SensorStream(name=path.stem, lidar_scans=scans, metadata={"path": str(path), "format": "rosbag", "pointcloud_topic": topic})
+        return stream, PosedFrames([], lambda k: (np.zeros(0), np.zeros(0)), []), None
+
+    def read(self) -> dict[str, Any]:
+        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        stream, frames, gt = self.load()
+        if len(frames) == 0:  # LiDAR input: poses settled in load, gravity from the sweeps
+            if cfg.gravity == "auto" and stream.lidar_scans:
+                from stratamap.core.gravity import estimate_alignment, transform_stream
+                from stratamap.core.transforms import apply
+
+                probe = SensorStream(name=stream.name, points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]]))
+                alignment = estimate_alignment(probe, up_hint=np.array([0.0, 0.0, 1.0]))
+                self.note("gravity_alignment", alignment.report())
+                if alignment.realigned:
+                    transform_stream(stream, alignment.transform)
+            return {"frames": stream}
+        return self.finish(stream, frames, gt)
+
+
+@hookimpl
+def stratamap_register_sources():
+    return [RosbagSource]
