@@ -49,6 +49,8 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.sources.tum",
         "stratamap.plugins.sources.pointcloud",
         "stratamap.plugins.sources.rosbag",
+        "stratamap.plugins.sources.redwood",
+        "stratamap.plugins.sources.scannet",
     ),
     "segmenters": ("stratamap.plugins.segmenters.oracle",),
     "mappers": (

@@ -207,3 +207,25 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray, t
             k = 0 if q < times[0] else len(times) - 1
             out.append(poses[k].copy() if abs(q - times[k]) <= tolerance else None)
     return out
+
+
+def read_laser_file(path: Path) -> list:
+    """2D laser scans from ``laser.txt``: ``timestamp x y z yaw angle_min angle_increment range_max r...``."""
+    from stratamap.core.sensors import LaserScan
+    from stratamap.core.transforms import make_pose
+
+    scans = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        vals = line.split()
+        if len(vals) < 9:
+            raise DataError(f"{path}:{n}: expected timestamp x y z yaw angle_min angle_increment range_max and ranges")
+        try:
+            head = [float(v) for v in vals[:8]]
+            ranges = np.array([float(v) for v in vals[8:]], dtype=np.float32)
+        except ValueError as exc:
+            raise DataError(f"{path}:{n}: {exc}") from None
+        t, x, y, z, yaw, amin, ainc, rmax = head
+        scans.append(LaserScan(t, amin, ainc, ranges, rmax, make_pose((x, y, z), yaw)))
+    return scans

@@ -1,32 +1,45 @@
-"""Mapper ``occupancy``: 2D occupancy layers from the 3D geometry.
+"""Mapper ``occupancy``: the 2D layers a navigation stack uses.
 
-* ``slam`` -- what a planar laser at ``laser_height`` sees: geometry in a thin slice around that
-  height (chair legs, table legs, walls; not chair seats). It stands in for a laser SLAM map.
-* ``objects`` -- every obstacle in the band [``z_min``, ``robot_height``] projected to the floor.
-* ``multimap`` -- the two overlaid (first paper, section V-C): occupied where either is occupied.
+* ``slam`` -- the laser map. With 2D laser scans: log-odds occupancy by ray casting every beam
+  (cells along the beam become freer, the end cell more occupied), as a laser SLAM back end
+  builds it. Without scans: geometry in a thin slice at ``laser_height`` (what a laser would see).
+* ``objects`` -- every obstacle in the band [``z_min``, ``robot_height``] projected to the floor:
+  from the 3D geometry, or from the object instances (their completions when present).
+* ``multimap`` -- the two overlaid (first paper, section V-C): occupied where either is, free where
+  the laser saw free space and no object stands. A robot planning on it keeps off chair seats and
+  tabletops that its laser passes under.
 
-Cells where the floor was observed and nothing is occupied are free; the rest stay unknown.
+Values follow ``nav_msgs/OccupancyGrid``: -1 unknown, 0 free ... 100 occupied.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.errors import DataError
 from stratamap.core.layers import OccupancyGrid, OccupancyMaps
+from stratamap.core.sensors import LaserScan
 
 
 class OccupancyConfig(StageConfig):
     resolution: float = Field(default=0.05, gt=0.005, le=1.0, description="Cell size, metres (Nav2's default is 0.05).")
     z_min: float = Field(default=0.1, ge=0.0, description="Lower edge of the obstacle band, metres above the floor.")
     robot_height: float = Field(default=1.0, gt=0.0, description="Upper edge of the obstacle band: the robot's height, metres.")
-    laser_height: float = Field(default=0.25, gt=0.0, description="Height of the planar laser scanner the `slam` layer simulates, metres.")
+    laser_height: float = Field(default=0.25, gt=0.0, description="Height of the planar laser (used when there are no scans), metres.")
     laser_slice: float = Field(default=0.04, gt=0.0, description="Thickness of the slice around laser_height, metres.")
-    floor_tolerance: float = Field(default=0.05, gt=0.0, description="Points this close to the floor count as floor (free space), metres.")
-    min_points_per_cell: int = Field(default=2, ge=1, description="A cell is occupied when at least this many points fall in it.")
+    objects_from: Literal["geometry", "instances"] = Field(
+        default="geometry", description="Project the band from the 3D geometry, or from object instances (completions when present)."
+    )
+    log_odds_hit: float = Field(default=0.85, gt=0.0, description="Log-odds added to a cell where a beam ends (p = 0.7).")
+    log_odds_miss: float = Field(default=-0.4, lt=0.0, description="Log-odds added to cells a beam passes through (p = 0.4).")
+    log_odds_clamp: tuple[float, float] = Field(default=(-2.0, 3.5), description="Clamping bounds of the log-odds, so cells can change again.")
+    max_free_range: float = Field(default=6.0, gt=0.0, description="Beams without a return clear cells up to this range, metres.")
+    floor_tolerance: float = Field(default=0.05, gt=0.0, description="Geometry this close to the floor is floor (free space), metres.")
+    min_points_per_cell: int = Field(default=2, ge=1, description="A cell is occupied when at least this many geometry points fall in it.")
     margin: float = Field(default=0.5, ge=0.0, description="Border of unknown cells around the mapped area, metres.")
 
     @model_validator(mode="after")
@@ -37,57 +50,149 @@ class OccupancyConfig(StageConfig):
 
 
 class OccupancyMapper(Mapper):
-    """2D occupancy layers (laser slice, object band, multimap) projected from the 3D geometry."""
+    """2D occupancy: laser log-odds (or a laser-height slice), the object band, and the multimap."""
 
     name = "occupancy"
     Config = OccupancyConfig
-    requires = frozenset({"geometry"})
-    optional = frozenset({"semantics"})
+    requires = frozenset({"frames"})
+    optional = frozenset({"geometry", "semantics", "instances"})
     provides = frozenset({"occupancy"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
         cfg: OccupancyConfig = self.config  # type: ignore[assignment]
+        stream = data.stream
+        scans = [s for s in (stream.laser_scans if stream is not None else []) if s.pose is not None]
         geom = data.map.geometry
-        assert geom is not None
-        pts = geom.points
-        if len(pts) == 0:
-            self.warn("the geometry layer is empty; no occupancy grids made")
-            return {}
+        if not scans and (geom is None or len(geom) == 0):
+            raise DataError("occupancy: needs 2D laser scans or a geometry layer (run tsdf or points first)")
         floor_z = self._floor_height(data)
-        z = pts[:, 2] - floor_z
-        lo = pts[:, :2].min(0) - cfg.margin
-        hi = pts[:, :2].max(0) + cfg.margin
-        origin = np.floor(lo / cfg.resolution) * cfg.resolution
-        shape = (int(np.ceil((hi[1] - origin[1]) / cfg.resolution)), int(np.ceil((hi[0] - origin[0]) / cfg.resolution)))
-        rc = np.floor((pts[:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
+        origin, shape = self._extent(cfg, scans, geom)
 
-        def hits(mask: np.ndarray) -> np.ndarray:
+        def cells(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            rc = np.floor((xy[:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
+            ok = (rc[:, 0] >= 0) & (rc[:, 0] < shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < shape[1])
+            return rc[ok, 0], rc[ok, 1]
+
+        def hits(xy: np.ndarray) -> np.ndarray:
+            r, c = cells(xy)
             counts = np.zeros(shape, np.int64)
-            np.add.at(counts, (rc[mask, 0], rc[mask, 1]), 1)
+            np.add.at(counts, (r, c), 1)
             return counts >= cfg.min_points_per_cell
 
-        floor_seen = hits(np.abs(z) <= cfg.floor_tolerance)
-        laser = hits(np.abs(z - cfg.laser_height) <= cfg.laser_slice / 2)
-        band = hits((z >= cfg.z_min) & (z <= cfg.robot_height))
+        floor_seen = np.zeros(shape, bool)
+        if geom is not None and len(geom):
+            z = geom.points[:, 2] - floor_z
+            floor_seen = hits(geom.points[np.abs(z) <= cfg.floor_tolerance, :2])
 
-        def grid(occupied: np.ndarray) -> OccupancyGrid:
-            cells = np.full(shape, -1, np.int8)
-            cells[floor_seen] = 0
-            cells[occupied] = 100
-            return OccupancyGrid(cells, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0))
+        if scans:
+            slam = self._laser_log_odds(scans, origin, shape, cfg)
+            self.note("slam_source", f"{len(scans)} laser scans (log-odds)")
+        else:
+            z = geom.points[:, 2] - floor_z  # type: ignore[union-attr]
+            laser = hits(geom.points[np.abs(z - cfg.laser_height) <= cfg.laser_slice / 2, :2])  # type: ignore[union-attr]
+            slam = np.full(shape, -1, np.int8)
+            slam[floor_seen] = 0
+            slam[laser] = 100
+            self.note("slam_source", "geometry slice at the laser height")
 
-        maps = OccupancyMaps(slam=grid(laser), objects=grid(band), multimap=grid(laser | band))
+        band = np.zeros(shape, bool)
+        if cfg.objects_from == "instances" and data.map.instances is not None:
+            band = self._instances_band(data, cfg, floor_z, cells, shape)
+        elif geom is not None and len(geom):
+            z = geom.points[:, 2] - floor_z
+            band = hits(geom.points[(z >= cfg.z_min) & (z <= cfg.robot_height), :2])
+        objects = np.full(shape, -1, np.int8)
+        objects[floor_seen | (slam == 0)] = 0
+        objects[band] = 100
+        multimap = slam.copy()
+        multimap[band] = 100
+        grids = OccupancyMaps(
+            slam=OccupancyGrid(slam, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
+            objects=OccupancyGrid(objects, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
+            multimap=OccupancyGrid(multimap, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
+        )
         self.note("floor_z", float(floor_z))
-        return {"occupancy": maps}
+        return {"occupancy": grids}
+
+    @staticmethod
+    def _extent(cfg: OccupancyConfig, scans: list[LaserScan], geom: Any) -> tuple[np.ndarray, tuple[int, int]]:
+        xy = []
+        if geom is not None and len(geom):
+            xy.append(geom.points[:, :2])
+        for s in scans:
+            ranges = np.where(np.isfinite(s.ranges), s.ranges, np.nan)
+            ang = s.angles + np.arctan2(s.pose[1, 0], s.pose[0, 0])
+            end = s.pose[:2, 3] + np.stack([np.cos(ang), np.sin(ang)], 1) * np.nan_to_num(ranges, nan=0.0)[:, None]
+            xy.append(np.vstack([end, s.pose[:2, 3][None]]))
+        pts = np.vstack(xy)
+        lo = pts.min(0) - cfg.margin
+        hi = pts.max(0) + cfg.margin
+        origin = np.floor(lo / cfg.resolution) * cfg.resolution
+        shape = (int(np.ceil((hi[1] - origin[1]) / cfg.resolution)), int(np.ceil((hi[0] - origin[0]) / cfg.resolution)))
+        return origin, shape
+
+    @staticmethod
+    def _laser_log_odds(scans: list[LaserScan], origin: np.ndarray, shape: tuple[int, int], cfg: OccupancyConfig) -> np.ndarray:
+        logodds = np.zeros(shape, np.float64)
+        seen = np.zeros(shape, bool)
+        step = cfg.resolution / 2
+        lo, hi = cfg.log_odds_clamp
+        for s in scans:
+            yaw = np.arctan2(s.pose[1, 0], s.pose[0, 0])
+            ang = s.angles + yaw
+            ret = np.isfinite(s.ranges) & (s.ranges <= s.range_max)
+            reach = np.where(ret, s.ranges, min(cfg.max_free_range, s.range_max))
+            n = int(np.ceil(reach.max() / step)) + 1
+            t = np.arange(n) * step
+            dirs = np.stack([np.cos(ang), np.sin(ang)], 1)
+            # Free samples along every beam, stopping half a cell before the hit.
+            mask = t[None, :] < (reach[:, None] - cfg.resolution / 2)
+            pts = s.pose[:2, 3] + dirs[:, None, :] * t[None, :, None]
+            free_rc = np.floor((pts[mask][:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
+            hit_xy = s.pose[:2, 3] + dirs[ret] * s.ranges[ret, None]
+            hit_rc = np.floor((hit_xy[:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
+            flat_free = np.unique(free_rc[:, 0] * shape[1] + free_rc[:, 1])
+            flat_hit = np.unique(hit_rc[:, 0] * shape[1] + hit_rc[:, 1])
+            flat_free = np.setdiff1d(flat_free, flat_hit, assume_unique=True)
+            flat_free = flat_free[(flat_free >= 0) & (flat_free < logodds.size)]
+            flat_hit = flat_hit[(flat_hit >= 0) & (flat_hit < logodds.size)]
+            lf = logodds.reshape(-1)
+            lf[flat_free] = np.clip(lf[flat_free] + cfg.log_odds_miss, lo, hi)
+            lf[flat_hit] = np.clip(lf[flat_hit] + cfg.log_odds_hit, lo, hi)
+            sf = seen.reshape(-1)
+            sf[flat_free] = True
+            sf[flat_hit] = True
+        prob = 1.0 / (1.0 + np.exp(-logodds))
+        out = np.where(seen, np.rint(prob * 100), -1).astype(np.int8)
+        # Snap to the trinary values map_saver writes: confident cells are exactly 0 or 100.
+        out[seen & (prob >= 0.65)] = 100
+        out[seen & (prob <= 0.196)] = 0
+        return out
+
+    @staticmethod
+    def _instances_band(data: PipelineData, cfg: OccupancyConfig, floor_z: float, cells: Any, shape: tuple[int, int]) -> np.ndarray:
+        from stratamap.core.kinematics import object_mesh
+
+        band = np.zeros(shape, bool)
+        for inst in data.map.instances or []:
+            mesh, pose = object_mesh(inst)
+            world = mesh.copy()
+            world.apply_transform(pose)
+            pts = world.sample(max(2000, int(world.area / (cfg.resolution / 3) ** 2)), seed=inst.id) if world.area > 0 else world.vertices
+            pts = np.vstack([pts, world.vertices])
+            z = pts[:, 2] - floor_z
+            r, c = cells(pts[(z >= cfg.z_min) & (z <= cfg.robot_height), :2])
+            band[r, c] = True
+        return band
 
     @staticmethod
     def _floor_height(data: PipelineData) -> float:
         sem = data.map.semantics
-        pts = data.map.geometry.points  # type: ignore[union-attr]
-        if sem is not None and "floor" in sem.vocabulary and len(sem) == len(pts):
+        geom = data.map.geometry
+        if sem is not None and geom is not None and "floor" in sem.vocabulary and len(sem) == len(geom):
             floor = sem.class_ids == sem.vocabulary.id("floor")
             if floor.sum() > 100:
-                return float(np.median(pts[floor, 2]))
+                return float(np.median(geom.points[floor, 2]))
         return 0.0
 
 

@@ -19,7 +19,16 @@ from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.groundtruth import GroundTruth
 from stratamap.core.gt_io import load_ground_truth
-from stratamap.core.rgbd_io import associate, check_depth_scale, interpolate_poses, parse_tum_poses, read_depth, read_rgb, read_timestamped_list
+from stratamap.core.rgbd_io import (
+    associate,
+    check_depth_scale,
+    interpolate_poses,
+    parse_tum_poses,
+    read_depth,
+    read_laser_file,
+    read_rgb,
+    read_timestamped_list,
+)
 from stratamap.core.sensors import CameraIntrinsics, SensorStream
 from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
 
@@ -112,6 +121,8 @@ class TUMSource(SequenceSource):
                 self.warn(f"{gt_file}: no pose within {cfg.pose_tolerance} s for {missing} of {len(poses)} frames")
         frames = PosedFrames(times, read, poses)
         stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "depth_scale": scale, "format": "tum"})
+        if (root / "laser.txt").is_file():
+            stream.laser_scans = read_laser_file(root / "laser.txt")
         gt = None
         if cfg.load_ground_truth and (root / "gt").is_dir():
             stamps = [Path(f).stem for f in rgb_files]

@@ -1,0 +1,128 @@
+"""Source ``redwood``: Open3D / Redwood RGB-D folders (color/, depth/ in millimetres, a .log trajectory).
+
+Images pair by sorted file order (or by an ``rgbd.match`` file when present); poses come from
+``trajectory.log`` (blocks of ``id id frame`` and a 4x4 camera-to-world matrix); intrinsics
+from an Open3D ``camera*.json`` (column-major ``intrinsic_matrix``), else the PrimeSense defaults.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field
+
+from stratamap.core import hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.rgbd_io import check_depth_scale, read_depth, read_rgb
+from stratamap.core.sensors import CameraIntrinsics, SensorStream
+from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+
+PRIMESENSE = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm")
+
+
+class RedwoodConfig(SequenceConfig):
+    depth_scale: float = Field(default=1000.0, gt=0, description="Depth units per metre (Redwood: millimetres).")
+    trajectory: str = Field(default="trajectory.log", description="Trajectory file in the folder (Redwood .log format).")
+    frame_rate: float = Field(default=30.0, gt=0, description="Timestamps are frame index / frame_rate, seconds.")
+
+
+def read_log(path: Path) -> dict[int, np.ndarray]:
+    """Redwood/Open3D .log: per frame a line 'id id frame_number' then four matrix rows."""
+    lines = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
+    if len(lines) % 5:
+        raise DataError(f"{path}: {len(lines)} non-empty lines; a .log file has 5 lines per pose")
+    poses = {}
+    for k in range(0, len(lines), 5):
+        try:
+            frame = int(lines[k][2]) if len(lines[k]) >= 3 else k // 5
+            mat = np.array([[float(v) for v in row] for row in lines[k + 1 : k + 5]])
+        except ValueError as exc:
+            raise DataError(f"{path}: entry {k // 5 + 1} is malformed ({exc})") from exc
+        if mat.shape != (4, 4) or not np.all(np.isfinite(mat)):
+            raise DataError(f"{path}: entry {k // 5 + 1} is not a 4x4 matrix")
+        poses[frame] = mat
+    return poses
+
+
+class RedwoodSource(SequenceSource):
+    """Open3D / Redwood RGB-D folders: color/, depth/ (mm), trajectory.log, camera json."""
+
+    name = "redwood"
+    Config = RedwoodConfig
+
+    @classmethod
+    def example_params(cls) -> dict:
+        import tempfile
+
+        from PIL import Image
+
+        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+
+        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 128, "height": 96}, "trajectory": {"type": "orbit", "frames": 5}})
+        world = SyntheticWorld(spec)
+        root = Path(tempfile.mkdtemp(prefix="stratamap-redwood-"))
+        (root / "color").mkdir()
+        (root / "depth").mkdir()
+        log = []
+        for k, f in enumerate(world.stream().frames):
+            Image.fromarray(f.rgb).save(root / "color" / f"{k:06d}.jpg", quality=95)
+            Image.fromarray(np.round(f.depth * 1000).astype(np.uint16)).save(root / "depth" / f"{k:06d}.png")
+            log.append(f"{k} {k} {k + 1}\n" + "\n".join(" ".join(f"{v:.12g}" for v in row) for row in f.pose) + "\n")
+        (root / "trajectory.log").write_text("".join(log))
+        intr = world.intrinsics
+        (root / "camera.json").write_text(json.dumps({"width": intr.width, "height": intr.height, "intrinsic_matrix": intr.matrix.T.reshape(-1).tolist()}))
+        return {"path": str(root)}
+
+    def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg: RedwoodConfig = self.config  # type: ignore[assignment]
+        root = Path(cfg.path).expanduser()
+        if not root.is_dir():
+            raise DataError(f"{root}: sequence folder not found")
+        for sub in ("color", "depth"):
+            if not (root / sub).is_dir():
+                raise DataError(f"{root}: no {sub}/ folder (a Redwood sequence has color/ and depth/)")
+        colors = sorted(p for p in (root / "color").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        depths = sorted(p for p in (root / "depth").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if len(colors) != len(depths):
+            raise DataError(f"{root}: {len(colors)} color images but {len(depths)} depth images")
+        if not colors:
+            raise DataError(f"{root}: no images")
+        intr = PRIMESENSE
+        cams = sorted(root.glob("camera*.json"))
+        if cams:
+            try:
+                cam = json.loads(cams[0].read_text())
+                K = np.array(cam["intrinsic_matrix"], float).reshape(3, 3).T  # Open3D stores column-major
+                intr = CameraIntrinsics(int(cam["width"]), int(cam["height"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+            except (KeyError, ValueError, json.JSONDecodeError) as exc:
+                raise DataError(f"{cams[0]}: expected width, height and a 9-value intrinsic_matrix ({exc!r})") from exc
+        else:
+            self.warn(f"{root}: no camera*.json; using PrimeSense intrinsics (fx = fy = 525)")
+        idx = select(list(range(len(colors))), cfg.stride, cfg.max_frames)
+        shape = (intr.height, intr.width)
+        check_depth_scale(read_depth(depths[idx[0]], cfg.depth_scale, shape), depths[idx[0]], cfg.depth_scale)
+        poses: list = [None] * len(idx)
+        traj = root / cfg.trajectory
+        if traj.is_file():
+            table = read_log(traj)
+            ordered = [table[f] for f in sorted(table)]
+            if len(ordered) < len(colors):
+                self.warn(f"{traj}: {len(ordered)} poses for {len(colors)} frames; frames without a pose use odometry")
+            poses = [ordered[i].copy() if i < len(ordered) else None for i in idx]
+
+        def read(k: int):
+            i = idx[k]
+            return read_rgb(colors[i], shape), read_depth(depths[i], cfg.depth_scale, shape)
+
+        frames = PosedFrames([i / cfg.frame_rate for i in idx], read, poses)
+        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "redwood"})
+        return stream, frames, None
+
+
+@hookimpl
+def stratamap_register_sources():
+    return [RedwoodSource]

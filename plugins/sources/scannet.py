@@ -1,0 +1,123 @@
+"""Source ``scannet``: exported ScanNet-style frames (color/, depth/, pose/, intrinsic/).
+
+``color/N.jpg`` (resampled to the depth size), ``depth/N.png`` (16-bit millimetres),
+``pose/N.txt`` (4x4 camera-to-world; rows of -inf mark lost tracking and become missing poses),
+``intrinsic/intrinsic_depth.txt`` (4x4). Frames sort by their number.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field
+
+from stratamap.core import hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.groundtruth import GroundTruth
+from stratamap.core.rgbd_io import check_depth_scale, read_depth, read_image, read_rgb
+from stratamap.core.sensors import CameraIntrinsics, SensorStream
+from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+
+
+class ScanNetConfig(SequenceConfig):
+    depth_scale: float = Field(default=1000.0, gt=0, description="Depth units per metre (ScanNet: millimetres).")
+    frame_rate: float = Field(default=30.0, gt=0, description="Timestamps are frame number / frame_rate, seconds.")
+
+
+def _number(p: Path) -> int:
+    try:
+        return int(p.stem)
+    except ValueError:
+        raise DataError(f"{p}: ScanNet frame files are named by their number (e.g. 42.png)") from None
+
+
+def read_matrix(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise DataError(f"{path}: file missing")
+    try:
+        mat = np.loadtxt(path, dtype=float)
+    except ValueError as exc:
+        raise DataError(f"{path}: not a whitespace-separated matrix ({exc})") from exc
+    if mat.shape != (4, 4):
+        raise DataError(f"{path}: expected a 4x4 matrix, got shape {mat.shape}")
+    return mat
+
+
+class ScanNetSource(SequenceSource):
+    """ScanNet-style exports: color/, depth/ (mm), pose/ (camera-to-world), intrinsic/."""
+
+    name = "scannet"
+    Config = ScanNetConfig
+
+    @classmethod
+    def example_params(cls) -> dict:
+        import tempfile
+
+        from PIL import Image
+
+        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+
+        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 128, "height": 96}, "trajectory": {"type": "orbit", "frames": 5}})
+        world = SyntheticWorld(spec)
+        root = Path(tempfile.mkdtemp(prefix="stratamap-scannet-"))
+        for sub in ("color", "depth", "pose", "intrinsic"):
+            (root / sub).mkdir()
+        for k, f in enumerate(world.stream().frames):
+            Image.fromarray(f.rgb).resize((256, 192)).save(root / "color" / f"{k}.jpg", quality=95)
+            Image.fromarray(np.round(f.depth * 1000).astype(np.uint16)).save(root / "depth" / f"{k}.png")
+            np.savetxt(root / "pose" / f"{k}.txt", f.pose)
+        K = np.eye(4)
+        K[:3, :3] = world.intrinsics.matrix
+        np.savetxt(root / "intrinsic" / "intrinsic_depth.txt", K)
+        return {"path": str(root)}
+
+    def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg: ScanNetConfig = self.config  # type: ignore[assignment]
+        root = Path(cfg.path).expanduser()
+        if not root.is_dir():
+            raise DataError(f"{root}: sequence folder not found")
+        for sub in ("color", "depth", "intrinsic"):
+            if not (root / sub).is_dir():
+                raise DataError(f"{root}: no {sub}/ folder (ScanNet exports have color/, depth/, pose/, intrinsic/)")
+        depths = sorted((root / "depth").glob("*.png"), key=_number)
+        if not depths:
+            raise DataError(f"{root}/depth: no .png depth images")
+        numbers = [_number(p) for p in depths]
+        first = read_image(depths[0])
+        K = read_matrix(root / "intrinsic" / "intrinsic_depth.txt")
+        intr = CameraIntrinsics(first.shape[1], first.shape[0], K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+        idx = select(list(range(len(depths))), cfg.stride, cfg.max_frames)
+        shape = (intr.height, intr.width)
+        check_depth_scale(read_depth(depths[idx[0]], cfg.depth_scale, shape), depths[idx[0]], cfg.depth_scale)
+        poses: list = []
+        lost = 0
+        for i in idx:
+            pose_file = root / "pose" / f"{numbers[i]}.txt"
+            if not pose_file.is_file():
+                poses.append(None)
+                continue
+            mat = read_matrix(pose_file)
+            if not np.all(np.isfinite(mat)):
+                poses.append(None)  # ScanNet writes -inf when tracking was lost
+                lost += 1
+            else:
+                poses.append(mat)
+        if lost:
+            self.warn(f"{lost} frames have invalid (-inf) poses in pose/; they use odometry")
+
+        def read(k: int):
+            n = numbers[idx[k]]
+            color = root / "color" / f"{n}.jpg"
+            if not color.is_file():
+                color = root / "color" / f"{n}.png"
+            return read_rgb(color, shape), read_depth(depths[idx[k]], cfg.depth_scale, shape)
+
+        frames = PosedFrames([numbers[i] / cfg.frame_rate for i in idx], read, poses)
+        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "scannet"})
+        return stream, frames, None
+
+
+@hookimpl
+def stratamap_register_sources():
+    return [ScanNetSource]
