@@ -104,3 +104,45 @@ def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     inter = inter_xy * inter_z
     union = float(np.prod(a.size) + np.prod(b.size)) - inter
     return inter / union if union > 0 else 0.0
+
+
+def ransac_plane(
+    points: np.ndarray, distance: float, iterations: int = 500, seed: int = 0, chunk: int = 64
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Deterministic RANSAC plane fit: (unit normal, d with n.x + d = 0, inlier indices).
+
+    Seeded numpy sampling and a least-squares refit on the best inlier set; unlike Open3D's
+    parallel ``segment_plane`` the result is the same on every run.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    n = len(points)
+    if n < 3:
+        raise ValueError("ransac_plane needs at least 3 points")
+    rng = np.random.default_rng(seed)
+    best_count, best = -1, (np.array([0.0, 0.0, 1.0]), 0.0)
+    for start in range(0, iterations, chunk):
+        k = min(chunk, iterations - start)
+        idx = rng.integers(0, n, size=(k, 3))
+        a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+        normals = np.cross(b - a, c - a)
+        norm = np.linalg.norm(normals, axis=1)
+        ok = norm > 1e-12
+        if not ok.any():
+            continue
+        normals = normals[ok] / norm[ok, None]
+        d = -np.einsum("ij,ij->i", normals, a[ok])
+        counts = (np.abs(points @ normals.T + d) < distance).sum(0)
+        j = int(np.argmax(counts))
+        if counts[j] > best_count:
+            best_count, best = int(counts[j]), (normals[j], float(d[j]))
+    normal, d = best
+    for _ in range(2):  # refit on the inliers, then re-select them
+        inliers = np.flatnonzero(np.abs(points @ normal + d) < distance)
+        if len(inliers) < 3:
+            break
+        centroid = points[inliers].mean(0)
+        _, _, vt = np.linalg.svd(points[inliers] - centroid, full_matrices=False)
+        normal = vt[2] if np.dot(vt[2], normal) >= 0 else -vt[2]
+        d = -float(np.dot(normal, centroid))
+    inliers = np.flatnonzero(np.abs(points @ normal + d) < distance)
+    return normal, d, inliers

@@ -1,11 +1,12 @@
 """Find the floor and the up axis of an input, and the transform that makes it z-up with the floor at z = 0.
 
 Stages assume a gravity-aligned world. Sources call :func:`align_stream` on load: it samples
-points from a few frames (or the static cloud), finds planes by iterative RANSAC (Open3D's
-``segment_plane``, inliers removed after each plane), keeps large planes roughly perpendicular
+points from a few frames (or the static cloud), finds planes by iterative RANSAC (inliers
+removed after each plane), keeps large planes roughly perpendicular
 to an *up hint* (for cameras: the mean of their -y optical axes, since handheld and robot
 cameras are held roughly level), takes the lowest of them as the floor, refines it by least
-squares on its inliers, and rotates its normal onto +z with the floor at z = 0.
+squares on its inliers, and rotates its normal onto +z with the floor at z = 0. RANSAC is seeded
+numpy (:func:`stratamap.core.geometry.ransac_plane`), so alignment is the same on every run.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 import open3d as o3d
 
 from stratamap.core.errors import DataError
+from stratamap.core.geometry import ransac_plane
 from stratamap.core.sensors import SensorStream
 from stratamap.core.transforms import apply
 
@@ -100,30 +102,27 @@ def find_floor(
 ) -> tuple[np.ndarray, float, int] | None:
     """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    pcd = pcd.voxel_down_sample(voxel)
-    total = len(pcd.points)
+    sampled = np.asarray(pcd.voxel_down_sample(voxel).points)
+    sampled = sampled[np.lexsort(sampled.T[::-1])]  # a fixed order, whatever the downsampler's
+    total = len(sampled)
     if total < 100:
         return None
-    o3d.utility.random.seed(seed)
-    rest = pcd
+    rest = sampled
     candidates = []
-    for _ in range(max_planes):
-        if len(rest.points) < max(50, min_share * total):
+    for k in range(max_planes):
+        if len(rest) < max(50, min_share * total):
             break
-        (a, b, c, d), inliers = rest.segment_plane(distance, 3, 1000)
-        n = np.array([a, b, c])
-        norm = np.linalg.norm(n)
-        n, d = n / norm, d / norm
+        n, d, inliers = ransac_plane(rest, distance, iterations=400, seed=seed + k)
         if np.dot(n, up_hint) < 0:
             n, d = -n, -d
-        inlier_pts = np.asarray(rest.select_by_index(inliers).points)
-        rest = rest.select_by_index(inliers, invert=True)
+        inlier_pts = rest[inliers]
+        rest = np.delete(rest, inliers, axis=0)
         angle = np.degrees(np.arccos(np.clip(np.dot(n, up_hint), -1, 1)))
         if len(inliers) >= min_share * total and angle <= max_angle_deg:
             candidates.append((n, d, inlier_pts))
     if not candidates:
         return None
-    all_pts = np.asarray(pcd.points)
+    all_pts = sampled
     # The floor is the lowest candidate along the up direction with (almost) everything above it.
     best = None
     for n, d, pts in candidates:

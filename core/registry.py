@@ -56,6 +56,8 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
     "mappers": (
         "stratamap.plugins.mappers.tsdf",
         "stratamap.plugins.mappers.points",
+        "stratamap.plugins.mappers.semantic_tsdf",
+        "stratamap.plugins.mappers.instance_clusters",
         "stratamap.plugins.mappers.occupancy",
         "stratamap.plugins.mappers.contact_graph",
     ),

@@ -109,6 +109,7 @@ def _reference_data() -> PipelineData:
                     "objects": {"table": 1, "chair": 2, "box": 1},
                     "camera": {"width": 160, "height": 120},
                     "trajectory": {"type": "orbit", "frames": 10},
+                    "lidar": {"enabled": True, "rings": 8, "points_per_ring": 128},
                 }
             },
         ),

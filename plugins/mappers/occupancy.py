@@ -162,11 +162,11 @@ class OccupancyMapper(Mapper):
             sf = seen.reshape(-1)
             sf[flat_free] = True
             sf[flat_hit] = True
+        # Trinary, as map_saver writes a SLAM map for nav2: confident cells are 0 or 100, the rest unknown.
         prob = 1.0 / (1.0 + np.exp(-logodds))
-        out = np.where(seen, np.rint(prob * 100), -1).astype(np.int8)
-        # Snap to the trinary values map_saver writes: confident cells are exactly 0 or 100.
-        out[seen & (prob >= 0.65)] = 100
-        out[seen & (prob <= 0.196)] = 0
+        out = np.full(shape, -1, np.int8)
+        out[seen & (prob > 0.65)] = 100
+        out[seen & (prob < 0.196)] = 0
         return out
 
     @staticmethod

@@ -29,33 +29,66 @@ from stratamap.core.transforms import apply, invert
 NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
 
 
-def position_order(points: np.ndarray) -> np.ndarray:
-    """A stable order of points by position (x, then y, then z on a 0.1 mm grid), via one int64 key."""
+def label_stride(configured: int | None, width: int) -> int:
+    """Pixel stride of label fusion: about one sample per 2 cm voxel at 2-3 m whatever the resolution."""
+    return configured if configured is not None else max(1, round(width / 160))
+
+
+QUANTUM = 1e-5  # 10 micrometres: far below any voxel size, so keys are exact for TSDF surfaces
+
+
+def _grid_keys(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(int64 key per point on a 10 um grid, quantized coordinates, grid origin), or None when the
+    extent is too large to pack three coordinates into 63 bits."""
+    lo = points.min(0)
+    q = np.rint((points - lo) / QUANTUM).astype(np.int64)
+    span = q.max(0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2**62:
+        return None
+    return (q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2], q, lo
+
+
+def position_order(points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
+    """An order of points by position (x, then y, then z on a 10 um grid; then colour), so clouds
+    extracted in thread-dependent order compare equal."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
-    q = np.round(points / 1e-4).astype(np.int64)
-    q -= q.min(0)
-    span = q.max(0) + 1
-    if np.prod(span.astype(float)) < 2**62:
-        return np.argsort((q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2], kind="stable")
-    return np.lexsort(points.T[::-1])
+    packed = _grid_keys(points)
+    keys = [points[:, 2], points[:, 1], points[:, 0]] if packed is None else [packed[0]]
+    if colors is not None:
+        keys = [np.ascontiguousarray(colors, dtype=np.float32).view(np.uint32)[:, k] for k in (2, 1, 0)] + keys
+    return np.lexsort(keys)
 
 
 def canonical_mesh(
     vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Vertices sorted by position and faces sorted, so equal surfaces compare equal whatever
-    order Open3D's threads produced them in."""
-    order = position_order(vertices)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    faces = rank[faces]
-    n = np.int64(max(len(vertices), 1))
+    """The same mesh whatever order Open3D's threads produced it in: vertices merged where they
+    coincide (marching cubes emits duplicates at block borders) and sorted by position on a 10 um
+    grid, duplicate colours averaged (integer sums: order-free), faces sorted."""
+    if len(vertices) == 0:
+        return vertices, faces, vertex_colors
+    packed = _grid_keys(vertices)
+    if packed is None:
+        unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    else:
+        keys, q, lo = packed
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        unique = lo + q[first] * QUANTUM
+    inverse = inverse.reshape(-1)
+    colors = None
+    if vertex_colors is not None:
+        acc = np.zeros((len(unique), vertex_colors.shape[1]), np.int64)
+        np.add.at(acc, inverse, vertex_colors.astype(np.int64))
+        count = np.bincount(inverse, minlength=len(unique))[:, None]
+        colors = ((2 * acc + count) // (2 * count)).astype(vertex_colors.dtype)
+    faces = inverse[faces]
+    n = np.int64(max(len(unique), 1))
     if len(faces) and float(n) ** 3 < 2**62:
         faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2], kind="stable")]
     elif len(faces):
         faces = faces[np.lexsort(faces.T[::-1])]
-    return vertices[order], faces, None if vertex_colors is None else vertex_colors[order]
+    return unique, faces, colors
 
 
 class TSDFConfig(StageConfig):
@@ -65,8 +98,8 @@ class TSDFConfig(StageConfig):
     depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
     block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map (8: little memory spent on free space).")
     block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (the hash map grows as needed).")
-    label_stride: int = Field(
-        default=4, ge=1, le=8, description="Every n-th pixel (in x and y) takes part in label fusion (4: about one sample per 2 cm voxel at 2-3 m)."
+    label_stride: int | None = Field(
+        default=None, ge=1, le=16, description="Every n-th pixel (in x and y) takes part in label fusion; default width / 160 (4 at 640 px)."
     )
     associate_ratio: float = Field(default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label.")
     merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
@@ -143,9 +176,10 @@ class TSDFMapper(Mapper):
         # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
         pcd = vbg.extract_point_cloud()
         points = pcd.point.positions.numpy().astype(np.float64)
-        order = position_order(points)
+        raw_colors = pcd.point.colors.numpy() if "colors" in pcd.point else None
+        order = position_order(points, raw_colors)
         points = points[order]
-        colors = np.clip(pcd.point.colors.numpy()[order], 0, 1) if "colors" in pcd.point else None
+        colors = None if raw_colors is None else np.clip(raw_colors[order], 0, 1)
         mesh = None
         if cfg.extract_mesh:
             tmesh = vbg.extract_triangle_mesh()
@@ -194,7 +228,7 @@ class TSDFMapper(Mapper):
 
     def _fuse_labels(self, vbg: Any, state: PanopticState, depth: np.ndarray, seg: Any, intr: Any, pose: np.ndarray, cfg: TSDFConfig) -> None:
         d = np.where(depth <= cfg.depth_max, depth, 0)
-        pts, pix = intr.backproject(d, stride=cfg.label_stride)
+        pts, pix = intr.backproject(d, stride=label_stride(cfg.label_stride, intr.width))
         if len(pts) == 0:
             return
         cls = seg.class_ids.reshape(-1)[pix]

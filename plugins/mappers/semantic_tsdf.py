@@ -1,0 +1,128 @@
+"""Mapper ``semantic_tsdf``: TSDF fusion with per-voxel Bayesian class fusion (Kimera-Semantics style).
+
+Every voxel a labelled pixel falls in keeps a log-probability per class. An observation of class
+z updates it with the measurement model p(z | c) = ``p_correct`` if z = c, else
+(1 - ``p_correct``) / (K - 1); the voxel's class is the argmax. Class probabilities live in an
+Open3D hash map keyed by voxel, so only observed voxels cost memory. Like Kimera, it labels
+classes only; split them into objects with the ``instance_clusters`` mapper.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+from pydantic import Field
+
+from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.layers import Geometry, Semantics
+from stratamap.core.transforms import apply, invert
+from stratamap.plugins.mappers.tsdf import canonical_mesh, label_stride, position_order
+
+NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
+
+
+class SemanticTSDFConfig(StageConfig):
+    voxel_size: float = Field(default=0.02, gt=0.001, le=0.5, description="Voxel edge length, metres.")
+    truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels.")
+    depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres.")
+    depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
+    block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map.")
+    block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (grows as needed).")
+    label_stride: int | None = Field(default=None, ge=1, le=16, description="Every n-th pixel (in x and y) updates class probabilities; default width / 160.")
+    p_correct: float = Field(default=0.8, gt=0.0, lt=1.0, description="Probability that the segmenter's class is right (measurement model).")
+    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh into the geometry layer.")
+
+
+class SemanticTSDFMapper(Mapper):
+    """TSDF fusion with per-voxel Bayesian class probabilities (Kimera-Semantics); classes, no instances."""
+
+    name = "semantic_tsdf"
+    Config = SemanticTSDFConfig
+    requires = frozenset({"frames", "frame_labels"})
+    optional = frozenset({"ground_truth"})
+    provides = frozenset({"geometry", "semantics"})
+
+    def map(self, data: PipelineData) -> dict[str, Any]:
+        cfg: SemanticTSDFConfig = self.config  # type: ignore[assignment]
+        stream, labels = data.stream, data.frame_labels
+        assert stream is not None and labels is not None
+        if stream.intrinsics is None:
+            raise DataError(f"semantic_tsdf: the stream {stream.name!r} has no camera intrinsics")
+        vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
+        n_classes = len(vocab)
+        device = o3c.Device("CPU:0")
+        vbg = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)),
+            voxel_size=cfg.voxel_size,
+            block_resolution=cfg.block_resolution,
+            block_count=cfg.block_count,
+            device=device,
+        )
+        probs = o3c.HashMap(200000, o3c.int32, (3,), o3c.float32, (n_classes,), device)
+        # log p(z|c): the observed class gains log(p / q) over the others (q = (1 - p) / (K - 1)).
+        gain = np.float32(np.log(cfg.p_correct * (n_classes - 1) / (1 - cfg.p_correct)))
+        intr = stream.intrinsics
+        K = o3c.Tensor(intr.matrix, o3c.float64)
+        for frame in self.progress(stream.frames, description="semantic TSDF"):
+            if frame.pose is None:
+                raise DataError(f"semantic_tsdf: frame {frame.index} has no pose")
+            depth = np.where(np.isfinite(frame.depth) & (frame.depth >= cfg.depth_min), frame.depth, 0).astype(np.float32)
+            if not depth.any():
+                continue
+            ext = o3c.Tensor(invert(frame.pose), o3c.float64)
+            d_img = o3d.t.geometry.Image(o3c.Tensor(depth))
+            c_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(frame.rgb, dtype=np.float32) / 255.0))
+            coords = vbg.compute_unique_block_coordinates(d_img, K, ext, 1.0, cfg.depth_max, cfg.truncation_voxels)
+            vbg.integrate(coords, d_img, c_img, K, K, ext, 1.0, cfg.depth_max, cfg.truncation_voxels)
+            seg = labels.frames[frame.index]
+            pts, pix = intr.backproject(np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width))
+            cls = seg.class_ids.reshape(-1)[pix].astype(np.int64)
+            keep = cls > 0
+            if not keep.any():
+                continue
+            keys = o3c.Tensor(np.round(apply(frame.pose, pts[keep]) / cfg.voxel_size).astype(np.int32))
+            probs.activate(keys)
+            buf, found = probs.find(keys)
+            idx = buf.numpy().astype(np.int64).reshape(-1)[found.numpy().reshape(-1)]
+            table = probs.value_tensor().numpy()
+            np.add.at(table, (idx, cls[keep][found.numpy().reshape(-1)]), gain)
+
+        pcd = vbg.extract_point_cloud()
+        points = pcd.point.positions.numpy().astype(np.float64)
+        raw_colors = pcd.point.colors.numpy()
+        order = position_order(points, raw_colors)
+        points = points[order]
+        colors = np.clip(raw_colors[order], 0, 1)
+        mesh = None
+        if cfg.extract_mesh:
+            import trimesh
+
+            tm = vbg.extract_triangle_mesh()
+            v, f, c = canonical_mesh(tm.vertex.positions.numpy().astype(np.float64), tm.triangle.indices.numpy().astype(np.int64), (np.clip(tm.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8))
+            mesh = trimesh.Trimesh(v, f, vertex_colors=c, process=False)
+        table = probs.value_tensor().numpy()
+        base = np.round(points / cfg.voxel_size).astype(np.int64)
+        class_ids = np.zeros(len(points), np.int32)
+        for offset in NEIGHBOURS:
+            todo = np.flatnonzero(class_ids == 0)
+            if len(todo) == 0:
+                break
+            buf, found = probs.find(o3c.Tensor((base[todo] + offset).astype(np.int32)))
+            ok = found.numpy().reshape(-1)
+            rows = table[buf.numpy().astype(np.int64).reshape(-1)[ok]]
+            best = rows.argmax(1)
+            best[rows.max(1) <= 0] = 0
+            class_ids[todo[ok]] = best
+        semantics = Semantics(class_ids, np.zeros(len(points), np.int32), vocab)
+        return {"geometry": Geometry(points=points, colors=colors, mesh=mesh, voxel_size=cfg.voxel_size), "semantics": semantics}
+
+
+@hookimpl
+def stratamap_register_mappers():
+    return [SemanticTSDFMapper]

@@ -1,0 +1,164 @@
+"""Mapping: panoptic TSDF fusion, Bayesian semantic fusion, instance post-processing, occupancy, metrics."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+import yaml
+
+from stratamap.core.config import load_pipeline
+from stratamap.core.layers import Geometry, LayeredMap, Semantics
+from stratamap.core.metrics.panoptic import panoptic_quality
+from stratamap.core.metrics.trajectory import ate, rpe, umeyama
+from stratamap.core.pipeline import Pipeline
+from stratamap.core.stages import PipelineData
+from stratamap.core.transforms import make_pose
+from stratamap.core.vocabulary import Vocabulary
+from stratamap.plugins.mappers.instance_clusters import InstanceClustersMapper
+
+from .conftest import shared_data
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def office_pipeline(tmp_path: Path, noise: str, mapper: list[dict]) -> dict:
+    spec = yaml.safe_load((REPO / "configs" / "scenes" / "office.yaml").read_text())
+    spec["noise"]["depth"] = noise
+    spec["camera"].update(width=320, height=240)
+    spec["seed"] = 3
+    spec["trajectory"]["frames"] = 60
+    doc = {"source": {"plugin": "synthetic", "params": {"scene": spec}}, "stages": [{"plugin": "oracle"}, *mapper], "output": {"save_map": True}}
+    path = tmp_path / "pipe.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return Pipeline(load_pipeline(path)).run(tmp_path / "out")
+
+
+@pytest.mark.parametrize(("noise", "minimum"), [("none", 0.8), ("kinect", 0.7)])
+def test_panoptic_fusion_quality_with_the_oracle(tmp_path, noise, minimum):
+    report = office_pipeline(tmp_path, noise, [{"plugin": "tsdf"}])
+    pq = report["metrics"]["panoptic"]
+    assert {"pq", "sq", "rq", "pq_things", "pq_stuff", "by_class"} <= set(pq)
+    assert pq["pq"] >= minimum, pq
+    assert report["metrics"]["instances"]["f1"] >= 0.7
+    assert report["layers"]["instances"]["objects"] >= 15
+
+
+def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):
+    report = office_pipeline(tmp_path, "none", [{"plugin": "semantic_tsdf"}, {"plugin": "instance_clusters"}])
+    assert report["metrics"]["panoptic"]["pq_stuff"] > 0.9
+    assert report["metrics"]["panoptic"]["pq"] > 0.6
+    m = LayeredMap.load(tmp_path / "out" / "map")
+    assert m.provenance["semantics"] == "instance_clusters" and len(m.instances) >= 12
+
+
+def test_geometry_of_the_real_office_is_gravity_aligned(tmp_path):
+    seq = shared_data("align3d_office")
+    report = Pipeline(load_pipeline(REPO / "configs" / "map_geometry.yaml", [f"source.params.path={seq}"])).run(tmp_path)
+    mesh = trimesh.load(tmp_path / "export" / "geometry.ply")
+    pts = np.asarray(mesh.vertices)
+    low = pts[np.abs(pts[:, 2]) < 0.15]
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(low))
+    o3d.utility.random.seed(0)
+    (a, b, c, d), inliers = pc.segment_plane(0.01, 3, 2000)
+    n = np.array([a, b, c]) * np.sign(c)
+    assert np.degrees(np.arccos(n[2] / np.linalg.norm(n))) < 3.0
+    assert abs(d * np.sign(c) / np.linalg.norm([a, b, c])) < 0.02
+    assert len(inliers) > 0.3 * len(low)
+    assert report["notes"]["tum"]["gravity_alignment"]["realigned"] is True
+    assert any("re-aligned" in w for w in report["warnings"])
+
+
+def test_laser_map_misses_seats_the_multimap_has(tmp_path):
+    doc = {
+        "source": {"plugin": "synthetic", "params": {"scene": {"type": "room", "seed": 5, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 30}}}},
+        "stages": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.03}}, {"plugin": "occupancy"}],
+        "output": {"save_map": True},
+    }
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(doc))
+    report = Pipeline(load_pipeline(tmp_path / "p.yaml")).run(tmp_path / "out")
+    assert "log-odds" in report["notes"]["occupancy"]["slam_source"]
+    m = LayeredMap.load(tmp_path / "out" / "map")
+    slam, multi = m.occupancy["slam"], m.occupancy["multimap"]
+    seats = [i for i in m.instances if i.class_name == "chair"]
+    assert seats
+    missed = 0
+    for chair in seats:
+        rc = slam.world_to_cell(chair.box.center[None, :2])[0]
+        missed += slam.data[rc[0], rc[1]] == 0 and multi.data[rc[0], rc[1]] == 100
+    assert missed >= 1  # the laser passes under the seat; the multimap does not
+
+
+def test_panoptic_quality_on_hand_made_labels():
+    vocab = Vocabulary.default()
+    floor, chair = vocab.id("floor"), vocab.id("chair")
+    gt_c = np.array([floor] * 10 + [chair] * 10 + [chair] * 10)
+    gt_i = np.array([0] * 10 + [1] * 10 + [2] * 10)
+    pred_c = gt_c.copy()
+    pred_i = gt_i.copy() + 5  # ids need not agree, only segments
+    res = panoptic_quality(pred_c, pred_i, gt_c, gt_i, vocab)
+    assert res["pq"] == pytest.approx(1.0)
+    pred_i[20:30] = 6  # two chairs predicted as one: IoU 0.5 -> no match, 1 FP, 2 FN
+    res = panoptic_quality(pred_c, pred_i, gt_c, gt_i, vocab)
+    assert res["by_class"]["chair"]["tp"] == 0 and res["by_class"]["chair"]["fn"] == 2 and res["by_class"]["chair"]["fp"] == 1
+    assert res["by_class"]["floor"]["pq"] == pytest.approx(1.0)
+    pred_i = gt_i + 5
+    pred_i[10:12] = 9  # a sliver split off chair 1: IoU 0.8 still matches; the sliver is a false positive
+    res = panoptic_quality(pred_c, pred_i, gt_c, gt_i, vocab)
+    chair_stats = res["by_class"]["chair"]
+    assert chair_stats["tp"] == 2 and chair_stats["fp"] == 1
+    assert chair_stats["pq"] == pytest.approx((0.8 + 1.0) / (2 + 0.5))
+
+
+def test_trajectory_errors():
+    rng = np.random.default_rng(0)
+    gt = [make_pose(rng.normal(size=3), rng.uniform(-3, 3)) for _ in range(20)]
+    offset = make_pose((1.0, -2.0, 0.5), 0.7)
+    moved = [offset @ p for p in gt]  # the same trajectory in another world frame
+    assert ate(moved, gt)["ate_rmse_m"] < 1e-9
+    assert rpe(moved, gt)["rpe_trans_rmse_m"] < 1e-9
+    noisy = [p.copy() for p in moved]
+    noisy[5][:3, 3] += [0.1, 0, 0]
+    assert 0.01 < ate(noisy, gt)["ate_rmse_m"] < 0.1
+    src = rng.normal(size=(30, 3))
+    T = make_pose((0.3, 0.2, 0.1), 1.0)
+    np.testing.assert_allclose(umeyama(src, src @ T[:3, :3].T + T[:3, 3]), T, atol=1e-9)
+
+
+def test_shape_filter_rejects_planes_and_wrong_extents():
+    vocab = Vocabulary.default()
+    rng = np.random.default_rng(0)
+    from stratamap.core.synthetic.models import make_model
+
+    chair = trimesh.sample.sample_surface_even(make_model("four_leg_chair", 0, 0).mesh(), 4000, seed=0)[0]
+    wall_bleed = np.c_[rng.uniform(2, 3, 800), np.full(800, 3.0), rng.uniform(0, 1, 800)]  # a flat patch of "chair"
+    big_box = trimesh.creation.box((3.0, 3.0, 1.0), transform=make_pose((6.5, 6.5, 0.5)))
+    huge = trimesh.sample.sample_surface_even(big_box, 20000, seed=0)[0]  # far too big to be a chair
+    pts = np.vstack([chair, wall_bleed, huge])
+    sem = Semantics(np.full(len(pts), vocab.id("chair")), np.zeros(len(pts), np.int32), vocab)
+    data = PipelineData()
+    data.map.geometry, data.map.semantics = Geometry(points=pts), sem
+    out = InstanceClustersMapper().run(data)
+    assert len(out["instances"]) == 1
+    kept = out["instances"].ids()[0]
+    assert (out["semantics"].instance_ids[: len(chair)] == kept).all()
+    assert (out["semantics"].class_ids[len(chair) :] == 0).all()
+    assert data.notes["instance_clusters"]["rejected"] == {"planar": 1, "extent": 1}
+
+
+def test_tum_pipeline_reports_panoptic_metrics(tmp_path):
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+    from stratamap.core.synthetic.writer import write_sequence
+
+    spec = SceneSpec.model_validate({"type": "office", "seed": 2, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 20}})
+    seq = write_sequence(SyntheticWorld(spec), tmp_path / "seq")
+    report = Pipeline(load_pipeline(REPO / "configs" / "map_tum.yaml", [f"source.params.path={seq}"])).run(tmp_path / "out")
+    assert {"pq", "sq", "rq"} <= set(report["metrics"]["panoptic"])
+    assert report["layers"]["instances"]["objects"] > 5
+    assert (tmp_path / "out" / "export" / "geometry.ply").is_file()
+    saved = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert saved["metrics"]["panoptic"]["pq"] == report["metrics"]["panoptic"]["pq"]

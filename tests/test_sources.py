@@ -1,0 +1,190 @@
+"""Data sources: what they read, and the errors real data provokes."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from stratamap.core.errors import DataError
+from stratamap.core.rosbag_io import write_lidar_bag, write_rgbd_bag
+from stratamap.core.stages import PipelineData
+from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+from stratamap.core.synthetic.writer import write_sequence
+from stratamap.plugins.sources.pointcloud import PointCloudSource
+from stratamap.plugins.sources.redwood import RedwoodSource
+from stratamap.plugins.sources.rosbag import RosbagSource
+from stratamap.plugins.sources.scannet import ScanNetSource
+from stratamap.plugins.sources.tum import TUMSource
+
+from .conftest import shared_data
+
+SMALL = {"type": "room", "seed": 2, "camera": {"width": 96, "height": 72}, "trajectory": {"type": "orbit", "frames": 5}}
+
+
+@pytest.fixture(scope="module")
+def world():
+    return SyntheticWorld(SceneSpec.model_validate({**SMALL, "lidar": {"enabled": True, "rings": 8, "points_per_ring": 96}}))
+
+
+@pytest.fixture(scope="module")
+def tum_seq(tmp_path_factory, world):
+    path = tmp_path_factory.mktemp("tum") / "seq"
+    write_sequence(world, path)
+    return path
+
+
+def read(source):
+    return source.run(PipelineData())
+
+
+def test_tum_reads_back_what_synth_wrote(tum_seq, world):
+    out = read(TUMSource(path=str(tum_seq), gravity="off"))
+    stream, gt = out["frames"], out["ground_truth"]
+    assert len(stream.frames) == 5 and stream.intrinsics == world.intrinsics
+    f, truth = stream.frames[3], world.frame(3)[0]
+    assert np.abs(f.depth - truth.depth).max() <= 1 / 5000 + 1e-6
+    np.testing.assert_array_equal(f.rgb, truth.rgb)
+    np.testing.assert_allclose(f.pose, truth.pose, atol=1e-6)
+    assert len(gt.objects) == len(world.scene.objects) and len(gt.frame_labels) == 5
+    np.testing.assert_array_equal(gt.frame_labels[3].instance_ids, world.frame(3)[1].instance_ids)
+    assert len(stream.laser_scans) == 5
+
+
+def test_tum_gravity_auto_keeps_a_z_up_input(tum_seq):
+    data = PipelineData()
+    TUMSource(path=str(tum_seq)).run(data)
+    assert data.notes["tum"]["gravity_alignment"]["rotation_deg"] < 1.0
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_tum_errors_name_the_file(tum_seq, tmp_path):
+    with pytest.raises(DataError, match="not found"):
+        read(TUMSource(path=str(tmp_path / "nowhere")))
+    seq = _copy(tum_seq, tmp_path / "a")
+    (seq / "rgb.txt").unlink()
+    with pytest.raises(DataError, match="rgb.txt: file missing"):
+        read(TUMSource(path=str(seq)))
+    seq = _copy(tum_seq, tmp_path / "b")
+    lines = (seq / "depth.txt").read_text().splitlines()
+    body = [ln for ln in lines if not ln.startswith("#")]
+    (seq / "depth.txt").write_text("\n".join([body[1], body[0], *body[2:]]) + "\n")
+    with pytest.raises(DataError, match="not increasing"):
+        read(TUMSource(path=str(seq)))
+    seq = _copy(tum_seq, tmp_path / "c")
+    first = sorted((seq / "depth").glob("*.png"))[0]
+    Image.fromarray((np.asarray(Image.open(first)) // 256).astype(np.uint8)).save(first)
+    with pytest.raises(DataError, match="8-bit"):
+        read(TUMSource(path=str(seq), gravity="off"))
+    with pytest.raises(DataError, match="wrong depth scale"):
+        read(TUMSource(path=str(tum_seq), depth_scale=5.0))
+    seq = _copy(tum_seq, tmp_path / "d")
+    (seq / "camera.json").write_text('{"width": 96}')
+    with pytest.raises(DataError, match="camera.json"):
+        read(TUMSource(path=str(seq)))
+    seq = _copy(tum_seq, tmp_path / "e")
+    (seq / "camera.json").write_text('{"width": 64, "height": 48, "fx": 50, "fy": 50, "cx": 32, "cy": 24, "depth_scale": 5000}')
+    with pytest.raises(DataError, match="size mismatch"):
+        read(TUMSource(path=str(seq)))
+
+
+def test_tum_without_poses_runs_odometry_and_reports_ate(tmp_path):
+    spec = SceneSpec.model_validate({"type": "room", "seed": 4, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 144}})
+    seq = write_sequence(SyntheticWorld(spec), tmp_path / "noposes")
+    (seq / "groundtruth.txt").unlink()
+    data = PipelineData()
+    out = TUMSource(path=str(seq), gravity="off", max_frames=12).run(data)
+    odo = data.notes["tum"]["odometry"]
+    assert "ate_rmse_m" in odo and odo["ate_rmse_m"] < 0.05, odo  # ~1 cm with 2.5 degrees between frames
+    assert all(f.pose is not None for f in out["frames"].frames)
+    with pytest.raises(DataError, match="no pose"):
+        read(TUMSource(path=str(seq), odometry="never"))
+
+
+def test_nan_and_zero_depth_become_no_measurement(tmp_path):
+    from stratamap.core.rgbd_io import read_depth
+
+    arr = np.array([[np.nan, 0.0], [-1.0, 1.5]], np.float32)
+    Image.fromarray(arr, mode="F").save(tmp_path / "d.tiff")
+    depth = read_depth(tmp_path / "d.tiff", 5000)
+    np.testing.assert_array_equal(depth, [[0, 0], [0, 1.5]])
+
+
+@pytest.mark.parametrize("ros_version", [1, 2])
+def test_rosbag_rgbd_round_trip(world, tmp_path, ros_version):
+    bag = write_rgbd_bag(tmp_path / ("rgbd.bag" if ros_version == 1 else "rgbd"), world.stream(), ros_version=ros_version)
+    stream = read(RosbagSource(path=str(bag), gravity="off"))["frames"]
+    assert len(stream.frames) == 5 and stream.intrinsics == world.intrinsics
+    for k in (0, 4):
+        got, truth = stream.frames[k], world.frame(k)[0]
+        np.testing.assert_array_equal(got.rgb, truth.rgb)
+        assert np.abs(got.depth - truth.depth).max() <= 0.0005 + 1e-6  # written in millimetres
+        np.testing.assert_allclose(got.pose, truth.pose, atol=1e-9)
+
+
+@pytest.mark.parametrize("ros_version", [1, 2])
+def test_rosbag_pointcloud2_round_trip(world, tmp_path, ros_version):
+    bag = write_lidar_bag(tmp_path / ("lidar.bag" if ros_version == 1 else "lidar"), world.lidar_scans, ros_version=ros_version)
+    scans = read(RosbagSource(path=str(bag), gravity="off"))["frames"].lidar_scans
+    assert len(scans) == len(world.lidar_scans)
+    for got, truth in zip(scans, world.lidar_scans, strict=True):
+        np.testing.assert_allclose(got.points, truth.points, atol=1e-5)
+        np.testing.assert_allclose(got.pose, truth.pose, atol=1e-9)
+
+
+def test_rosbag_errors(tmp_path):
+    with pytest.raises(DataError, match="not found"):
+        read(RosbagSource(path=str(tmp_path / "missing.bag")))
+    (tmp_path / "junk.bag").write_bytes(b"not a bag")
+    with pytest.raises(DataError, match="cannot open"):
+        read(RosbagSource(path=str(tmp_path / "junk.bag")))
+
+
+def test_scannet_and_redwood_layouts_read():
+    for cls in (ScanNetSource, RedwoodSource):
+        params = cls.example_params()
+        stream = read(cls(**params, gravity="off"))["frames"]
+        assert len(stream.frames) == 5 and all(f.pose is not None for f in stream.frames)
+        assert stream.frames[0].rgb.shape[:2] == stream.frames[0].depth.shape
+
+
+def test_redwood_reads_the_open3d_sample():
+    root = shared_data("open3d_rgbd")
+    data = PipelineData()
+    stream = RedwoodSource(path=str(root)).run(data)["frames"]
+    assert len(stream.frames) == 5 and stream.intrinsics.fx == 525.0
+    assert data.notes["redwood"]["gravity_alignment"]["realigned"]  # its world is y-up
+
+
+def test_pointcloud_reads_mosd_with_labels_dropping_nan():
+    path = shared_data("mosd", "learn", "learn0.pcd")
+    data = PipelineData()
+    out = PointCloudSource(path=str(path), label_scheme="mosd", up_axis="-y", up_tolerance_deg=60).run(data)
+    stream, gt = out["frames"], out["ground_truth"]
+    assert np.isfinite(stream.points).all() and len(stream.points) < 640 * 480
+    assert data.notes["pointcloud"]["points"]["dropped_invalid"] > 0
+    assert stream.point_colors.shape == stream.points.shape and stream.point_colors.max() <= 1.0
+    assert set(np.unique(gt.point_instance_ids)) >= {1, 2}
+    table = gt.point_class_ids == gt.vocabulary.id("table")
+    assert abs(np.median(stream.points[table, 2])) < 0.01  # the support plane is z = 0 after alignment
+
+
+def test_pointcloud_formats_and_errors(tmp_path):
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
+    np.save(tmp_path / "c.npy", np.c_[pts, np.full(500, 3)])
+    out = read(PointCloudSource(path=str(tmp_path / "c.npy"), gravity="off"))
+    assert len(out["frames"].points) == 500 and set(np.unique(out["ground_truth"].point_instance_ids)) == {3}
+    np.save(tmp_path / "bad.npy", np.zeros((10, 5)))
+    with pytest.raises(DataError, match="expected an"):
+        read(PointCloudSource(path=str(tmp_path / "bad.npy")))
+    (tmp_path / "c.las").write_text("x")
+    with pytest.raises(DataError, match="unsupported"):
+        read(PointCloudSource(path=str(tmp_path / "c.las")))
