@@ -61,7 +61,11 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.mappers.occupancy",
         "stratamap.plugins.mappers.contact_graph",
     ),
-    "completers": ("stratamap.plugins.completers.bbox", "stratamap.plugins.completers.icp_match"),
+    "completers": (
+        "stratamap.plugins.completers.bbox",
+        "stratamap.plugins.completers.icp_match",
+        "stratamap.plugins.completers.plane_box_match",
+    ),
     "exporters": (
         "stratamap.plugins.exporters.urdf",
         "stratamap.plugins.exporters.nav2_map",
