@@ -69,8 +69,17 @@ def procedural_library(per_family: int, seed: int) -> ModelLibrary:
 _INDEXES: dict[tuple, ModelIndex] = {}
 
 
+def register_library(name: str, library: ModelLibrary, spacing: float = 0.02) -> str:
+    """Make an in-memory library usable as ``library: "<name>"`` in completer configs (benchmarks, notebooks)."""
+    key = f"<{name}>"
+    _INDEXES[(key, MatcherConfig.model_fields["library_per_family"].default, MatcherConfig.model_fields["library_seed"].default, spacing)] = ModelIndex(library, spacing=spacing)
+    return key
+
+
 def load_index(cfg: MatcherConfig) -> ModelIndex:
-    key = (cfg.library, cfg.library_per_family, cfg.library_seed, cfg.sample_spacing)
+    key = (cfg.library, MatcherConfig.model_fields["library_per_family"].default, MatcherConfig.model_fields["library_seed"].default, cfg.sample_spacing) if (cfg.library or "").startswith("<") else (cfg.library, cfg.library_per_family, cfg.library_seed, cfg.sample_spacing)
+    if cfg.library is not None and cfg.library.startswith("<") and key not in _INDEXES:
+        raise KeyError(f"no in-memory library registered as {cfg.library!r} (see register_library)")
     if key not in _INDEXES:
         library = ModelLibrary.load(cfg.library) if cfg.library else procedural_library(cfg.library_per_family, cfg.library_seed)
         try:

@@ -98,9 +98,7 @@ class ModelIndex:
     def _index(self, model: LibraryModel, mesh: trimesh.Trimesh) -> IndexedModel:
         count = int(np.clip(mesh.area / self.spacing**2, 256, self.max_samples))
         seed = int(hashlib.sha256(model.id.encode()).hexdigest()[:8], 16)
-        samples = np.asarray(trimesh.sample.sample_surface_even(mesh, count, seed=seed)[0], dtype=np.float64)
-        if len(samples) < 64:
-            samples = np.asarray(trimesh.sample.sample_surface(mesh, count, seed=seed)[0], dtype=np.float64)
+        samples = np.asarray(trimesh.sample.sample_surface(mesh, count, seed=seed)[0], dtype=np.float64)
         size = np.asarray(model.size, float)
         return IndexedModel(model.id, model.class_name, model.family, samples, size, np.asarray(model.feature_planes, float), shape_descriptor(samples, size))
 

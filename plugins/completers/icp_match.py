@@ -5,7 +5,8 @@ For each object of a class the library has:
 
 1. rank the class's models by global descriptor and keep the top ``shortlist`` (or all);
 2. coarse alignment: rotate the reference model (the best-ranked) about z in ``yaw_samples``
-   uniform steps around the object's support point; keep the rotation with the least mean
+   uniform steps around the object's support point (each with a few translation-only ICP steps,
+   since a partial view's centroid is not the model's); keep the rotation with the least mean
    point-to-point distance;
 3. refine by ICP with yaw and translation only (the object stands on its support), scale from
    the observed height;
@@ -29,6 +30,7 @@ from stratamap.core.model_index import IndexedModel, ModelIndex, shape_descripto
 
 class ICPMatchConfig(MatcherConfig):
     yaw_samples: int = Field(default=36, ge=4, le=360, description="Uniform rotations about z tried in the coarse alignment.")
+    coarse_translation_steps: int = Field(default=6, ge=0, le=30, description="Translation-only ICP steps for each sampled rotation.")
     icp_iterations: int = Field(default=15, ge=1, le=100, description="ICP iterations refining the reference model's pose.")
     candidate_iterations: int = Field(default=5, ge=0, le=50, description="ICP iterations per candidate from the reference pose.")
     max_points: int = Field(default=1500, ge=100, description="Observed points used for matching (deterministic subsample).")
@@ -95,9 +97,18 @@ class ICPMatchCompleter(MatchingCompleter):
         ref = index.models[cands[0]]
         s_ref = scale_for(ref)
         yaws = inst.box.yaw + np.arange(cfg.yaw_samples) * (2 * np.pi / cfg.yaw_samples)
-        coarse = [float(np.mean(np.minimum(ref.tree.query(to_model(obs, y, np.zeros(2), s_ref), workers=1)[0] * s_ref, cfg.outlier_distance))) for y in yaws]
-        yaw0 = float(yaws[int(np.argmin(coarse))])
-        yaw, t, _ = icp_yaw(obs, ref, yaw0, np.zeros(2), s_ref, cfg.icp_iterations)
+        coarse, shifts = [], []
+        for y in yaws:
+            # Translation-only steps per rotation: a partial view's centroid is not the model's.
+            t = np.zeros(2)
+            for _ in range(cfg.coarse_translation_steps):
+                _, idx = ref.tree.query(to_model(obs, y, t, s_ref), workers=1)
+                t = np.mean(obs[:, :2] - (ref.samples[idx, :2] * s_ref) @ rot2(y).T, axis=0)
+            dist = ref.tree.query(to_model(obs, y, t, s_ref), workers=1)[0] * s_ref
+            coarse.append(float(np.mean(np.minimum(dist, cfg.outlier_distance))))
+            shifts.append(t)
+        best_yaw = int(np.argmin(coarse))
+        yaw, t, _ = icp_yaw(obs, ref, float(yaws[best_yaw]), shifts[best_yaw], s_ref, cfg.icp_iterations)
 
         best: Match | None = None
         for mid in cands:

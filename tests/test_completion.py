@@ -1,0 +1,164 @@
+"""Completers against ground truth: model matching beats boxes; robustness; articulation; augmented scene."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+import pytest
+import trimesh
+
+from stratamap.core.completion import augmented_scene, register_library
+from stratamap.core.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
+from stratamap.core.library import ModelLibrary, model_to_library
+from stratamap.core.metrics.completion import evaluate_completion, shape_distances
+from stratamap.core.model_index import ModelIndex
+from stratamap.core.stages import PipelineData
+from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+from stratamap.core.synthetic.models import make_model
+from stratamap.plugins.completers.bbox import BBoxCompleter
+from stratamap.plugins.completers.icp_match import ICPMatchCompleter
+from stratamap.plugins.completers.plane_box_match import ORIENTATIONS, PlaneBoxMatchCompleter
+from stratamap.plugins.mappers.contact_graph import ContactGraphMapper
+from stratamap.plugins.mappers.tsdf import TSDFMapper
+from stratamap.plugins.segmenters.oracle import OracleSegmenter
+
+
+@pytest.fixture(scope="module")
+def mapped():
+    spec = SceneSpec.model_validate({"type": "office", "seed": 11, "camera": {"width": 320, "height": 240}, "trajectory": {"frames": 60}})
+    world = SyntheticWorld(spec)
+    data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
+    for stage in (OracleSegmenter(), TSDFMapper(), ContactGraphMapper()):
+        for layer, value in stage.run(data).items():
+            data.set(layer, value, stage.name)
+    return data
+
+
+def run(completer, data: PipelineData) -> tuple[PipelineData, dict]:
+    data = copy.copy(data)
+    data.map = copy.copy(data.map)
+    data.warnings = []
+    data.notes = {}
+    out = completer.run(data)
+    for layer, value in out.items():
+        data.set(layer, value, completer.name)
+    return data, out
+
+
+def chair_chamfer(data: PipelineData) -> float:
+    res = evaluate_completion(data.map.instances, data.ground_truth.objects)
+    return res["chamfer_l1_by_class"]["chair"]
+
+
+def test_model_matching_beats_boxes_on_chairs(mapped):
+    boxes, _ = run(BBoxCompleter(), mapped)
+    icp, _ = run(ICPMatchCompleter(), mapped)
+    pbm, _ = run(PlaneBoxMatchCompleter(), mapped)
+    cd_box, cd_icp, cd_pbm = chair_chamfer(boxes), chair_chamfer(icp), chair_chamfer(pbm)
+    assert cd_icp < cd_box and cd_pbm < cd_box
+    assert min(cd_icp, cd_pbm) <= 0.03, (cd_icp, cd_pbm)
+    res = evaluate_completion(icp.map.instances, icp.ground_truth.objects)
+    chairs = [r for r in res["per_object"] if r["class"] == "chair"]
+    assert np.mean([r["same_family"] for r in chairs]) >= 0.75
+    assert np.median([r["yaw_error_deg"] for r in chairs]) < 10
+
+
+def test_augmented_scene_replaces_observed_fragments(mapped):
+    data, out = run(ICPMatchCompleter(), mapped)
+    aug = out["augmented"]
+    completed = data.map.instances.completed()
+    scene = o3d.t.geometry.RaycastingScene()
+    for inst in completed:
+        m = inst.completion.world_mesh()
+        scene.add_triangles(o3c.Tensor(m.vertices.astype(np.float32)), o3c.Tensor(m.faces.astype(np.uint32)))
+    observed = {tuple(p) for p in np.round(mapped.map.geometry.points, 9)}
+    kept_observed = np.array([p for p in aug.points if tuple(np.round(p, 9)) in observed])
+    dist = scene.compute_distance(o3c.Tensor(kept_observed.astype(np.float32))).numpy()
+    assert dist.min() > 0.1  # no observed point within epsilon of a completed model
+    assert len(aug.points) > len(kept_observed)  # the models' own points were added
+    lm = LayeredMap(geometry=mapped.map.geometry, instances=data.map.instances, augmented=aug)
+    assert lm.layer_counts()["augmented"]["points"] == len(aug.points)
+
+
+def test_articulation_carries_over():
+    cabinet = make_model("cabinet", 0, 3)
+    assert cabinet.joints
+    name = register_library("cabinets", ModelLibrary([model_to_library(cabinet)]))
+    world_pose = np.eye(4)
+    world_pose[:3, 3] = (2.0, 1.0, 0.0)
+    pts = trimesh.sample.sample_surface(cabinet.mesh(), 3000, seed=0)[0]
+    pts = pts[(pts[:, 1] < 0) | (pts[:, 0] < -0.2)]  # the front and one side are seen
+    pts = pts + world_pose[:3, 3]
+    from stratamap.core.geometry import gravity_aligned_box
+
+    inst = ObjectInstance(1, "cabinet", pts, gravity_aligned_box(pts))
+    data = PipelineData()
+    data.map.instances = ObjectInstances([inst])
+    out = ICPMatchCompleter(library=name).run(data)
+    c = out["instances"][1].completion
+    assert c.model_id == cabinet.id
+    assert [j.type for j in c.joints] == [j.type for j in cabinet.joints]
+    assert {p.name for p in c.parts} >= {j.child for j in c.joints}
+    np.testing.assert_allclose(c.pose[:3, 3], world_pose[:3, 3], atol=0.05)
+
+
+def test_robustness_warns_and_leaves_objects_uncompleted(tmp_path):
+    trimesh.creation.box((0.5, 0.5, 0.8)).export(tmp_path / "cab.stl")
+    (tmp_path / "broken.obj").write_text("garbage")
+    (tmp_path / "classes.csv").write_text("file,class\ncab.stl,cabinet\nbroken.obj,cabinet\n")
+    box = OrientedBox([1, 1, 0.4], 0, [0.5, 0.5, 0.8])
+    rng = np.random.default_rng(0)
+    insts = ObjectInstances(
+        [
+            ObjectInstance(1, "cabinet", rng.uniform([0.75, 0.75, 0], [1.25, 1.25, 0.8], (400, 3)), box),
+            ObjectInstance(2, "cabinet", rng.uniform(0, 1, (5, 3)), box),  # too few points
+            ObjectInstance(3, "sofa", rng.uniform(0, 1, (400, 3)), box),  # no sofa in the library
+        ]
+    )
+    data = PipelineData()
+    data.map.instances = insts
+    out = ICPMatchCompleter(library=str(tmp_path)).run(data)
+    assert out["instances"][1].completion is not None
+    assert out["instances"][2].completion is None and out["instances"][3].completion is None
+    text = "\n".join(data.warnings)
+    assert "broken.obj" in text and "object 2" in text and "'sofa'" in text
+
+
+def test_index_cache_round_trip(tmp_path):
+    library = ModelLibrary([model_to_library(make_model("stool", 0, i)) for i in range(3)])
+    built = ModelIndex(library, cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("index-*.npz"))) == 1
+    loaded = ModelIndex(library, cache_dir=tmp_path)
+    for mid, m in built.models.items():
+        np.testing.assert_allclose(loaded.models[mid].samples, m.samples, atol=1e-6)
+        np.testing.assert_allclose(loaded.models[mid].descriptor, m.descriptor)
+    assert loaded.shortlist("chair", built.models[library.models[0].id].descriptor, 1) == [library.models[0].id]
+
+
+def test_matching_is_deterministic(mapped):
+    a, _ = run(PlaneBoxMatchCompleter(), mapped)
+    b, _ = run(PlaneBoxMatchCompleter(), mapped)
+    for ia, ib in zip(a.map.instances, b.map.instances, strict=True):
+        assert (ia.completion is None) == (ib.completion is None)
+        if ia.completion is not None:
+            assert ia.completion.model_id == ib.completion.model_id
+            np.testing.assert_allclose(ia.completion.pose, ib.completion.pose)
+
+
+def test_orientations_are_the_24_rotations():
+    assert len(ORIENTATIONS) == 24
+    assert len({tuple(np.round(r.reshape(-1))) for r in ORIENTATIONS}) == 24
+    assert all(np.isclose(np.linalg.det(r), 1) for r in ORIENTATIONS)
+
+
+def test_chamfer_and_fscore_on_hand_made_shapes():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 1, (2000, 3))
+    same = shape_distances(a, a)
+    assert same["chamfer_l1"] == 0 and same["fscore_1cm"] == 1.0
+    shifted = shape_distances(a + [0.03, 0, 0], a)
+    assert 0.005 < shifted["chamfer_l1"] <= 0.03 and shifted["fscore_5cm"] == 1.0
+    assert shifted["fscore_1cm"] < 0.5
