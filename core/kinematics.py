@@ -1,7 +1,9 @@
 """From the contact graph and completed instances to a kinematic tree of links and joints.
 
 Every object becomes a link (in its object frame: origin at the bottom center, +z up) attached to
-its supporter by a joint; the root link is ``world``. Shared by the URDF, MJCF and SDF exporters.
+its supporter by a joint; the root link is ``world``. A completion from an articulated model adds
+a link per moving part (door, drawer, lid, swivel seat) with the model's revolute, prismatic or
+continuous joint and limits. Shared by the URDF, MJCF and SDF exporters.
 """
 
 from __future__ import annotations
@@ -125,14 +127,28 @@ def build_tree(
     poses: dict[int, np.ndarray] = {}
     links: list[Link] = []
     names: dict[int, str] = {}
+    joints: list[KinematicJoint] = []
     for inst in instances:
         mesh, pose = object_mesh(inst)
         poses[inst.id] = pose
         names[inst.id] = link_name(inst)
-        links.append(
-            Link(names[inst.id], mesh, inertial_of(mesh, density.get(inst.class_name, FALLBACK_DENSITY)), inst.id, inst.class_name)
-        )
-    joints: list[KinematicJoint] = []
+        rho = density.get(inst.class_name, FALLBACK_DENSITY)
+        c = inst.completion
+        if c is not None and c.joints and c.parts:
+            # Articulated: the body is the object's link; every moving part gets a link and its joint.
+            parts = {p.name: p for p in c.parts}
+            body = parts.get("body")
+            links.append(Link(names[inst.id], body.mesh if body is not None else mesh, inertial_of(body.mesh if body is not None else mesh, rho), inst.id, inst.class_name))
+            for j in c.joints:
+                part = parts.get(j.child)
+                if part is None:
+                    continue
+                child = safe_name(f"{names[inst.id]}__{j.child}")
+                parent = names[inst.id] if j.parent == "body" else safe_name(f"{names[inst.id]}__{j.parent}")
+                links.append(Link(child, part.mesh, inertial_of(part.mesh, rho), inst.id, inst.class_name))
+                joints.append(KinematicJoint(safe_name(f"{child}_{j.name}"), j.type, parent, child, j.origin, j.axis, j.lower, j.upper))
+        else:
+            links.append(Link(names[inst.id], mesh, inertial_of(mesh, rho), inst.id, inst.class_name))
     for inst in instances:
         parent = graph.parent(inst.id) if graph is not None and inst.id in graph.support else None
         if isinstance(parent, (int, np.integer)) and int(parent) in poses:

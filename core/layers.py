@@ -325,10 +325,16 @@ class ObjectInstances:
         return [i for i in self if i.completion is not None]
 
     def copy(self) -> ObjectInstances:
-        """A shallow copy: completers fill completions on copies so inputs stay untouched."""
+        """A copy to fill completions and attributes on, leaving the input untouched (point
+        arrays are shared: stages never modify them in place)."""
         import copy as _copy
 
-        return ObjectInstances([_copy.copy(i) for i in self])
+        out = []
+        for inst in self:
+            dup = _copy.copy(inst)
+            dup.attributes = _copy.deepcopy(inst.attributes)
+            out.append(dup)
+        return ObjectInstances(out)
 
 
 # --------------------------------------------------------------------------------------------

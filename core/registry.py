@@ -70,6 +70,8 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.exporters.urdf",
         "stratamap.plugins.exporters.nav2_map",
         "stratamap.plugins.exporters.ply",
+        "stratamap.plugins.exporters.costmap",
+        "stratamap.plugins.exporters.scene_graph",
     ),
 }
 

@@ -162,3 +162,28 @@ def test_chamfer_and_fscore_on_hand_made_shapes():
     shifted = shape_distances(a + [0.03, 0, 0], a)
     assert 0.005 < shifted["chamfer_l1"] <= 0.03 and shifted["fscore_5cm"] == 1.0
     assert shifted["fscore_1cm"] < 0.5
+
+
+def test_articulated_completion_exports_working_joints(tmp_path):
+    pybullet = pytest.importorskip("pybullet")
+    yourdfpy = pytest.importorskip("yourdfpy")
+    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.plugins.exporters.urdf import URDFExporter
+
+    cabinet = make_model("kitchen_counter", 0, 1)
+    kinds = sorted(j.type for j in cabinet.joints)
+    name = register_library("counters", ModelLibrary([model_to_library(cabinet)]))
+    pts = trimesh.sample.sample_surface(cabinet.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
+    data = PipelineData()
+    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
+    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    paths = URDFExporter().run(data, tmp_path)
+    robot = yourdfpy.URDF.load(str(paths[0]))
+    assert robot.validate()
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(paths[0]), useFixedBase=True, physicsClientId=client)
+        found = sorted({0: "revolute", 1: "prismatic"}[info[2]] for info in (pybullet.getJointInfo(body, i, physicsClientId=client) for i in range(pybullet.getNumJoints(body, physicsClientId=client))) if info[2] in (0, 1))
+    finally:
+        pybullet.disconnect(client)
+    assert found == kinds and "revolute" in found

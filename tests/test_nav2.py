@@ -77,3 +77,30 @@ def test_real_map_with_missing_image_names_it():
     with pytest.raises(DataError) as exc:
         read_map(shared_data("iai_apartment", "maps", "map_24_08_2022.yaml"))
     assert "map.pgm" in str(exc.value) and "does not exist" in str(exc.value)
+
+
+def test_costmap_values_follow_nav2_inflation():
+    from stratamap.plugins.exporters.costmap import costmap_values
+
+    data = np.zeros((41, 41), np.int8)
+    data[20, 20] = 100
+    data[0, :] = -1
+    costs = costmap_values(OccupancyGrid(data, 0.05, (0, 0, 0)), 0.2, 0.55, 10.0)
+    assert costs[20, 20] == 254 and costs[20, 22] == 253  # 0.10 m: inside the inscribed radius
+    assert costs[20, 25] == round(252 * np.exp(-10 * (0.25 - 0.2)))  # 0.25 m: on the decay
+    assert costs[20, 40] == 0 and costs[0, 5] == 255
+    assert all(costs[20, 24 + k] >= costs[20, 25 + k] for k in range(10))
+
+
+def test_costmap_file_loads_raw(tmp_path):
+    from stratamap.core.stages import PipelineData
+    from stratamap.plugins.exporters.costmap import CostmapExporter
+
+    data = PipelineData()
+    grid = np.zeros((30, 40), np.int8)
+    grid[10:12, 10:12] = 100
+    data.map.set("occupancy", {"multimap": OccupancyGrid(grid, 0.05, (1.0, 2.0, 0.0))}, "test")
+    yml, _ = CostmapExporter().run(data, tmp_path)
+    back = read_map(yml)
+    assert back.origin == (1.0, 2.0, 0.0)
+    assert (back.data.astype(np.uint8)[10:12, 10:12] == 254).all()
