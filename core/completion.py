@@ -185,12 +185,11 @@ class MatchingCompleter(Completer):
     def match(self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData) -> Match | None:
         raise NotImplementedError
 
-    def complete(self, data: PipelineData) -> dict[str, Any]:
+    def select(self, insts: ObjectInstances, index: ModelIndex) -> list[ObjectInstance]:
+        """The objects to complete; the others are reported and left as observed."""
         cfg: MatcherConfig = self.config  # type: ignore[assignment]
-        index = load_index(cfg)
         for problem in index.problems:
             self.warn(f"library: {problem}")
-        insts = data.map.instances.copy()  # type: ignore[union-attr]
         todo = []
         for inst in insts:
             if cfg.classes is not None and inst.class_name not in cfg.classes:
@@ -202,6 +201,13 @@ class MatchingCompleter(Completer):
                 self.warn(f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left uncompleted")
                 continue
             todo.append(inst)
+        return todo
+
+    def complete(self, data: PipelineData) -> dict[str, Any]:
+        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        index = load_index(cfg)
+        insts = data.map.instances.copy()  # type: ignore[union-attr]
+        todo = self.select(insts, index)
         timings: dict[int, float] = {}
 
         def work(inst: ObjectInstance) -> tuple[ObjectInstance, Match | None]:

@@ -217,17 +217,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
         cfg: PlaneBoxConfig = self.config  # type: ignore[assignment]
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
-        todo = []
-        for inst in insts:
-            if cfg.classes is not None and inst.class_name not in cfg.classes:
-                continue
-            if not index.candidates(inst.class_name):
-                self.warn(f"object {inst.id}: no {inst.class_name!r} models in the library; left uncompleted")
-                continue
-            if len(inst.points) < cfg.min_points:
-                self.warn(f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left uncompleted")
-                continue
-            todo.append(inst)
+        todo = self.select(insts, index)
         timings: dict[int, float] = {}
 
         def work(inst: ObjectInstance):
@@ -246,7 +236,6 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
             inst.attributes["match"] = info
         self._support_check(options, data, cfg)
         choice = self._min_conflict(options, cfg)
-        graph = data.map.contact_graph
         for inst, _ in results:
             cnd = choice.get(inst.id)
             if cnd is None:
@@ -271,7 +260,6 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
                 completion.parts, completion.joints = [], []  # articulation is defined for the upright model only
             inst.completion = completion
             inst.attributes["match"].update({"me": cnd.me, "ae": cnd.ae})
-        del graph
         self.note("objects", {"completed": len(choice), "attempted": len(todo)})
         self.note("seconds_per_object", float(np.mean(list(timings.values()))) if timings else 0.0)
         out: dict[str, Any] = {"instances": insts}

@@ -16,25 +16,16 @@ import open3d as o3d
 import open3d.core as o3c
 from pydantic import Field
 
-from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.layers import Geometry, Semantics
 from stratamap.core.transforms import apply, invert
-from stratamap.plugins.mappers.tsdf import canonical_mesh, label_stride, position_order
-
-NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
+from stratamap.plugins.mappers.tsdf import NEIGHBOURS, IntegrationConfig, canonical_mesh, label_stride, position_order
 
 
-class SemanticTSDFConfig(StageConfig):
-    voxel_size: float = Field(default=0.02, gt=0.001, le=0.5, description="Voxel edge length, metres.")
-    truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels.")
-    depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres.")
-    depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
-    block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map.")
-    block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (grows as needed).")
-    label_stride: int | None = Field(default=None, ge=1, le=16, description="Every n-th pixel (in x and y) updates class probabilities; default width / 160.")
+
+class SemanticTSDFConfig(IntegrationConfig):
     p_correct: float = Field(default=0.8, gt=0.0, lt=1.0, description="Probability that the segmenter's class is right (measurement model).")
-    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh into the geometry layer.")
 
 
 class SemanticTSDFMapper(Mapper):

@@ -91,7 +91,9 @@ def canonical_mesh(
     return unique, faces, colors
 
 
-class TSDFConfig(StageConfig):
+class IntegrationConfig(StageConfig):
+    """TSDF integration settings shared by the ``tsdf`` and ``semantic_tsdf`` mappers."""
+
     voxel_size: float = Field(default=0.02, gt=0.001, le=0.5, description="Voxel edge length, metres.")
     truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels (Open3D's trunc_voxel_multiplier).")
     depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres (noise grows with range).")
@@ -101,12 +103,15 @@ class TSDFConfig(StageConfig):
     label_stride: int | None = Field(
         default=None, ge=1, le=16, description="Every n-th pixel (in x and y) takes part in label fusion; default width / 160 (4 at 640 px)."
     )
+    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer.")
+
+
+class TSDFConfig(IntegrationConfig):
     associate_ratio: float = Field(default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label.")
     merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
     merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
     instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
-    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer.")
 
 
 class TSDFMapper(Mapper):
