@@ -72,6 +72,7 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.exporters.ply",
         "stratamap.plugins.exporters.costmap",
         "stratamap.plugins.exporters.scene_graph",
+        "stratamap.plugins.exporters.mjcf",
     ),
 }
 

@@ -187,3 +187,26 @@ def test_articulated_completion_exports_working_joints(tmp_path):
     finally:
         pybullet.disconnect(client)
     assert found == kinds and "revolute" in found
+
+
+def test_mjcf_export_loads_in_mujoco_with_articulation(tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.plugins.exporters.mjcf import MJCFExporter
+
+    counter = make_model("kitchen_counter", 0, 1)
+    name = register_library("counters-mjcf", ModelLibrary([model_to_library(counter)]))
+    pts = trimesh.sample.sample_surface(counter.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
+    data = PipelineData()
+    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
+    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    paths = MJCFExporter().run(data, tmp_path)
+    model = mujoco.MjModel.from_xml_path(str(paths[0]))
+    names = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute", int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+    kinds = sorted(names[int(t)] for t in model.jnt_type)
+    assert kinds == sorted(j.type for j in counter.joints)  # no free joint: furniture is static
+    sim = mujoco.MjData(model)
+    for _ in range(200):
+        mujoco.mj_step(model, sim)
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "counter_1")
+    np.testing.assert_allclose(sim.xpos[body][:2], data.map.instances[1].completion.pose[:2, 3], atol=1e-6)
