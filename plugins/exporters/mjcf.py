@@ -23,7 +23,7 @@ from stratamap.core.kinematics import ROOT_LINK, build_tree
 
 
 def _fmt(values) -> str:
-    return " ".join(f"{float(v):.6g}" for v in values)
+    return " ".join(f"{float(v):.9g}" for v in values)
 
 
 def _quat_wxyz(pose: np.ndarray) -> str:

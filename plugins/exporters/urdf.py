@@ -21,7 +21,7 @@ from stratamap.core.transforms import rpy_of
 
 
 def _fmt(values) -> str:
-    return " ".join(f"{float(v):.6g}" for v in values)
+    return " ".join(f"{float(v):.9g}" for v in values)
 
 
 def _origin(parent: ET.Element, pose: np.ndarray) -> None:
