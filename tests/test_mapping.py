@@ -162,3 +162,24 @@ def test_tum_pipeline_reports_panoptic_metrics(tmp_path):
     assert (tmp_path / "out" / "export" / "geometry.ply").is_file()
     saved = json.loads((tmp_path / "out" / "report.json").read_text())
     assert saved["metrics"]["panoptic"]["pq"] == report["metrics"]["panoptic"]["pq"]
+
+
+def test_multimap_paths_avoid_what_laser_paths_hit(tmp_path):
+    """A* for a 0.4 m robot: on the laser-only map some paths cross chairs' and tables' 3D
+    footprints; on the multimap none does (first paper, section V-C)."""
+    from stratamap.core.navigation import evaluate_navigation
+
+    report = office_pipeline(tmp_path, "none", [{"plugin": "tsdf"}, {"plugin": "occupancy"}])
+    nav = report["metrics"]["navigation"]
+    assert nav["paths"] >= 8
+    m = LayeredMap.load(tmp_path / "out" / "map")
+    truth = None
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+
+    spec = yaml.safe_load((REPO / "configs" / "scenes" / "office.yaml").read_text())
+    spec.update(seed=3)
+    truth = SyntheticWorld(SceneSpec.model_validate(spec)).ground_truth().occupancy["objects"]
+    full = evaluate_navigation(m.occupancy["slam"], m.occupancy["multimap"], truth, pairs=30)
+    assert full["colliding_laser_only"] >= 1
+    assert full["colliding_multimap"] == 0
+    assert full["colliding_multimap"] < full["colliding_laser_only"]

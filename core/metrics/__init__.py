@@ -30,6 +30,13 @@ def evaluate(data: PipelineData) -> dict[str, Any]:
         p, r = inst["precision"], inst["recall"]
         out["panoptic"] = pq
         out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
+    occ = m.occupancy
+    if "objects" in gt.occupancy and "slam" in occ and "multimap" in occ:
+        from stratamap.core.navigation import evaluate_navigation
+
+        nav = evaluate_navigation(occ["slam"], occ["multimap"], gt.occupancy["objects"])
+        nav.pop("records")
+        out["navigation"] = nav
     odometry = (data.stream.metadata.get("odometry") if data.stream is not None else None) or {}
     if "ate_rmse_m" in odometry:
         out["trajectory"] = {k: v for k, v in odometry.items() if k.startswith(("ate", "rpe"))}
