@@ -73,6 +73,8 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.exporters.costmap",
         "stratamap.plugins.exporters.scene_graph",
         "stratamap.plugins.exporters.mjcf",
+        "stratamap.plugins.exporters.sdf",
+        "stratamap.plugins.exporters.glb",
     ),
 }
 

@@ -210,3 +210,27 @@ def test_mjcf_export_loads_in_mujoco_with_articulation(tmp_path):
         mujoco.mj_step(model, sim)
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "counter_1")
     np.testing.assert_allclose(sim.xpos[body][:2], data.map.instances[1].completion.pose[:2, 3], atol=1e-6)
+
+
+def test_glb_is_y_up_and_sdf_keeps_joints(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.plugins.exporters.glb import GLBExporter
+    from stratamap.plugins.exporters.sdf import SDFExporter
+
+    counter = make_model("kitchen_counter", 0, 1)
+    name = register_library("counters-sdf", ModelLibrary([model_to_library(counter)]))
+    pts = trimesh.sample.sample_surface(counter.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
+    data = PipelineData()
+    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
+    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    glb = GLBExporter().run(data, tmp_path)[0]
+    scene = trimesh.load(glb)
+    assert scene.extents[1] == pytest.approx(counter.size[2], abs=0.02)  # height along glTF's +y
+    sdf = ET.parse(SDFExporter().run(data, tmp_path)[0]).getroot()
+    model = sdf.find("world").find("model[@name='counter_1']")
+    assert model.find("static").text == "true"
+    assert sorted(j.get("type") for j in model.findall("joint")) == sorted(j.type for j in counter.joints)
+    for uri in sdf.iter("uri"):
+        assert (tmp_path / uri.text).is_file()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from pydantic import Field
@@ -26,13 +27,24 @@ class SyntheticSource(Source):
 
     def spec(self) -> SceneSpec:
         cfg: SyntheticConfig = self.config  # type: ignore[assignment]
-        spec = SceneSpec.from_yaml(cfg.scene_file) if cfg.scene_file else cfg.scene
+        spec = SceneSpec.from_yaml(self._resolve(cfg.scene_file)) if cfg.scene_file else cfg.scene
         updates: dict[str, Any] = {}
         if cfg.seed is not None:
             updates["seed"] = cfg.seed
         if cfg.frames is not None:
             updates["trajectory"] = spec.trajectory.model_copy(update={"frames": cfg.frames})
         return spec.model_copy(update=updates) if updates else spec
+
+    @staticmethod
+    def _resolve(path: str) -> Path:
+        """A relative scene file is looked up in the working directory, then in the stratamap checkout."""
+        p = Path(path).expanduser()
+        if p.is_absolute() or p.is_file():
+            return p
+        from stratamap.core.cli import repo_root
+
+        candidate = repo_root() / p
+        return candidate if candidate.is_file() else p
 
     def read(self) -> dict[str, Any]:
         seq = generate_sequence(self.spec())
