@@ -10,7 +10,7 @@ import open3d.core as o3c
 import pytest
 import trimesh
 
-from stratamap.core.completion import augmented_scene, register_library
+from stratamap.core.completion import register_library
 from stratamap.core.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
 from stratamap.core.library import ModelLibrary, model_to_library
 from stratamap.core.metrics.completion import evaluate_completion, shape_distances
@@ -35,6 +35,19 @@ def mapped():
         for layer, value in stage.run(data).items():
             data.set(layer, value, stage.name)
     return data
+
+
+def completed_counter(library_name: str):
+    """A kitchen counter (doors and drawers) observed whole and completed from a one-model library."""
+    from stratamap.core.geometry import gravity_aligned_box
+
+    counter = make_model("kitchen_counter", 0, 1)
+    name = register_library(library_name, ModelLibrary([model_to_library(counter)]))
+    pts = trimesh.sample.sample_surface(counter.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
+    data = PipelineData()
+    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
+    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    return counter, data
 
 
 def run(completer, data: PipelineData) -> tuple[PipelineData, dict]:
@@ -167,16 +180,10 @@ def test_chamfer_and_fscore_on_hand_made_shapes():
 def test_articulated_completion_exports_working_joints(tmp_path):
     pybullet = pytest.importorskip("pybullet")
     yourdfpy = pytest.importorskip("yourdfpy")
-    from stratamap.core.geometry import gravity_aligned_box
     from stratamap.plugins.exporters.urdf import URDFExporter
 
-    cabinet = make_model("kitchen_counter", 0, 1)
+    cabinet, data = completed_counter("counters")
     kinds = sorted(j.type for j in cabinet.joints)
-    name = register_library("counters", ModelLibrary([model_to_library(cabinet)]))
-    pts = trimesh.sample.sample_surface(cabinet.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
-    data = PipelineData()
-    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
-    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
     paths = URDFExporter().run(data, tmp_path)
     robot = yourdfpy.URDF.load(str(paths[0]))
     assert robot.validate()
@@ -191,15 +198,9 @@ def test_articulated_completion_exports_working_joints(tmp_path):
 
 def test_mjcf_export_loads_in_mujoco_with_articulation(tmp_path):
     mujoco = pytest.importorskip("mujoco")
-    from stratamap.core.geometry import gravity_aligned_box
     from stratamap.plugins.exporters.mjcf import MJCFExporter
 
-    counter = make_model("kitchen_counter", 0, 1)
-    name = register_library("counters-mjcf", ModelLibrary([model_to_library(counter)]))
-    pts = trimesh.sample.sample_surface(counter.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
-    data = PipelineData()
-    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
-    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    counter, data = completed_counter("counters-mjcf")
     paths = MJCFExporter().run(data, tmp_path)
     model = mujoco.MjModel.from_xml_path(str(paths[0]))
     names = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute", int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
@@ -215,16 +216,10 @@ def test_mjcf_export_loads_in_mujoco_with_articulation(tmp_path):
 def test_glb_is_y_up_and_sdf_keeps_joints(tmp_path):
     import xml.etree.ElementTree as ET
 
-    from stratamap.core.geometry import gravity_aligned_box
     from stratamap.plugins.exporters.glb import GLBExporter
     from stratamap.plugins.exporters.sdf import SDFExporter
 
-    counter = make_model("kitchen_counter", 0, 1)
-    name = register_library("counters-sdf", ModelLibrary([model_to_library(counter)]))
-    pts = trimesh.sample.sample_surface(counter.mesh(), 4000, seed=0)[0] + [1.5, 1.0, 0.0]
-    data = PipelineData()
-    data.map.instances = ObjectInstances([ObjectInstance(1, "counter", pts, gravity_aligned_box(pts))])
-    data.map.instances = ICPMatchCompleter(library=name).run(data)["instances"]
+    counter, data = completed_counter("counters-sdf")
     glb = GLBExporter().run(data, tmp_path)[0]
     scene = trimesh.load(glb)
     assert scene.extents[1] == pytest.approx(counter.size[2], abs=0.02)  # height along glTF's +y

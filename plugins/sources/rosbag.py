@@ -171,7 +171,7 @@ class RosbagSource(SequenceSource):
             by_type: dict[str, list[str]] = {}
             for c in reader.connections:
                 by_type.setdefault(c.msgtype, []).append(c.topic)
-            images, infos, clouds, tfs = [], [], [], []
+            images, infos, clouds = [], [], []
             edges: dict[str, list[tuple[float, str, np.ndarray]]] = {}
             wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | INFO | CLOUD | TF}
             conns = [c for c in reader.connections if c.topic in wanted]
