@@ -18,7 +18,9 @@ The same loader reads
 * a folder of OBJ/STL/GLB/PLY files with ``classes.csv`` (columns ``file,class`` and optionally
   ``id``) or ``classes.json`` (``{"file": "class"}`` or a list of ``{"file", "class", "id"}``);
 * PartNet-Mobility folders (``mobility.urdf`` + ``textured_objs/`` + ``meta.json``), turned to
-  face -y; one such folder or a folder of them.
+  face -y; one such folder or a folder of them;
+* a single ``.urdf`` file (``package://`` URIs resolved through ``package.xml``), as one
+  articulated model; missing meshes fall back to collision geometry and are reported.
 """
 
 from __future__ import annotations
@@ -172,6 +174,11 @@ class ModelLibrary:
         path = Path(path)
         if not path.exists():
             raise DataError(f"{path}: model library not found")
+        if path.is_file() and path.suffix.lower() == ".urdf":
+            model = model_from_urdf(path, path.stem, "object", "urdf")
+            lib = ModelLibrary([model], root=path.parent)
+            lib.problems.extend(f"{path}: {w}" for w in model.params.get("warnings", []))
+            return lib
         if (path / "models.json").is_file():
             return _load_native(path)
         if (path / "mobility.urdf").is_file():
@@ -384,57 +391,67 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
 # PartNet-Mobility
 
 
-def load_partnet(folder: Path) -> LibraryModel:
-    """One PartNet-Mobility object as a library model in the canonical frame, with its joints."""
+def model_from_urdf(
+    urdf_path: Path,
+    model_id: str,
+    class_name: str,
+    family: str,
+    transform: np.ndarray | None = None,
+    semantics: dict[str, str] | None = None,
+    package_roots: dict[str, Path] | None = None,
+) -> LibraryModel:
+    """An articulated URDF as a library model: one part per visual mesh (in the root frame at
+    q = 0, then ``transform``), the URDF's joints, origin at the bottom center. Missing meshes
+    fall back to collision geometry; every problem is kept in ``params["warnings"]``."""
     from stratamap.core.urdf_io import read_urdf
 
+    urdf = read_urdf(urdf_path, package_roots)
+    transform = np.eye(4) if transform is None else transform
+    root = urdf.root
+    poses = urdf.link_poses()
+    parts: list[LibraryPart] = []
+    rng = np.random.default_rng(int(hashlib.sha256(model_id.encode()).hexdigest()[:8], 16))
+    for link, visuals in urdf.links.items():
+        for k, vis in enumerate(visuals):
+            mesh = vis.mesh.copy()
+            mesh.apply_transform(transform @ poses[link])
+            parts.append(LibraryPart(f"{link}_{k}", "body" if link == root else link, tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)), (semantics or {}).get(link, ""), mesh=mesh))
+    if not parts:
+        raise DataError(f"{urdf_path}: no link has a usable mesh")
+    joints = []
+    for j in urdf.joints:
+        origin = transform @ j.origin if j.parent == root else j.origin
+        joints.append(Joint(j.name, j.type, "body" if j.parent == root else j.parent, "body" if j.child == root else j.child, origin, j.axis, j.lower, j.upper))
+    bounds = _canonicalize(parts, joints, "body")
+    mesh = trimesh.util.concatenate([p.load() for p in parts])
+    params: dict[str, Any] = {"urdf": str(urdf_path)}
+    if urdf.warnings:
+        params["warnings"] = list(urdf.warnings)
+    return LibraryModel(model_id, class_name, family, params, parts, joints, bounds, feature_planes(mesh), source=str(urdf_path))
+
+
+def load_partnet(folder: Path) -> LibraryModel:
+    """One PartNet-Mobility object as a library model in the canonical frame, with its joints."""
     folder = Path(folder)
-    urdf = read_urdf(folder / "mobility.urdf")
     meta: dict[str, Any] = {}
     if (folder / "meta.json").is_file():
         meta = json.loads((folder / "meta.json").read_text())
     category = meta.get("model_cat", "")
-    class_name = PARTNET_CLASSES.get(category, category.lower() or "object")
     semantics = {}
     if (folder / "semantics.txt").is_file():
         for line in (folder / "semantics.txt").read_text().splitlines():
             bits = line.split()
             if len(bits) >= 3:
                 semantics[bits[0]] = bits[2]
-    root = urdf.root
-    poses = urdf.link_poses()
-    parts: list[LibraryPart] = []
-    rng = np.random.default_rng(abs(hash(folder.name)) % (2**32))
-    for link, visuals in urdf.links.items():
-        for k, vis in enumerate(visuals):
-            mesh = vis.mesh.copy()
-            mesh.apply_transform(PARTNET_TO_CANONICAL @ poses[link])
-            name_link = "body" if link == root else link
-            parts.append(LibraryPart(f"{link}_{k}", name_link, tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)), semantics.get(link, ""), mesh=mesh))
-    if not parts:
-        raise DataError(f"{folder}: no link has a usable mesh")
-    joints = []
-    for j in urdf.joints:
-        origin = j.origin
-        parent = "body" if j.parent == root else j.parent
-        if j.parent == root:
-            origin = PARTNET_TO_CANONICAL @ origin
-        joints.append(Joint(j.name, j.type, parent, "body" if j.child == root else j.child, origin, j.axis, j.lower, j.upper))
-    bounds = _canonicalize(parts, joints, "body")
-    mesh = trimesh.util.concatenate([p.load() for p in parts])
-    model = LibraryModel(
-        id=f"partnet_{folder.name}",
-        class_name=class_name,
-        family=f"partnet_{category or 'unknown'}",
-        params={"partnet_id": folder.name, "category": category},
-        parts=parts,
-        joints=joints,
-        bounds=bounds,
-        feature_planes=feature_planes(mesh),
-        source=str(folder),
+    model = model_from_urdf(
+        folder / "mobility.urdf",
+        f"partnet_{folder.name}",
+        PARTNET_CLASSES.get(category, category.lower() or "object"),
+        f"partnet_{category or 'unknown'}",
+        PARTNET_TO_CANONICAL,
+        semantics,
     )
-    for w in urdf.warnings:
-        model.params.setdefault("warnings", []).append(w)
+    model.params.update({"partnet_id": folder.name, "category": category})
     return model
 
 

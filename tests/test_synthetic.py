@@ -294,3 +294,18 @@ def test_room_layout_is_closed():
     layout = room_layout((4.0, 3.0, 2.5))
     assert [e.class_name for e in layout].count("wall") == 4
     assert all(e.mesh.is_watertight for e in layout)
+
+
+def test_real_apartment_urdf_loads_into_the_library():
+    root = REPO.parent / "shared" / "data" / "iai_apartment" / "urdf" / "apartment.urdf"
+    if not root.exists():
+        pytest.skip("real data not available")
+    from stratamap.core.library import ModelLibrary
+
+    lib = ModelLibrary.load(root)
+    [model] = lib.models
+    kinds = [j.type for j in model.joints]
+    assert kinds.count("prismatic") == 27 and kinds.count("revolute") == 15
+    assert any("walls.dae" in p for p in lib.problems)  # absent visual meshes are reported
+    assert any("using its collision geometry" in p for p in lib.problems)
+    assert len(model.parts) > 50 and abs(model.bounds[0][2]) < 1e-9
