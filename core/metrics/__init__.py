@@ -23,6 +23,10 @@ def evaluate(data: PipelineData) -> dict[str, Any]:
 
         out["detection"] = detection.evaluate_instances(m.instances, gt.objects)
         out["completion"] = completion.evaluate_completion(m.instances, gt.objects)
+        if m.contact_graph is not None and gt.contact_graph is not None:
+            from stratamap.core.metrics.graph import evaluate_graph
+
+            out["graph"] = evaluate_graph(m.contact_graph, m.instances, gt.contact_graph, gt.objects)
     if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
         gt_cls, gt_inst = panoptic.ground_truth_point_labels(m.geometry.points, gt)
         pq = panoptic.panoptic_quality(m.semantics.class_ids, m.semantics.instance_ids, gt_cls, gt_inst, m.semantics.vocabulary)
