@@ -203,21 +203,38 @@ class MatchingCompleter(Completer):
             todo.append(inst)
         return todo
 
-    def complete(self, data: PipelineData) -> dict[str, Any]:
+    def map_objects(self, todo: list[ObjectInstance], fn: Any) -> list[tuple[ObjectInstance, Any]]:
+        """``fn(inst)`` for every object, in parallel threads; notes the mean seconds per object."""
         cfg: MatcherConfig = self.config  # type: ignore[assignment]
-        index = load_index(cfg)
-        insts = data.map.instances.copy()  # type: ignore[union-attr]
-        todo = self.select(insts, index)
         timings: dict[int, float] = {}
 
-        def work(inst: ObjectInstance) -> tuple[ObjectInstance, Match | None]:
+        def work(inst: ObjectInstance) -> tuple[ObjectInstance, Any]:
             t0 = time.perf_counter()
-            result = self.match(inst, object_base(inst, data), index, data)
+            result = fn(inst)
             timings[inst.id] = time.perf_counter() - t0
             return inst, result
 
         with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
             results = list(pool.map(work, todo))
+        self.note("seconds_per_object", float(np.mean(list(timings.values()))) if timings else 0.0)
+        return results
+
+    def finish(self, insts: ObjectInstances, data: PipelineData, attempted: int) -> dict[str, Any]:
+        """The completed instances and the augmented scene built from them."""
+        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        self.note("objects", {"completed": len(insts.completed()), "attempted": attempted})
+        out: dict[str, Any] = {"instances": insts}
+        aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
+        if aug is not None:
+            out["augmented"] = aug
+        return out
+
+    def complete(self, data: PipelineData) -> dict[str, Any]:
+        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        index = load_index(cfg)
+        insts = data.map.instances.copy()  # type: ignore[union-attr]
+        todo = self.select(insts, index)
+        results = self.map_objects(todo, lambda inst: self.match(inst, object_base(inst, data), index, data))
         for inst, match in results:
             if match is None:
                 self.warn(f"object {inst.id} ({inst.class_name}): no model could be aligned; left uncompleted")
@@ -225,10 +242,4 @@ class MatchingCompleter(Completer):
             model = index.library.get(match.model_id)
             inst.completion = posed_completion(model, match, self.name)
             inst.attributes["match"] = {k: v for k, v in match.details.items() if isinstance(v, (int, float, str, list))}
-        self.note("objects", {"completed": sum(1 for _, m in results if m is not None), "attempted": len(todo)})
-        self.note("seconds_per_object", float(np.mean(list(timings.values()))) if timings else 0.0)
-        out: dict[str, Any] = {"instances": insts}
-        aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
-        if aug is not None:
-            out["augmented"] = aug
-        return out
+        return self.finish(insts, data, len(todo))

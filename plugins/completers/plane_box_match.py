@@ -25,8 +25,6 @@ finally each model is snapped onto its supporting plane.
 from __future__ import annotations
 
 import itertools
-import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,7 +33,7 @@ from pydantic import Field
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from stratamap.core import PipelineData, hookimpl
-from stratamap.core.completion import Match, MatcherConfig, MatchingCompleter, augmented_scene, load_index, object_base, posed_completion
+from stratamap.core.completion import Match, MatcherConfig, MatchingCompleter, load_index, object_base, posed_completion
 from stratamap.core.geometry import ransac_plane
 from stratamap.core.layers import ObjectInstance, OrientedBox
 from stratamap.core.model_index import IndexedModel, ModelIndex, shape_descriptor
@@ -218,16 +216,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         todo = self.select(insts, index)
-        timings: dict[int, float] = {}
-
-        def work(inst: ObjectInstance):
-            t0 = time.perf_counter()
-            out = self.candidates(inst, object_base(inst, data), index)
-            timings[inst.id] = time.perf_counter() - t0
-            return inst, out
-
-        with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-            results = list(pool.map(work, todo))
+        results = self.map_objects(todo, lambda inst: self.candidates(inst, object_base(inst, data), index))
         options: dict[int, list[Candidate]] = {}
         floor_z = 0.0
         for inst, (cands, info) in results:
@@ -260,13 +249,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
                 completion.parts, completion.joints = [], []  # articulation is defined for the upright model only
             inst.completion = completion
             inst.attributes["match"].update({"me": cnd.me, "ae": cnd.ae})
-        self.note("objects", {"completed": len(choice), "attempted": len(todo)})
-        self.note("seconds_per_object", float(np.mean(list(timings.values()))) if timings else 0.0)
-        out: dict[str, Any] = {"instances": insts}
-        aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
-        if aug is not None:
-            out["augmented"] = aug
-        return out
+        return self.finish(insts, data, len(todo))
 
     @staticmethod
     def _footprint(c: Candidate) -> OrientedBox:
