@@ -25,9 +25,9 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from stratamap.core.errors import ConfigError, PluginError
+from stratamap.core.errors import ConfigError
 from stratamap.core.registry import PluginInfo, Registry, default_registry
-from stratamap.core.stages import KINDS, LAYERS, Stage, StageConfig
+from stratamap.core.stages import KINDS, Stage, StageConfig
 
 
 class StageSpec(BaseModel):
@@ -288,14 +288,3 @@ def load_pipeline(
     """Read, override and validate a pipeline file."""
     doc = load_document(path, overrides)
     return validate(doc, registry=registry, origin=str(path))
-
-
-def known_layers() -> list[str]:
-    return sorted(LAYERS)
-
-
-def ensure_plugin(registry: Registry, kind: str, name: str) -> PluginInfo:
-    try:
-        return registry.get(kind, name)
-    except PluginError as exc:
-        raise ConfigError([("", str(exc))]) from None

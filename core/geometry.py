@@ -51,7 +51,7 @@ def gravity_aligned_box(points: np.ndarray, z_range: tuple[float, float] | None 
     return OrientedBox(np.array([center_xy[0], center_xy[1], (z0 + z1) / 2]), yaw, np.array([*size_xy, z1 - z0]))
 
 
-def footprint_overlap(a: OrientedBox, b: OrientedBox, samples: int = 24) -> float:
+def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
     """Area of the intersection of two box footprints (m^2), by polygon clipping."""
     return polygon_area(clip_polygon(a.corners_2d(), b.corners_2d()))
 

@@ -23,7 +23,6 @@ import importlib.util
 import inspect
 import os
 import sys
-import traceback
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
@@ -315,7 +314,3 @@ def builtin_entry_points() -> list[EntryPoint]:
         for kind, mods in BUILTIN_PLUGINS.items()
         for mod in mods
     ]
-
-
-def format_failure(exc: BaseException) -> str:
-    return "".join(traceback.format_exception_only(type(exc), exc)).strip()

@@ -1,13 +1,11 @@
 """Reading RGB-D sequences from disk, with errors that name the file and what was expected.
 
 Shared by the ``tum``, ``redwood`` and ``scannet`` sources: image readers that check dtypes and
-sizes, lazy frame sequences, timestamp association and pose interpolation.
+sizes, timestamp association and pose interpolation.
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
-from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +13,6 @@ from PIL import Image, UnidentifiedImageError
 from scipy.spatial.transform import Rotation, Slerp
 
 from stratamap.core.errors import DataError
-from stratamap.core.sensors import RGBDFrame
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -87,38 +84,6 @@ def check_depth_scale(depth: np.ndarray, path: Path, depth_scale: float, max_pla
             f"{path}: median depth is {med:.3g} m with depth_scale {depth_scale:g}; this looks like the wrong depth scale "
             f"(TUM uses 5000, Redwood/ScanNet 1000 units per metre)"
         )
-
-
-class LazyFrames(Sequence):
-    """Frames read from disk on access (a few cached)."""
-
-    def __init__(self, n: int, load: Callable[[int], RGBDFrame], cache: int = 4):
-        self._n, self._load, self._cache_size = n, load, cache
-        self._cache: OrderedDict[int, RGBDFrame] = OrderedDict()
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, k):  # type: ignore[override]
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(self._n))]
-        if k < 0:
-            k += self._n
-        if not 0 <= k < self._n:
-            raise IndexError(k)
-        if k in self._cache:
-            self._cache.move_to_end(k)
-            return self._cache[k]
-        frame = self._load(k)
-        self._cache[k] = frame
-        if len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
-        return frame
-
-    def __deepcopy__(self, memo: dict) -> list:
-        import copy
-
-        return [copy.deepcopy(f, memo) for f in self]
 
 
 def read_timestamped_list(path: Path) -> list[tuple[float, list[str]]]:

@@ -38,17 +38,6 @@ class CameraIntrinsics:
     def matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def scaled(self, factor: float) -> CameraIntrinsics:
-        """Intrinsics of the image resized by ``factor`` (e.g. 0.5 for half resolution)."""
-        return CameraIntrinsics(
-            width=int(round(self.width * factor)),
-            height=int(round(self.height * factor)),
-            fx=self.fx * factor,
-            fy=self.fy * factor,
-            cx=(self.cx + 0.5) * factor - 0.5,
-            cy=(self.cy + 0.5) * factor - 0.5,
-        )
-
     def backproject(self, depth: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Camera-frame points of valid depth pixels and their flat pixel indices."""
         h, w = depth.shape

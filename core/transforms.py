@@ -5,13 +5,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-#: Optical camera frame (x right, y down, z forward) expressed in a z-up body frame
-#: (x forward, y left, z up), as REP-103 defines it.
-OPTICAL_TO_BODY = np.array(
-    [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
-)
-
-
 def make_pose(translation=(0.0, 0.0, 0.0), yaw: float = 0.0, rotation: np.ndarray | None = None) -> np.ndarray:
     """Pose from a translation and either a yaw about +z or a 3x3 rotation."""
     pose = np.eye(4)
@@ -60,10 +53,6 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, eye
     return pose
-
-
-def quat_xyzw_to_matrix(q) -> np.ndarray:
-    return Rotation.from_quat(np.asarray(q, float)).as_matrix()
 
 
 def matrix_to_quat_xyzw(r: np.ndarray) -> np.ndarray:

@@ -603,10 +603,6 @@ FAMILIES: dict[str, tuple[str, Family]] = {
 }
 
 
-def families_of_class(class_name: str) -> list[str]:
-    return [f for f, (c, _) in FAMILIES.items() if c == class_name]
-
-
 def make_model(family: str, seed: int, index: int = 0) -> Model:
     """Sample one model of ``family`` deterministically from ``seed`` and ``index``."""
     if family not in FAMILIES:

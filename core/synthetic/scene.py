@@ -126,8 +126,3 @@ def generate_scene(spec: SceneSpec) -> Scene:
     scene = Scene(spec=spec, layout=room_layout(room), skipped=placer.skipped)
     scene.objects = [PlacedObject(p.id, p.model, p.pose, p.parent) for p in placer.objects]
     return scene
-
-
-def support_tree_is_valid(graph: Any) -> bool:
-    """Every non-root node has exactly one parent."""
-    return all(graph.in_degree(n) == 1 for n in graph.nodes if n != "scene")
