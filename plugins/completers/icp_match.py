@@ -31,6 +31,7 @@ from stratamap.core.model_index import IndexedModel, ModelIndex, shape_descripto
 class ICPMatchConfig(MatcherConfig):
     yaw_samples: int = Field(default=36, ge=4, le=360, description="Uniform rotations about z tried in the coarse alignment.")
     coarse_translation_steps: int = Field(default=6, ge=0, le=30, description="Translation-only ICP steps for each sampled rotation.")
+    coarse_points: int = Field(default=300, ge=20, description="Observed points (evenly spaced) used to rank the coarse rotations.")
     icp_iterations: int = Field(default=15, ge=1, le=100, description="ICP iterations refining the reference model's pose.")
     candidate_iterations: int = Field(default=5, ge=0, le=50, description="ICP iterations per candidate from the reference pose.")
     max_points: int = Field(default=1500, ge=100, description="Observed points used for matching (deterministic subsample).")
@@ -97,14 +98,16 @@ class ICPMatchCompleter(MatchingCompleter):
         ref = index.models[cands[0]]
         s_ref = scale_for(ref)
         yaws = inst.box.yaw + np.arange(cfg.yaw_samples) * (2 * np.pi / cfg.yaw_samples)
+        # The coarse search only ranks rotations: an evenly spaced subsample of the points suffices.
+        sparse = obs[np.linspace(0, len(obs) - 1, min(len(obs), cfg.coarse_points)).astype(int)]
         coarse, shifts = [], []
         for y in yaws:
             # Translation-only steps per rotation: a partial view's centroid is not the model's.
             t = np.zeros(2)
             for _ in range(cfg.coarse_translation_steps):
-                _, idx = ref.tree.query(to_model(obs, y, t, s_ref), workers=1)
-                t = np.mean(obs[:, :2] - (ref.samples[idx, :2] * s_ref) @ rot2(y).T, axis=0)
-            dist = ref.tree.query(to_model(obs, y, t, s_ref), workers=1)[0] * s_ref
+                _, idx = ref.tree.query(to_model(sparse, y, t, s_ref), workers=1)
+                t = np.mean(sparse[:, :2] - (ref.samples[idx, :2] * s_ref) @ rot2(y).T, axis=0)
+            dist = ref.tree.query(to_model(sparse, y, t, s_ref), workers=1)[0] * s_ref
             coarse.append(float(np.mean(np.minimum(dist, cfg.outlier_distance))))
             shifts.append(t)
         best_yaw = int(np.argmin(coarse))
