@@ -8,10 +8,14 @@ from scipy.spatial import ConvexHull, QhullError
 from stratamap.core.layers import OrientedBox
 
 
-def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
     """Minimum-area enclosing rectangle of 2D points (rotating calipers over the convex hull).
 
-    Returns ``(center_xy, yaw, size_xy)`` with ``size_xy[0] >= size_xy[1]`` and yaw in [-pi/2, pi/2).
+    With ``area_slack`` > 0, among the rectangles at most that fraction larger than the minimum the
+    one whose axes the hull's edges follow best (by length) wins: a partly seen counter whose back
+    corners are hidden has a slightly smaller tilted rectangle, yet its long front edge gives the
+    orientation away. Returns ``(center_xy, yaw, size_xy)`` with ``size_xy[0] >= size_xy[1]`` and
+    yaw in [-pi/2, pi/2).
     """
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if len(xy) == 0:
@@ -30,7 +34,16 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     ry = -hull[None, :, 0] * s[:, None] + hull[None, :, 1] * c[:, None]
     w = rx.max(1) - rx.min(1)
     h = ry.max(1) - ry.min(1)
-    best = int(np.argmin(w * h))
+    area = w * h
+    best = int(np.argmin(area))
+    if area_slack > 0 and len(angles) > 1:
+        lengths = np.linalg.norm(edges, axis=1)
+        edge_angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2)
+        diff = np.abs(edge_angles[None, :] - angles[:, None])
+        diff = np.minimum(diff, np.pi / 2 - diff)
+        support = (lengths[None, :] * (diff < np.radians(2.0))).sum(axis=1)
+        near = area <= area[best] * (1 + area_slack)
+        best = int(np.flatnonzero(near)[np.argmax(support[near])])
     a = angles[best]
     cx_r = (rx[best].max() + rx[best].min()) / 2
     cy_r = (ry[best].max() + ry[best].min()) / 2
@@ -43,10 +56,11 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     return center, float(yaw), size
 
 
-def gravity_aligned_box(points: np.ndarray, z_range: tuple[float, float] | None = None) -> OrientedBox:
-    """The gravity-aligned minimal box of points: footprint by min-area rectangle, z from min to max."""
+def gravity_aligned_box(points: np.ndarray, z_range: tuple[float, float] | None = None, area_slack: float = 0.03) -> OrientedBox:
+    """The gravity-aligned minimal box of points: footprint by min-area rectangle (see
+    :func:`min_area_rectangle` for ``area_slack``), z from min to max."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    center_xy, yaw, size_xy = min_area_rectangle(points[:, :2])
+    center_xy, yaw, size_xy = min_area_rectangle(points[:, :2], area_slack)
     z0, z1 = z_range if z_range is not None else (points[:, 2].min(), points[:, 2].max())
     return OrientedBox(np.array([center_xy[0], center_xy[1], (z0 + z1) / 2]), yaw, np.array([*size_xy, z1 - z0]))
 

@@ -56,6 +56,7 @@ class PanopticState:
     phi: dict[int, Counter] = field(default_factory=lambda: defaultdict(Counter))  # label -> Counter[(class, instance)]
     merge_votes: Counter = field(default_factory=Counter)  # (keep, drop) -> frames
     merged_into: dict[int, int] = field(default_factory=dict)
+    seen_apart: set = field(default_factory=set)  # instance pairs segmented as two objects in one frame
     next_label: int = 1
     next_instance: int = 1
     voxels_per_block: int = 512
@@ -171,6 +172,10 @@ class PanopticState:
                 self.next_instance += 1
             claimed.add(inst)
             self.phi[label][(c, inst)] += 1
+        for a in claimed:
+            for b in claimed:
+                if a < b:
+                    self.seen_apart.add((a, b))
 
     def best_instance(self, label: int) -> int:
         by_inst: Counter = Counter()
@@ -223,6 +228,44 @@ class PanopticState:
                 for (c, pp), n in counter.items():
                     merged[(c, mapping.get(pp, pp))] += n
                 self.phi[label] = merged
+        return mapping
+
+    def merge_fragments(self, point_class: np.ndarray, point_instance: np.ndarray, points: np.ndarray, touch: float) -> dict[int, int]:
+        """Merge same-class instances whose points touch (within ``touch`` metres) and that no frame
+        ever segmented as two objects: the pieces of an object first seen from views that did not
+        overlap. Returns the mapping applied to ``point_instance`` (in place)."""
+        from scipy.spatial import cKDTree
+
+        ids = [int(i) for i in np.unique(point_instance) if i > 0]
+        if len(ids) < 2:
+            return {}
+        cls = {i: int(np.bincount(point_class[point_instance == i]).argmax()) for i in ids}
+        trees = {i: cKDTree(points[point_instance == i]) for i in ids}
+        lo = {i: trees[i].mins - touch for i in ids}
+        hi = {i: trees[i].maxes + touch for i in ids}
+        parent = {i: i for i in ids}
+
+        def find(x: int) -> int:
+            while parent[x] != x:
+                x = parent[x]
+            return x
+
+        def apart(a: int, b: int) -> bool:
+            members_a = [i for i in ids if find(i) == find(a)]
+            members_b = [i for i in ids if find(i) == find(b)]
+            return any((min(x, y), max(x, y)) in self.seen_apart for x in members_a for y in members_b)
+
+        for k, a in enumerate(ids):
+            for b in ids[k + 1 :]:
+                if cls[a] != cls[b] or np.any(lo[a] > hi[b]) or np.any(lo[b] > hi[a]) or find(a) == find(b) or apart(a, b):
+                    continue
+                if trees[a].sparse_distance_matrix(trees[b], touch, output_type="ndarray").size == 0:
+                    continue
+                ra, rb = find(a), find(b)
+                parent[max(ra, rb)] = min(ra, rb)
+        mapping = {i: find(i) for i in ids if find(i) != i}
+        for old, new in mapping.items():
+            point_instance[point_instance == old] = new
         return mapping
 
     def label_table(self) -> tuple[np.ndarray, np.ndarray]:

@@ -59,6 +59,7 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.mappers.instance_clusters",
         "stratamap.plugins.mappers.occupancy",
         "stratamap.plugins.mappers.contact_graph",
+        "stratamap.plugins.mappers.physical_check",
     ),
     "completers": (
         "stratamap.plugins.completers.bbox",

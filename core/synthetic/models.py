@@ -527,14 +527,16 @@ def laptop(b: Builder) -> None:
     angle = b.u("lid_angle_deg", 95.0, 115.0)
     c = b.color((0.2, 0.2, 0.2), (0.8, 0.8, 0.8))
     b.box("base", (w, d, 0.018), (0, 0, 0.009), c, "base")
-    # The lid rotates about the hinge at the back edge; modelled open at the sampled angle.
+    # The lid rotates about the hinge at the back edge; modelled open at the sampled angle (its
+    # front edge swung up and a little past vertical: a rotation by -angle about +x).
     lid = trimesh.creation.box(extents=(w, d, 0.008))
     lid.apply_translation((0, -d / 2, 0.004))
-    rot = trimesh.transformations.rotation_matrix(np.radians(angle), [1, 0, 0])
+    rot = trimesh.transformations.rotation_matrix(-np.radians(angle), [1, 0, 0])
     lid.apply_transform(rot)
     lid.apply_translation((0, d / 2, 0.018))
     b.parts.append(ModelPart("lid", lid, c, "lid", "lid"))
-    b.joint("lid_hinge", "revolute", "lid", (0, d / 2, 0.018), (1, 0, 0), float(-np.radians(angle)), float(np.radians(135 - angle)))
+    # q = +angle closes the lid onto the base; q < 0 opens it further, up to 135 degrees.
+    b.joint("lid_hinge", "revolute", "lid", (0, d / 2, 0.018), (1, 0, 0), float(np.radians(angle - 135)), float(np.radians(angle)))
 
 
 def box(b: Builder) -> None:

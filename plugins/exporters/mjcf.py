@@ -47,6 +47,7 @@ class MJCFConfig(StageConfig):
         description="Classes that get a free joint (movable objects); others are fixed to the world.",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
+    hinge_holding: float = Field(default=2.0, ge=0.0, description="Hinge dry friction as a multiple of gravity's torque on the part, so lids and doors stay where they are (0: swing freely).")
     timestep: float = Field(default=0.002, gt=0.0, description="Simulation timestep, seconds.")
 
 
@@ -84,7 +85,10 @@ class MJCFExporter(Exporter):
             if joint.parent == ROOT_LINK and classes.get(link.name) in cfg.free_classes:
                 ET.SubElement(body, "freejoint", name=f"{link.name}_free")
             elif joint.type in ("revolute", "continuous"):
-                attrs = {"name": joint.name, "type": "hinge", "axis": _fmt(joint.axis), "damping": "1"}
+                # Real hinges hold a lid or door where it was left: dry friction above gravity's torque.
+                arm = np.linalg.norm(np.cross(link.inertial.center, joint.axis / max(np.linalg.norm(joint.axis), 1e-9)))
+                hold = cfg.hinge_holding * link.inertial.mass * 9.81 * arm
+                attrs = {"name": joint.name, "type": "hinge", "axis": _fmt(joint.axis), "damping": "1", "frictionloss": f"{hold:.6g}"}
                 if joint.type == "revolute":
                     attrs["range"] = _fmt([joint.lower, joint.upper])
                 ET.SubElement(body, "joint", **attrs)

@@ -38,6 +38,7 @@ def support_ratio(child_box, surface_xy: np.ndarray) -> float:
 class ContactGraphConfig(StageConfig):
     contact_tolerance: float = Field(default=0.04, gt=0.0, description="Max height difference between a child's bottom and its supporter's surface, metres (a_th).")
     min_overlap: float = Field(default=0.5, gt=0.0, le=1.0, description="Min share of the child's footprint the supporter must cover (paper's b_th).")
+    feet_clearance: float = Field(default=0.015, ge=0.0, description="A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do not carry the chair beside it).")
     proximal_distance: float = Field(default=0.05, ge=0.0, description="Boxes closer than this (grown by it) are proximal, metres.")
 
 
@@ -69,20 +70,28 @@ class ContactGraphMapper(Mapper):
             g.add_node(inst.id, kind="object", class_name=inst.class_name, box=inst.box.to_dict())
 
         for child in insts:
-            best, best_score, best_z = None, 0.0, 0.0
-            area = max(float(child.box.size[0] * child.box.size[1]), 1e-9)
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
-            if bottom - floor_z > cfg.contact_tolerance:
-                for parent in insts:
-                    if parent.id == child.id or parent.box.bottom_z >= bottom:
-                        continue
-                    z = parent.points[:, 2]
-                    surface = parent.points[np.abs(z - bottom) <= cfg.contact_tolerance]
-                    if len(surface) < 10:
-                        continue
-                    ratio = support_ratio(child.box, surface[:, :2]) / area
-                    if ratio >= cfg.min_overlap and ratio > best_score:
-                        best, best_score, best_z = parent, ratio, float(np.median(surface[:, 2]))
+            # The floor is a candidate when the child's bottom is at floor height; an object is one
+            # when it has a surface at that height (above its own feet) under enough of the child.
+            floor_gap = abs(bottom - floor_z)
+            best, best_gap, best_score, best_z = None, floor_gap if floor_gap <= cfg.contact_tolerance else np.inf, 0.0, 0.0
+            area = max(float(child.box.size[0] * child.box.size[1]), 1e-9)
+            for parent in insts:
+                if parent.id == child.id or parent.box.bottom_z >= bottom - cfg.feet_clearance:
+                    continue
+                z = parent.points[:, 2]
+                surface = parent.points[(np.abs(z - bottom) <= cfg.contact_tolerance) & (z > parent.box.bottom_z + cfg.feet_clearance)]
+                ratio = support_ratio(child.box, surface[:, :2]) / area if len(surface) >= 10 else 0.0
+                surface_z = float(np.percentile(surface[:, 2], 90)) if len(surface) else parent.box.top_z
+                if ratio < cfg.min_overlap and abs(parent.box.top_z - bottom) <= cfg.contact_tolerance:
+                    # Hidden supporting plane: the top of a parent whose surface the child hides.
+                    ratio, surface_z = footprint_overlap(child.box, parent.box) / area, parent.box.top_z
+                if ratio < cfg.min_overlap:
+                    continue
+                gap = abs(surface_z - bottom)
+                # eq. 3: the best contact wins; a surface clearly nearer in height than the best so far wins too.
+                if gap < best_gap - cfg.contact_tolerance / 2 or (gap <= best_gap + cfg.contact_tolerance / 2 and ratio > best_score):
+                    best, best_gap, best_score, best_z = parent, gap, ratio, surface_z
             if best is not None:
                 g.add_edge(best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score)
             else:

@@ -111,6 +111,7 @@ class TSDFConfig(IntegrationConfig):
     merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
     merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
     instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
+    fragment_touch: float = Field(default=1.5, ge=0.0, description="Same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
 
 
@@ -205,6 +206,7 @@ class TSDFMapper(Mapper):
         classes, instances = state.label_table()
         point_labels = self._point_labels(vbg, points, cfg)
         point_class, point_instance = classes[point_labels], instances[point_labels]
+        fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size) if cfg.fragment_touch > 0 else {}
         # Instances too small to keep leave no fragments behind in the semantics layer either.
         ids, sizes = np.unique(point_instance[point_instance > 0], return_counts=True)
         small = ids[sizes < cfg.min_instance_points]
@@ -214,7 +216,7 @@ class TSDFMapper(Mapper):
         semantics = Semantics(point_class, point_instance, vocab)
         self.note(
             "panoptic",
-            {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged), "small_instances_dropped": len(small)},
+            {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged), "fragments_merged": len(fragments), "small_instances_dropped": len(small)},
         )
         out["semantics"] = semantics
         out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points)
