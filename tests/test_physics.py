@@ -84,3 +84,43 @@ def test_unresolvable_overlap_is_reported():
     objs = ObjectInstances([big, inside])
     result = resolve_scene(objs, graph_of(objs, {}), max_shift=0.2)
     assert result.to_dict()["unresolved"] == [2]
+
+
+def sampled(mesh: trimesh.Trimesh, offset, n: int = 3000) -> np.ndarray:
+    return trimesh.sample.sample_surface_even(mesh, n, seed=0)[0] + offset
+
+
+def test_contact_graph_planes_hidden_tabletop_wall_support_and_refined_boxes():
+    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.core.layers import Geometry, Semantics
+    from stratamap.core.stages import PipelineData
+    from stratamap.core.vocabulary import Vocabulary
+    from stratamap.plugins.mappers.contact_graph import ContactGraphMapper
+
+    table_mesh = trimesh.creation.box(extents=(1.2, 0.8, 0.04))
+    table = sampled(table_mesh, (0, 0, 0.73))
+    box_pts = sampled(trimesh.creation.box(extents=(0.3, 0.3, 0.2)), (0.1, 0.0, 0.85))
+    box_pts = box_pts[box_pts[:, 2] > 0.76]  # its bottom face is hidden by the tabletop
+    table = table[~((np.abs(table[:, 0] - 0.1) < 0.16) & (np.abs(table[:, 1]) < 0.16) & (table[:, 2] > 0.74))]  # and hides it
+    cabinet = sampled(trimesh.creation.box(extents=(0.6, 0.35, 0.6)), (3.0, 1.82, 1.6))
+    cabinet = cabinet[cabinet[:, 2] > 1.35]  # seen from below only partly: its bottom is missing
+    wall = np.stack(np.meshgrid(np.linspace(1, 5, 80), [2.0], np.linspace(0, 2.5, 50)), -1).reshape(-1, 3)
+    instances = ObjectInstances(
+        [ObjectInstance(i, c, p, gravity_aligned_box(p)) for i, c, p in ((1, "table", table), (2, "box", box_pts), (3, "cabinet", cabinet))]
+    )
+    vocab = Vocabulary.default()
+    points = np.concatenate([table, box_pts, cabinet, wall])
+    classes = np.concatenate([np.full(len(table), vocab.id("table")), np.full(len(box_pts), vocab.id("box")), np.full(len(cabinet), vocab.id("cabinet")), np.full(len(wall), vocab.id("wall"))])
+    data = PipelineData()
+    data.map.instances = instances
+    data.map.geometry = Geometry(points=points)
+    data.map.semantics = Semantics(classes.astype(np.int32), np.zeros(len(points), np.int32), vocab)
+    graph = ContactGraphMapper().run(data)["contact_graph"]
+    assert graph.parent(2) == 1  # on the table, though the table shows no plane under it
+    assert graph.parent(3) == "wall" and graph.parent(1) == "floor"
+    assert graph.is_tree()
+    planes = graph.support.nodes[1]["planes"]
+    heights = sorted(-p["plane"][3] for p in planes if p["kind"] == "horizontal")
+    assert len(heights) >= 2 and abs(heights[0] - 0.71) < 0.01 and abs(heights[-1] - 0.75) < 0.01  # underside and top
+    refined = graph.support.nodes[2]["box_refined"]
+    assert abs(refined["center"][2] - refined["size"][2] / 2 - 0.75) < 0.01  # reaches down to the tabletop

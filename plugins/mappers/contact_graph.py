@@ -5,9 +5,10 @@ A parent can support a child when it has a horizontal surface at the child's bot
 least ``min_overlap`` (b_th) of the child's footprint (eq. 2). The surface's extent is the convex
 hull of those points, so a tabletop hidden under the child still counts (the paper's hidden
 supporting plane). Among valid parents the largest contact ratio wins (eq. 3); objects without
-one stand on the floor. Layout nodes (floor, walls, ceiling) hang off the ``scene`` root;
-proximal edges join objects whose boxes touch. (Plane extraction by RANSAC, wall support and box
-refinement of the paper are still to come.)
+one stand on the floor, unless they hang above it next to a wall (wall support). Every node
+carries its surface planes (iterative RANSAC, inliers removed after each plane) and a refined box
+extended down to its supporting plane (the paper's Table 4 "refined"). Layout nodes (floor, walls,
+ceiling) hang off the ``scene`` root; proximal edges join objects whose boxes touch.
 """
 
 from __future__ import annotations
@@ -35,10 +36,35 @@ def support_ratio(child_box, surface_xy: np.ndarray) -> float:
     return polygon_area(clip_polygon(child_box.corners_2d(), hull))
 
 
+def surface_planes(points: np.ndarray, distance: float, max_planes: int, min_share: float, seed: int = 0) -> list[dict[str, Any]]:
+    """Iterative RANSAC: the object's largest planes, each fitted after the previous inliers are removed."""
+    from stratamap.core.geometry import ransac_plane
+
+    rest = np.asarray(points, dtype=np.float64)
+    planes: list[dict[str, Any]] = []
+    need = max(int(min_share * len(rest)), 10)
+    for k in range(max_planes):
+        if len(rest) < need:
+            break
+        normal, d, inliers = ransac_plane(rest, distance, iterations=200, seed=seed + k)
+        if len(inliers) < need:
+            break
+        if normal[2] < 0:
+            normal, d = -normal, -d
+        kind = "horizontal" if abs(normal[2]) >= 0.9 else "vertical" if abs(normal[2]) <= 0.1 else "slanted"
+        planes.append({"plane": [*map(float, normal), float(d)], "inliers": int(len(inliers)), "kind": kind})
+        rest = np.delete(rest, inliers, axis=0)
+    return planes
+
+
 class ContactGraphConfig(StageConfig):
     contact_tolerance: float = Field(default=0.04, gt=0.0, description="Max height difference between a child's bottom and its supporter's surface, metres (a_th).")
     min_overlap: float = Field(default=0.5, gt=0.0, le=1.0, description="Min share of the child's footprint the supporter must cover (paper's b_th).")
     feet_clearance: float = Field(default=0.015, ge=0.0, description="A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do not carry the chair beside it).")
+    wall_distance: float = Field(default=0.1, ge=0.0, description="An unsupported object this close to wall points is wall-supported, metres.")
+    plane_distance: float = Field(default=0.015, gt=0.0, description="RANSAC inlier distance of the surface planes, metres.")
+    max_planes: int = Field(default=4, ge=0, description="Surface planes kept per object (0: none).")
+    min_plane_share: float = Field(default=0.1, gt=0.0, le=1.0, description="A surface plane holds at least this share of the object's points.")
     proximal_distance: float = Field(default=0.05, ge=0.0, description="Boxes closer than this (grown by it) are proximal, metres.")
 
 
@@ -66,8 +92,16 @@ class ContactGraphMapper(Mapper):
                 if layout in sem.vocabulary and sem.vocabulary.id(layout) in present:
                     g.add_node(layout, kind="layout", class_name=layout)
                     g.add_edge("scene", layout, relation="support")
+        walls = None
+        if sem is not None and data.map.geometry is not None and "wall" in sem.vocabulary and len(sem) == len(data.map.geometry):
+            wall_pts = data.map.geometry.points[sem.class_ids == sem.vocabulary.id("wall")]
+            if len(wall_pts):
+                from scipy.spatial import cKDTree
+
+                walls = cKDTree(wall_pts)
         for inst in insts:
-            g.add_node(inst.id, kind="object", class_name=inst.class_name, box=inst.box.to_dict())
+            planes = surface_planes(inst.points, cfg.plane_distance, cfg.max_planes, cfg.min_plane_share, seed=inst.id) if cfg.max_planes else []
+            g.add_node(inst.id, kind="object", class_name=inst.class_name, box=inst.box.to_dict(), planes=planes)
 
         for child in insts:
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
@@ -92,10 +126,22 @@ class ContactGraphMapper(Mapper):
                 # eq. 3: the best contact wins; a surface clearly nearer in height than the best so far wins too.
                 if gap < best_gap - cfg.contact_tolerance / 2 or (gap <= best_gap + cfg.contact_tolerance / 2 and ratio > best_score):
                     best, best_gap, best_score, best_z = parent, gap, ratio, surface_z
+            near_wall = walls is not None and np.isfinite(walls.query(child.points[:: max(1, len(child.points) // 200)], distance_upper_bound=cfg.wall_distance)[0]).any()
             if best is not None:
                 g.add_edge(best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score)
+                support_z = best_z
+            elif bottom - floor_z > cfg.contact_tolerance and near_wall:
+                g.add_edge("wall", child.id, relation="support")  # hangs on the wall (a wall cabinet, a picture)
+                support_z = None
             else:
                 g.add_edge("floor", child.id, relation="support", plane=[0.0, 0.0, 1.0, -float(floor_z)])
+                support_z = float(floor_z)
+            if support_z is not None and support_z < child.box.bottom_z:
+                # Box refinement: the unseen bottom of an object reaches down to its support.
+                refined = type(child.box)(
+                    np.array([*child.box.center[:2], (support_z + child.box.top_z) / 2]), child.box.yaw, np.array([*child.box.size[:2], child.box.top_z - support_z])
+                )
+                g.nodes[child.id]["box_refined"] = refined.to_dict()
 
         graph.proximal.add_nodes_from(g.nodes)
         for i, a in enumerate(insts):
