@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from stratamap.core.errors import StratamapError
+from stratamap.core.errors import ConfigError, StratamapError
 from stratamap.core.hookspecs import hookimpl
 
 app = typer.Typer(
@@ -133,6 +133,30 @@ def run(
     """Run a pipeline: read, segment, map, complete, export; write map/, export/ and report.json."""
     report = _run(config, out, overrides)
     _print_report(report, out or Path("."))
+
+
+@app.command()
+def bench(
+    config: Annotated[Path, typer.Argument(help="Benchmark YAML file (configs/bench/*.yaml).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (records/, results.json/.csv/.md, figures).")],
+    workers: Annotated[int, typer.Option("--workers", "-j", help="Scenes run in parallel (worker processes or Ray CPUs).")] = 1,
+    executor: Annotated[str, typer.Option("--executor", help="local (worker processes) or ray.")] = "local",
+    address: Annotated[str | None, typer.Option("--address", help="Ray cluster address (default: start a local Ray instance).")] = None,
+) -> None:
+    """Run every (scene, variant) pair of a benchmark; resumable; tables and figures from the records."""
+    from stratamap.core.bench import run_bench
+
+    if executor not in ("local", "ray"):
+        _fail(ConfigError([("--executor", f"expected 'local' or 'ray', got {executor!r}")]))
+    try:
+        summary = run_bench(config, out, workers=workers, executor=executor, address=address)  # type: ignore[arg-type]
+    except StratamapError as exc:
+        _fail(exc)
+    out_console.print(f"{summary['records']} records ({summary['ran']} run now) -> {out}")
+    for note in summary["skipped"]:
+        out_console.print(f"[yellow]skipped:[/] {note}", highlight=False)
+    for path in summary["files"]:
+        out_console.print(f"  {path}", highlight=False)
 
 
 @app.command()

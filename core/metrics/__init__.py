@@ -9,8 +9,9 @@ import numpy as np
 from stratamap.core.stages import PipelineData
 
 
-def evaluate(data: PipelineData) -> dict[str, Any]:
-    """Metrics grouped by family for whatever layers ``data`` holds and its ground truth covers."""
+def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
+    """Metrics grouped by family for whatever layers ``data`` holds and its ground truth covers
+    (``details``: keep the planned paths of the navigation family)."""
     from stratamap.core.metrics import detection, panoptic
 
     gt = data.ground_truth
@@ -39,7 +40,8 @@ def evaluate(data: PipelineData) -> dict[str, Any]:
         from stratamap.core.navigation import evaluate_navigation
 
         nav = evaluate_navigation(occ["slam"], occ["multimap"], gt.occupancy["objects"])
-        nav.pop("records")
+        if not details:
+            nav.pop("records")
         out["navigation"] = nav
     odometry = (data.stream.metadata.get("odometry") if data.stream is not None else None) or {}
     if "ate_rmse_m" in odometry:
