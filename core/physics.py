@@ -4,8 +4,9 @@ Completed models are rigid unions of convex shells (a chair's legs, seat and bac
 how simulators collide them (MuJoCo and PyBullet take the convex hull of each mesh geom). Every
 test here works on those same convex shells, as half-space sets ``A x + b <= 0``:
 
-* :func:`resolve_scene` is the min-conflict physical check of the functional-scenes paper: objects
-  are visited parents first along the contact graph; each is dropped (or lifted) onto the top
+* :func:`resolve_scene` is the min-conflict physical check of the functional-scenes paper: completed
+  objects are visited parents first along the contact graph (uncompleted ones are observations:
+  obstacles that never move); each is dropped (or lifted) onto the top
   surface of its supporter, then, if it overlaps an object placed before it, moved to the nearest
   horizontal offset without conflict (or with the least penetration if none is free within reach).
   A moved object carries what it supports along.
@@ -194,7 +195,7 @@ def resolve_scene(
     result = Resolution({inst.id: [0.0, 0.0, 0.0] for inst in instances})
 
     def move(i: int, t: np.ndarray) -> None:
-        for j in [i, *descendants[i]]:
+        for j in [i, *(d for d in descendants[i] if by_id[d].completion is not None)]:
             translate_instance(by_id[j], t)
             shells[j] = [s.translated(t) for s in shells[j]]
             result.shifts[j] = (np.asarray(result.shifts[j]) + t).tolist()
@@ -205,6 +206,9 @@ def resolve_scene(
     for inst in order:
         mine = shells[inst.id]
         if not mine:
+            continue
+        if inst.completion is None:  # observed points are data: an obstacle to others, never moved
+            placed.append(inst.id)
             continue
         verts = np.concatenate([s.vertices for s in mine])
         bottom = float(verts[:, 2].min())

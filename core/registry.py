@@ -51,7 +51,10 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.sources.redwood",
         "stratamap.plugins.sources.scannet",
     ),
-    "segmenters": ("stratamap.plugins.segmenters.oracle",),
+    "segmenters": (
+        "stratamap.plugins.segmenters.oracle",
+        "stratamap.plugins.segmenters.clusters",
+    ),
     "mappers": (
         "stratamap.plugins.mappers.tsdf",
         "stratamap.plugins.mappers.points",

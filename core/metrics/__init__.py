@@ -29,7 +29,10 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
 
             out["graph"] = evaluate_graph(m.contact_graph, m.instances, gt.contact_graph, gt.objects)
     if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
-        gt_cls, gt_inst = panoptic.ground_truth_point_labels(m.geometry.points, gt)
+        if gt.point_class_ids is not None and data.stream is not None and data.stream.points is not None:
+            gt_cls, gt_inst = panoptic.transfer_point_labels(m.geometry.points, np.asarray(data.stream.points), gt.point_class_ids, gt.point_instance_ids)
+        else:
+            gt_cls, gt_inst = panoptic.ground_truth_point_labels(m.geometry.points, gt)
         pq = panoptic.panoptic_quality(m.semantics.class_ids, m.semantics.instance_ids, gt_cls, gt_inst, m.semantics.vocabulary)
         inst = pq.pop("instances")
         p, r = inst["precision"], inst["recall"]

@@ -27,6 +27,20 @@ from stratamap.core.vocabulary import Vocabulary
 VOID = -1
 
 
+def transfer_point_labels(points: np.ndarray, labelled: np.ndarray, classes: np.ndarray, instances: np.ndarray | None, max_distance: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Labels of the nearest labelled point (a dataset's per-point ground truth, e.g. mOSD) for
+    each map point; class -1 (void) farther than ``max_distance`` or on unlabelled points."""
+    from scipy.spatial import cKDTree
+
+    dist, nearest = cKDTree(labelled).query(points, distance_upper_bound=max_distance)
+    ok = np.isfinite(dist)
+    near = np.where(ok, nearest, 0)
+    cls = np.where(ok, np.asarray(classes)[near], VOID).astype(np.int32)
+    cls[cls == 0] = VOID  # unlabelled in the dataset: not counted either way
+    inst = np.where(ok, np.asarray(instances)[near], 0).astype(np.int32) if instances is not None else np.zeros(len(points), np.int32)
+    return cls, inst
+
+
 def ground_truth_point_labels(points: np.ndarray, gt: GroundTruth, max_distance: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """Class and instance of the closest ground-truth surface for each point (class -1: void)."""
     from stratamap.core.synthetic.scene import room_layout

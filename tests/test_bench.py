@@ -1,0 +1,116 @@
+"""`stratamap bench`: records, tables, figures, resuming after a kill, and the Ray executor."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from stratamap.core.bench import load_bench, run_bench
+from stratamap.core.bench_report import lower_is_better, records_equal
+from stratamap.core.errors import ConfigError
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def tiny_bench(tmp_path: Path, seeds=(3,), frames: int = 12) -> Path:
+    doc = {
+        "name": "tiny",
+        "scenes": [{"synthetic": {"scene_file": str(REPO / "configs/scenes/office.yaml"), "seeds": list(seeds), "frames": frames, "camera": {"width": 160, "height": 120}}}],
+        "pipeline": {
+            "stages": [
+                {"plugin": "oracle"},
+                {"plugin": "tsdf", "params": {"voxel_size": 0.04}},
+                {"plugin": "occupancy", "params": {"robot_height": 1.0}},
+                {"plugin": "contact_graph"},
+                {"plugin": "bbox"},
+            ]
+        },
+        "variants": [{"name": "none", "drop": [4]}, {"name": "bbox"}],
+    }
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_bench_file_errors_name_the_key(tmp_path):
+    path = tiny_bench(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    doc["variants"][0]["sett"] = ["x=1"]
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match=r"variants\.0\.sett"):
+        load_bench(path)
+    doc["variants"][0].pop("sett")
+    doc["variants"][1]["name"] = "none"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match="unique"):
+        load_bench(path)
+
+
+def test_bench_writes_records_tables_and_figures_and_skips_done_runs(tmp_path):
+    out = tmp_path / "out"
+    summary = run_bench(tiny_bench(tmp_path), out, progress=False)
+    assert summary["records"] == summary["ran"] == 2
+    results = json.loads((out / "results.json").read_text())
+    assert set(results) >= {"versions", "records"} and results["versions"]["numpy"]
+    for rec in results["records"]:
+        assert {"scene", "variant", "plugins", "seconds", "peak_memory_mb", "metrics"} <= set(rec)
+        assert {"detection", "completion", "panoptic", "instances", "graph", "physics", "navigation"} <= set(rec["metrics"])
+        assert {"precision", "recall", "f1"} <= set(rec["metrics"]["detection"])
+        assert {"chamfer_l1", "fscore_2cm", "fscore_5cm", "chamfer_l1_by_class"} <= set(rec["metrics"]["completion"])
+        assert {"ged", "wrong_support", "missing", "extra"} <= set(rec["metrics"]["graph"])
+    by_variant = {r["variant"]: r for r in results["records"]}
+    # The mapping stages ran once: the same timings appear in both records.
+    shared = [k for k in by_variant["bbox"]["seconds"] if "tsdf" in k]
+    assert shared and by_variant["bbox"]["seconds"][shared[0]] == by_variant["none"]["seconds"][shared[0]]
+    assert any(k.endswith(":bbox") for k in by_variant["bbox"]["seconds"]) and not any(k.endswith(":bbox") for k in by_variant["none"]["seconds"])
+    md = (out / "results.md").read_text()
+    assert "| metric | none | bbox |" in md and "## completion" in md and "**" in md
+    header = (out / "results.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["scene", "variant"] and "detection.f1" in header
+    assert len(list(out.glob("*.png"))) >= 2 and (out / "navigation.png").is_file()
+    again = run_bench(tiny_bench(tmp_path), out, progress=False)
+    assert again["ran"] == 0 and again["records"] == 2
+
+
+def test_direction_of_better():
+    assert lower_is_better("completion.chamfer_l1") and lower_is_better("graph.ged") and lower_is_better("navigation.colliding_multimap")
+    assert not lower_is_better("detection.f1") and not lower_is_better("completion.fscore_5cm") and not lower_is_better("completion.scan2cad_accuracy")
+
+
+def test_killed_benchmark_resumes_without_redoing_runs(tmp_path):
+    config = tiny_bench(tmp_path, seeds=(3, 4, 5))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "stratamap.core.cli", "bench", str(config), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and len(list((out / "records").glob("*/*.json"))) < 2 and proc.poll() is None:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = {p: p.stat().st_mtime_ns for p in (out / "records").glob("*/*.json")}
+    assert 2 <= len(done) < 6
+    for p in done:
+        json.loads(p.read_text())  # whole records only
+    assert not (out / "results.json").exists() or json.loads((out / "results.json").read_text())
+    summary = run_bench(config, out, progress=False)
+    assert summary["records"] == 6 and summary["ran"] == 6 - len(done)
+    assert all(p.stat().st_mtime_ns == t for p, t in done.items())
+
+
+def test_ray_executor_gives_the_local_records(tmp_path):
+    pytest.importorskip("ray")
+    config = tiny_bench(tmp_path)
+    local = run_bench(config, tmp_path / "local", progress=False)
+    remote = run_bench(config, tmp_path / "ray", executor="ray", workers=2, progress=False)
+    assert local["records"] == remote["records"] == 2
+    a = json.loads((tmp_path / "local" / "results.json").read_text())["records"]
+    b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
+    assert records_equal(a, b)
