@@ -54,6 +54,7 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
     "segmenters": (
         "stratamap.plugins.segmenters.oracle",
         "stratamap.plugins.segmenters.clusters",
+        "stratamap.plugins.segmenters.onnx_panoptic",
     ),
     "mappers": (
         "stratamap.plugins.mappers.tsdf",
