@@ -41,6 +41,7 @@ class SyntheticScenes(BaseModel):
     seeds: list[int] = Field(min_length=1, description="One scene per seed.")
     frames: int | None = Field(default=None, ge=1, description="Override the trajectory's number of frames.")
     camera: dict[str, Any] = Field(default_factory=dict, description="Override camera fields (e.g. width, height).")
+    scene: dict[str, Any] = Field(default_factory=dict, description="Override scene spec fields (e.g. room_size, objects).")
 
 
 class SceneEntry(BaseModel):
@@ -52,6 +53,8 @@ class SceneEntry(BaseModel):
     synthetic: SyntheticScenes | None = Field(default=None, description="Synthetic scenes from a spec file and seeds.")
     source: dict[str, Any] | None = Field(default=None, description="A source stage ({plugin, params}) reading a dataset.")
     requires_path: str | None = Field(default=None, description="Skip this scene (with a note) when this path does not exist, e.g. ../shared/data/mosd/test.")
+    files: str | None = Field(default=None, description="With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in source.params.path.")
+    variants: list[str] | None = Field(default=None, description="Run only these variants on these scenes (default: all).")
 
 
 class Variant(BaseModel):
@@ -75,6 +78,7 @@ class BenchSpec(BaseModel):
     scenes: list[SceneEntry] = Field(min_length=1, description="Scenes to run every variant on.")
     pipeline: dict[str, Any] = Field(description="The base pipeline: `stages` (and optionally `output`); the source comes from each scene.")
     variants: list[Variant] = Field(min_length=1, description="Variants of the base pipeline, one table column each.")
+    per_scene: list[str] = Field(default_factory=list, description="Metrics (family.key) to tabulate per scene as well, e.g. instances.f1.")
     physics: bool = Field(default=True, description="Measure physical plausibility (overlap volume; settling in MuJoCo when installed).")
     physics_seconds: float = Field(default=2.0, gt=0.0, description="Simulated seconds of settling.")
 
@@ -112,7 +116,7 @@ def _resolve(path: str, base: Path) -> str:
     for root in (base, repo_root()):
         if (root / p).exists():
             return str((root / p).resolve())
-    return str(p)
+    return str(repo_root() / p)
 
 
 def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any]], list[str]]:
@@ -126,6 +130,7 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
         if entry.synthetic is not None:
             syn = entry.synthetic
             scene_doc = yaml.safe_load(Path(_resolve(syn.scene_file, base)).read_text())
+            scene_doc.update(copy.deepcopy(syn.scene))
             if syn.camera:
                 scene_doc["camera"] = {**scene_doc.get("camera", {}), **syn.camera}
             stem = entry.name or Path(syn.scene_file).stem
@@ -133,8 +138,18 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
                 params: dict[str, Any] = {"scene": scene_doc, "seed": seed}
                 if syn.frames is not None:
                     params["frames"] = syn.frames
-                scenes.append({"name": f"{stem}-s{seed}", "source": {"plugin": "synthetic", "params": params}})
+                scenes.append({"name": f"{stem}-s{seed}", "source": {"plugin": "synthetic", "params": params}, "variants": entry.variants})
         elif entry.source is not None:
+            if entry.files:
+                root = Path(_resolve(str(Path(entry.files).parent), base))
+                paths = sorted(root.glob(Path(entry.files).name))
+                if not paths:
+                    skipped.append(f"scenes[{k}]: no file matches {entry.files}, skipped")
+                for file in paths:
+                    source = copy.deepcopy(entry.source)
+                    source.setdefault("params", {})["path"] = str(file)
+                    scenes.append({"name": f"{entry.name + '-' if entry.name else ''}{file.stem}", "source": source, "variants": entry.variants})
+                continue
             if not entry.name:
                 raise ConfigError([(f"scenes[{k}].name", "a scene with a `source` needs a name")], source=str(bench_file))
             source = copy.deepcopy(entry.source)
@@ -142,7 +157,7 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
             for key in ("path", "root", "folder", "file", "scene_file"):
                 if isinstance(params.get(key), str):
                     params[key] = _resolve(params[key], base)
-            scenes.append({"name": entry.name, "source": source})
+            scenes.append({"name": entry.name, "source": source, "variants": entry.variants})
         else:
             raise ConfigError([(f"scenes[{k}]", "give `synthetic` or `source`")], source=str(bench_file))
     return scenes, skipped
@@ -364,9 +379,10 @@ def run_bench(
     jobs = []
     total = done_before = 0
     for scene in scenes:
-        pending = [v.name for v in spec.variants if not record_path(out, scene["name"], v.name).is_file()]
-        total += len(spec.variants)
-        done_before += len(spec.variants) - len(pending)
+        wanted = [v.name for v in spec.variants if scene.get("variants") is None or v.name in scene["variants"]]
+        pending = [v for v in wanted if not record_path(out, scene["name"], v).is_file()]
+        total += len(wanted)
+        done_before += len(wanted) - len(pending)
         if pending:
             jobs.append({"scene": scene, "variants": pending, "bench": bench_doc, "out": str(out), "bench_file": str(path)})
 
@@ -396,6 +412,8 @@ def collect_records(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) ->
     records = []
     for scene in scenes:
         for v in spec.variants:
+            if scene.get("variants") is not None and v.name not in scene["variants"]:
+                continue
             p = record_path(out, scene["name"], v.name)
             if p.is_file():
                 try:

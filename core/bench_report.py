@@ -21,7 +21,7 @@ from stratamap.core.atomic import atomic_path, write_text
 #: Families in table order; keys not listed still appear (sorted) after these.
 FAMILIES = ["detection", "completion", "panoptic", "instances", "graph", "classification", "physics", "navigation", "trajectory", "cost"]
 LOWER_IS_BETTER = ("chamfer", "error", "ged", "wrong_support", "missing", "extra", "displacement", "penetration", "colliding", "seconds", "memory", "ate", "rpe")
-SKIP = ("count", "objects", "true_positives", "predicted", "ground_truth", "free_bodies", "robot_radius")
+SKIP = ("count", "frames", "objects", "true_positives", "predicted", "ground_truth", "free_bodies", "robot_radius")
 
 
 def flatten(metrics: dict[str, Any], prefix: str = "") -> dict[str, float]:
@@ -108,6 +108,20 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
                 cells.append(f"**{text}**" if best is not None and np.isclose(means[v], best) else text)
             lines.append(f"| {key[len(family) + 1:]} | " + " | ".join(cells) + " |")
         lines.append("")
+    for key in spec.per_scene:
+        family = key.split(".")[0]
+        lines += [f"## {key} per scene", "", "| scene | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
+        for scene in scenes:
+            cells = []
+            for v in variants:
+                rec = next((r for r, row in zip(records, rows, strict=True) if r["scene"] == scene and r["variant"] == v), None)
+                value = record_row(rec).get(key) if rec is not None else None
+                cells.append("–" if value is None else f"{value:.3f}")
+            if any(c != "–" for c in cells):
+                lines.append(f"| {scene} | " + " | ".join(cells) + " |")
+        means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
+        lines += ["| **mean** | " + " | ".join("–" if m is None else f"**{m:.3f}**" for m in means) + " |", ""]
+        del family
     figures = sorted(p.name for p in path.parent.glob("*.png"))
     if figures:
         lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]

@@ -114,3 +114,17 @@ def test_ray_executor_gives_the_local_records(tmp_path):
     a = json.loads((tmp_path / "local" / "results.json").read_text())["records"]
     b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
     assert records_equal(a, b)
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "configs" / "bench").glob("*.yaml")))
+def test_shipped_benchmarks_validate_every_run(name):
+    from stratamap.core.bench import expand_scenes, variant_document
+    from stratamap.core.config import validate
+
+    spec, path = load_bench(REPO / "configs" / "bench" / name)
+    scenes, _ = expand_scenes(spec, path)
+    assert scenes
+    for scene in scenes:
+        for variant in spec.variants:
+            if scene.get("variants") is None or variant.name in scene["variants"]:
+                validate(variant_document(spec, variant, scene["source"]), origin=name)

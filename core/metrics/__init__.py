@@ -38,6 +38,8 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
         p, r = inst["precision"], inst["recall"]
         out["panoptic"] = pq
         out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
+    if data.frame_labels is not None and gt.frame_labels and len(gt.frame_labels) == len(data.frame_labels):
+        out["frames"] = panoptic.frame_quality(data.frame_labels.frames, gt.frame_labels, gt.vocabulary)
     occ = m.occupancy
     if "objects" in gt.occupancy and "slam" in occ and "multimap" in occ:
         from stratamap.core.navigation import evaluate_navigation

@@ -27,6 +27,37 @@ from stratamap.core.vocabulary import Vocabulary
 VOID = -1
 
 
+def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -> dict[str, Any]:
+    """2D segmentation quality over every ``stride``-th frame: mIoU over classes present, and PQ
+    (things, stuff) with all sampled frames pooled as one image (instance ids kept apart per frame).
+    Pixels the ground truth leaves unknown (class 0) are not counted."""
+    n = len(vocab.names)
+    inter, union = np.zeros(n), np.zeros(n)
+    pc, pi, gc, gi = [], [], [], []
+    for k in range(0, len(truth), stride):
+        p, g = pred[k], truth[k]
+        pcls = np.asarray(p.class_ids, np.int64)
+        if pcls.shape != g.class_ids.shape:
+            raise ValueError(f"frame {k}: predicted labels are {pcls.shape}, the ground truth {g.class_ids.shape}")
+        gcls = np.asarray(g.class_ids, np.int64)
+        valid = gcls > 0
+        inter += np.bincount(gcls[valid & (pcls == gcls)], minlength=n)[:n]
+        union += (np.bincount(gcls[valid], minlength=n) + np.bincount(pcls[valid], minlength=n) - np.bincount(gcls[valid & (pcls == gcls)], minlength=n))[:n]
+        off = (k + 1) << 20
+        pc.append(pcls.ravel())
+        pi.append(np.where(p.instance_ids > 0, np.asarray(p.instance_ids, np.int64) + off, 0).ravel())
+        gc.append(np.where(valid, gcls, VOID).ravel())
+        gi.append(np.where(g.instance_ids > 0, np.asarray(g.instance_ids, np.int64) + off, 0).ravel())
+    present = union > 0
+    pq = panoptic_quality(np.concatenate(pc), np.concatenate(pi), np.concatenate(gc), np.concatenate(gi), vocab)
+    return {
+        "miou": float(np.mean(inter[present] / union[present])) if present.any() else 0.0,
+        "iou_by_class": {vocab.name(c): float(inter[c] / union[c]) for c in np.flatnonzero(present)},
+        "pq": pq["pq"], "sq": pq["sq"], "rq": pq["rq"], "pq_things": pq["pq_things"], "pq_stuff": pq["pq_stuff"],
+        "frames": len(range(0, len(truth), stride)),
+    }
+
+
 def transfer_point_labels(points: np.ndarray, labelled: np.ndarray, classes: np.ndarray, instances: np.ndarray | None, max_distance: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """Labels of the nearest labelled point (a dataset's per-point ground truth, e.g. mOSD) for
     each map point; class -1 (void) farther than ``max_distance`` or on unlabelled points."""

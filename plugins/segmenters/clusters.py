@@ -48,7 +48,7 @@ class ClustersConfig(StageConfig):
     patch_size: float = Field(default=0.02, gt=0.0, description="Cell size of the supervoxel patches the convexity test works on, metres.")
     patch_normal_deg: float = Field(default=20.0, gt=0.0, le=90.0, description="Neighbours in one cell whose normals differ by less than this form a patch.")
     convex_votes: float = Field(default=0.5, ge=0.0, le=1.0, description="Share of point links across a patch boundary that must be convex (or smooth) to merge.")
-    concavity_tolerance: float = Field(default=0.15, ge=0.0, description="Concavity tolerated (noise), as a fraction of the neighbour distance.")
+    concavity_tolerance: float = Field(default=0.2, ge=0.0, description="Concavity tolerated (noise), as a fraction of the neighbour distance.")
     plane_distance: float = Field(default=0.01, gt=0.0, description="RANSAC inlier distance of the dominant planes, metres.")
     plane_share: float = Field(default=0.15, gt=0.0, le=1.0, description="A dominant plane holds at least this share of the points.")
     max_planes: int = Field(default=3, ge=0, description="Dominant planes removed at most.")
