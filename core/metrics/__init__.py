@@ -23,6 +23,12 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
         from stratamap.core.metrics import completion
 
         out["detection"] = detection.evaluate_instances(m.instances, gt.objects)
+        out["detection"]["box_map50"] = detection.box_map(m.instances, gt.objects)
+        if m.contact_graph is not None:
+            from stratamap.core.layers import OrientedBox
+
+            refined = {n: OrientedBox.from_dict(d["box_refined"]) for n, d in m.contact_graph.support.nodes(data=True) if "box_refined" in d}
+            out["detection"]["box_map50_refined"] = detection.box_map(m.instances, gt.objects, boxes=refined)
         out["completion"] = completion.evaluate_completion(m.instances, gt.objects)
         if m.contact_graph is not None and gt.contact_graph is not None:
             from stratamap.core.metrics.graph import evaluate_graph
@@ -38,6 +44,7 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
         p, r = inst["precision"], inst["recall"]
         out["panoptic"] = pq
         out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
+        out["instances"]["map50"] = panoptic.instance_map(m.semantics, m.instances, gt_cls, gt_inst)
     if data.frame_labels is not None and gt.frame_labels and len(gt.frame_labels) == len(data.frame_labels):
         out["frames"] = panoptic.frame_quality(data.frame_labels.frames, gt.frame_labels, gt.vocabulary)
     occ = m.occupancy
