@@ -49,6 +49,7 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
         gc.append(np.where(valid, gcls, VOID).ravel())
         gi.append(np.where(g.instance_ids > 0, np.asarray(g.instance_ids, np.int64) + off, 0).ravel())
     present = union > 0
+    present[0] = False  # "unknown" is the void label, not a class
     pq = panoptic_quality(np.concatenate(pc), np.concatenate(pi), np.concatenate(gc), np.concatenate(gi), vocab)
     return {
         "miou": float(np.mean(inter[present] / union[present])) if present.any() else 0.0,
