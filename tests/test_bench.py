@@ -54,9 +54,16 @@ def test_bench_file_errors_name_the_key(tmp_path):
         load_bench(path)
 
 
-def test_bench_writes_records_tables_and_figures_and_skips_done_runs(tmp_path):
-    out = tmp_path / "out"
-    summary = run_bench(tiny_bench(tmp_path), out, progress=False)
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    """The tiny benchmark run once by the local executor (shared by the tests below)."""
+    tmp = tmp_path_factory.mktemp("bench")
+    config = tiny_bench(tmp)
+    return config, tmp / "out", run_bench(config, tmp / "out", progress=False)
+
+
+def test_bench_writes_records_tables_and_figures_and_skips_done_runs(local_run):
+    config, out, summary = local_run
     assert summary["records"] == summary["ran"] == 2
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"versions", "records"} and results["versions"]["numpy"]
@@ -76,7 +83,7 @@ def test_bench_writes_records_tables_and_figures_and_skips_done_runs(tmp_path):
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["scene", "variant"] and "detection.f1" in header
     assert len(list(out.glob("*.png"))) >= 2 and (out / "navigation.png").is_file()
-    again = run_bench(tiny_bench(tmp_path), out, progress=False)
+    again = run_bench(config, out, progress=False)
     assert again["ran"] == 0 and again["records"] == 2
 
 
@@ -105,13 +112,12 @@ def test_killed_benchmark_resumes_without_redoing_runs(tmp_path):
     assert all(p.stat().st_mtime_ns == t for p, t in done.items())
 
 
-def test_ray_executor_gives_the_local_records(tmp_path):
+def test_ray_executor_gives_the_local_records(local_run, tmp_path):
     pytest.importorskip("ray")
-    config = tiny_bench(tmp_path)
-    local = run_bench(config, tmp_path / "local", progress=False)
+    config, out, local = local_run
     remote = run_bench(config, tmp_path / "ray", executor="ray", workers=2, progress=False)
     assert local["records"] == remote["records"] == 2
-    a = json.loads((tmp_path / "local" / "results.json").read_text())["records"]
+    a = json.loads((out / "results.json").read_text())["records"]
     b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
     assert records_equal(a, b)
 
