@@ -109,7 +109,6 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
             lines.append(f"| {key[len(family) + 1:]} | " + " | ".join(cells) + " |")
         lines.append("")
     for key in spec.per_scene:
-        family = key.split(".")[0]
         lines += [f"## {key} per scene", "", "| scene | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
         for scene in scenes:
             cells = []
@@ -121,7 +120,6 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
                 lines.append(f"| {scene} | " + " | ".join(cells) + " |")
         means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
         lines += ["| **mean** | " + " | ".join("–" if m is None else f"**{m:.3f}**" for m in means) + " |", ""]
-        del family
     figures = sorted(p.name for p in path.parent.glob("*.png"))
     if figures:
         lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]

@@ -81,11 +81,17 @@ def world_mesh(inst: ObjectInstance) -> trimesh.Trimesh:
     return mesh
 
 
-def mesh_shells(mesh: trimesh.Trimesh, max_shells: int = 64) -> list[Shell]:
-    """The mesh's connected components as convex shells (what a simulator collides), largest first."""
+def mesh_parts(mesh: trimesh.Trimesh, max_parts: int = 64) -> list[trimesh.Trimesh]:
+    """The mesh's closed pieces (connected components), largest first, slivers dropped: the
+    geoms a simulator gets, since it collides the convex hull of each."""
     parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) >= 4 and p.extents.min() > 1e-4] or [mesh]
     parts.sort(key=lambda p: -p.area)
-    shells = [convex_shell(np.asarray(p.vertices)) for p in parts[:max_shells]]
+    return parts[:max_parts]
+
+
+def mesh_shells(mesh: trimesh.Trimesh, max_shells: int = 64) -> list[Shell]:
+    """The mesh's pieces as convex shells (what a simulator collides), largest first."""
+    shells = [convex_shell(np.asarray(p.vertices)) for p in mesh_parts(mesh, max_shells)]
     return [s for s in shells if s is not None]
 
 

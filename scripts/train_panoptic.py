@@ -97,38 +97,25 @@ def build_model(classes: int):
 
 
 def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
-    from stratamap.core.metrics.panoptic import panoptic_quality
+    """mIoU and PQ of the network's labels on ``data`` (every frame), by the map's own metric."""
+    from stratamap.core.metrics.panoptic import frame_quality
     from stratamap.core.onnx_adapters import semantic_boundary
+    from stratamap.core.sensors import FrameSegmentation
 
     identity = np.arange(len(vocab.names))
     is_thing = np.array(vocab.is_thing)
-    inter = np.zeros(len(vocab.names))
-    union = np.zeros(len(vocab.names))
-    pred_c, pred_i, gt_c, gt_i = [], [], [], []
-    offset = 0
+    pred, truth = [], []
     for k in range(len(data["x"])):
         logits, boundary = session.run(None, {"rgbd": data["x"][k : k + 1]})
         c, i, _ = semantic_boundary(logits, boundary, identity, is_thing)
-        g = data["cls"][k]
-        valid = g > 0
-        for cid in np.unique(np.concatenate([g[valid], c[valid]])):
-            inter[cid] += np.sum((c == cid) & (g == cid) & valid)
-            union[cid] += np.sum(((c == cid) | (g == cid)) & valid)
-        # Frames are pooled as one big image: instance ids are offset to stay distinct per frame.
-        pred_c.append(c.ravel())
-        pred_i.append(np.where(i > 0, i + offset, 0).ravel())
-        gt_c.append(np.where(valid, g, -1).ravel())
-        gt_i.append(np.where(data["inst"][k] > 0, data["inst"][k] + offset, 0).ravel())
-        offset += 100000
-    present = union > 0
-    present[0] = False  # "unknown" is the void label, not a class
-    iou = {vocab.names[c]: float(inter[c] / union[c]) for c in np.flatnonzero(present)}
-    pq = panoptic_quality(np.concatenate(pred_c), np.concatenate(pred_i), np.concatenate(gt_c), np.concatenate(gt_i), vocab)
+        pred.append(FrameSegmentation(k, c, i))
+        truth.append(FrameSegmentation(k, data["cls"][k], data["inst"][k]))
+    q = frame_quality(pred, truth, vocab, stride=1)
     return {
-        "miou": float(np.mean(list(iou.values()))),
-        "iou_by_class": iou,
-        "pq": pq["pq"], "pq_things": pq["pq_things"], "pq_stuff": pq["pq_stuff"],
-        "pq_by_class": {c: v["pq"] for c, v in pq["by_class"].items()},
+        "miou": q["miou"],
+        "iou_by_class": q["iou_by_class"],
+        "pq": q["pq"], "pq_things": q["pq_things"], "pq_stuff": q["pq_stuff"],
+        "pq_by_class": {c: v["pq"] for c, v in q["by_class"].items()},
     }
 
 

@@ -55,6 +55,7 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
         "miou": float(np.mean(inter[present] / union[present])) if present.any() else 0.0,
         "iou_by_class": {vocab.name(c): float(inter[c] / union[c]) for c in np.flatnonzero(present)},
         "pq": pq["pq"], "sq": pq["sq"], "rq": pq["rq"], "pq_things": pq["pq_things"], "pq_stuff": pq["pq_stuff"],
+        "by_class": pq["by_class"],
         "frames": len(range(0, len(truth), stride)),
     }
 

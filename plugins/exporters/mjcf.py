@@ -13,13 +13,13 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.kinematics import ROOT_LINK, build_tree
+from stratamap.core.physics import mesh_parts
 
 
 def _fmt(values) -> str:
@@ -29,14 +29,6 @@ def _fmt(values) -> str:
 def _quat_wxyz(pose: np.ndarray) -> str:
     x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
     return _fmt([w, x, y, z])
-
-
-def shells(mesh: trimesh.Trimesh, max_shells: int = 64) -> list[trimesh.Trimesh]:
-    """Closed shells of a mesh (connected components), largest first; tiny ones dropped."""
-    parts = mesh.split(only_watertight=False)
-    parts = [p for p in parts if len(p.faces) >= 4 and p.extents.min() > 1e-4] or [mesh]
-    parts.sort(key=lambda p: -p.area)
-    return parts[:max_shells]
 
 
 class MJCFConfig(StageConfig):
@@ -101,7 +93,7 @@ class MJCFExporter(Exporter):
             frame = np.eye(4)
             frame[:3, :3] = evecs
             ET.SubElement(body, "inertial", pos=_fmt(i.center), quat=_quat_wxyz(frame), mass=f"{i.mass:.6g}", diaginertia=_fmt(np.maximum(evals, 1e-8)))
-            for k, shell in enumerate(shells(link.mesh)):
+            for k, shell in enumerate(mesh_parts(link.mesh)):
                 mesh_name = f"{link.name}_{k}"
                 rel = f"{mesh_name}.stl"
                 path = out_dir / cfg.mesh_dir / rel
