@@ -120,6 +120,11 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
                 lines.append(f"| {scene} | " + " | ".join(cells) + " |")
         means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
         lines += ["| **mean** | " + " | ".join("–" if m is None else f"**{m:.3f}**" for m in means) + " |", ""]
+    for rec in records:  # plane and furniture labels in the layout of the kitchen paper's Table IV
+        if "classification" in rec.get("metrics", {}):
+            from stratamap.core.metrics.classification import format_table
+
+            lines += [f"## Table IV: {rec['scene']} ({rec['variant']})", "", format_table(rec["metrics"]["classification"]), ""]
     figures = sorted(p.name for p in path.parent.glob("*.png"))
     if figures:
         lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]

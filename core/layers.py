@@ -140,12 +140,17 @@ class Semantics:
     class_ids: np.ndarray  # (N,) int32
     instance_ids: np.ndarray  # (N,) int32
     vocabulary: Vocabulary = field(default_factory=Vocabulary.default)
+    plane_ids: np.ndarray | None = None  # (N,) int32, planar segment per point (-1 none), from plane segmenters
 
     def __post_init__(self) -> None:
         self.class_ids = np.asarray(self.class_ids, dtype=np.int32).reshape(-1)
         self.instance_ids = np.asarray(self.instance_ids, dtype=np.int32).reshape(-1)
         if self.class_ids.shape != self.instance_ids.shape:
             raise ValueError("class_ids and instance_ids must have the same length")
+        if self.plane_ids is not None:
+            self.plane_ids = np.asarray(self.plane_ids, dtype=np.int32).reshape(-1)
+            if self.plane_ids.shape != self.class_ids.shape:
+                raise ValueError("plane_ids must have one entry per point")
 
     def __len__(self) -> int:
         return len(self.class_ids)

@@ -6,7 +6,7 @@ A map directory holds ``manifest.json`` and one file per present layer::
                           "metadata", "layers": {layer: {"file": ...}}}
     occupancy.npz        per grid NAME: NAME.data (int8 HxW), NAME.meta (JSON: resolution, origin, frame_id)
     geometry.npz         points, colors?, normals?, mesh.vertices?, mesh.faces?, mesh.vertex_colors?
-    semantics.npz        class_ids, instance_ids
+    semantics.npz        class_ids, instance_ids (, plane_ids)
     instances.json       per object: id, class, box, score, attributes, completion metadata
     instances.npz        per object ID: ID.points, ID.colors?, ID.completion.mesh.*, ID.part.K.mesh.*
     contact_graph.json   node-link JSON of the support and proximal graphs
@@ -123,7 +123,8 @@ def write_layers(m: LayeredMap, directory: Path) -> dict[str, Any]:
     if m.semantics is not None:
         _save_npz(
             directory / "semantics.npz",
-            {"class_ids": m.semantics.class_ids, "instance_ids": m.semantics.instance_ids},
+            {"class_ids": m.semantics.class_ids, "instance_ids": m.semantics.instance_ids,
+             **({"plane_ids": m.semantics.plane_ids} if m.semantics.plane_ids is not None else {})},
         )
         layers["semantics"] = {"file": "semantics.npz", "vocabulary": m.semantics.vocabulary.to_dict()}
     if m.instances is not None:
@@ -193,7 +194,7 @@ def read_layers(manifest: dict[str, Any], directory: Path) -> LayeredMap:
     if "semantics" in layers:
         arrays = _load_npz(directory / layers["semantics"]["file"])
         vocab = Vocabulary.from_dict(layers["semantics"]["vocabulary"])
-        m.semantics = Semantics(arrays["class_ids"], arrays["instance_ids"], vocab)
+        m.semantics = Semantics(arrays["class_ids"], arrays["instance_ids"], vocab, arrays.get("plane_ids"))
     if "instances" in layers:
         path = directory / layers["instances"]["file"]
         if not path.is_file():

@@ -50,11 +50,13 @@ BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
         "stratamap.plugins.sources.rosbag",
         "stratamap.plugins.sources.redwood",
         "stratamap.plugins.sources.scannet",
+        "stratamap.plugins.sources.urdf_scan",
     ),
     "segmenters": (
         "stratamap.plugins.segmenters.oracle",
         "stratamap.plugins.segmenters.clusters",
         "stratamap.plugins.segmenters.onnx_panoptic",
+        "stratamap.plugins.segmenters.plane_crf",
     ),
     "mappers": (
         "stratamap.plugins.mappers.tsdf",

@@ -35,6 +35,10 @@ DEFAULT_CLASSES: tuple[tuple[str, bool], ...] = (
     ("plant", True),
     ("object", True),
     ("bench", True),
+    # furniture fronts (the kitchen paper's level-2 labels): a door, a drawer, an appliance's face
+    ("drawer", True),
+    ("cupboard", True),
+    ("appliance", True),
 )
 
 LAYOUT_CLASSES = ("floor", "wall", "ceiling")

@@ -24,29 +24,42 @@ from pathlib import Path
 
 import numpy as np
 
-TYPES = ["office", "meeting_room", "kitchen", "lounge", "corridor"]
+TYPES = ["office", "meeting_room", "kitchen", "lounge", "corridor", "room"]
+EXTRA_TYPES = {"room": {"objects": {"table": 1, "chair": 4, "box": 4, "book": 2, "cup": 2}}}
 WIDTH, HEIGHT = 160, 120
 DEPTH_SCALE = 5.0  # depth (m) / 5 as the 4th input channel
 
 
-def render_frames(types: list[str], seeds: list[int], frames: int) -> dict[str, np.ndarray]:
+def render_frames(types: list[str], seeds: list[int], frames: int, render_size: tuple[int, int] = (640, 480)) -> dict[str, np.ndarray]:
+    """Frames rendered at the camera's ``render_size`` and shrunk to the network input by the
+    plugin's own preprocessing (what the network sees at run time); labels sampled at pixel centres."""
     import yaml
 
     from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+    from stratamap.plugins.segmenters.onnx_panoptic import ONNXPanopticConfig, ONNXPanopticSegmenter
 
     repo = Path(__file__).resolve().parent.parent
+    prep = ONNXPanopticConfig(depth_scale=DEPTH_SCALE)
+    w, h = render_size
+    rows = ((np.arange(HEIGHT) + 0.5) * h / HEIGHT).astype(int)
+    cols = ((np.arange(WIDTH) + 0.5) * w / WIDTH).astype(int)
     rgbd, cls, inst = [], [], []
     for t in types:
-        doc = yaml.safe_load((repo / "configs" / "scenes" / f"{t}.yaml").read_text())
+        path = repo / "configs" / "scenes" / f"{t}.yaml"
+        if path.is_file():
+            doc = yaml.safe_load(path.read_text())
+        else:  # the demo's room: sensors as the office's, more boxes than its default two
+            doc = {**yaml.safe_load((repo / "configs" / "scenes" / "office.yaml").read_text()), "type": t, **EXTRA_TYPES[t]}
         for seed in seeds:
-            doc.update(seed=seed, camera={**doc.get("camera", {}), "width": WIDTH, "height": HEIGHT})
+            doc.update(seed=seed, camera={**doc.get("camera", {}), "width": w, "height": h})
             doc["trajectory"] = {**doc.get("trajectory", {}), "frames": frames}
             world = SyntheticWorld(SceneSpec.model_validate(doc))
             for k in range(frames):
                 frame, seg = world.frame(k)
-                rgbd.append(np.concatenate([frame.rgb.astype(np.float32) / 255.0, (frame.depth / DEPTH_SCALE)[..., None]], axis=2).transpose(2, 0, 1))
-                cls.append(seg.class_ids.astype(np.int64))
-                inst.append(seg.instance_ids.astype(np.int64))
+                x, _ = ONNXPanopticSegmenter._prepare(frame.rgb, frame.depth, WIDTH, HEIGHT, prep)
+                rgbd.append(x[0])
+                cls.append(seg.class_ids[rows][:, cols].astype(np.int64))
+                inst.append(seg.instance_ids[rows][:, cols].astype(np.int64))
     return {"x": np.stack(rgbd).astype(np.float32), "cls": np.stack(cls), "inst": np.stack(inst)}
 
 
@@ -124,7 +137,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/models"))
     parser.add_argument("--scenes-per-type", type=int, default=8)
     parser.add_argument("--frames", type=int, default=40)
-    parser.add_argument("--epochs", type=int, default=12)
+    parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=None, help="Keep rendered frames here (npz) between runs.")
@@ -189,6 +202,9 @@ def main() -> None:
                 xb, yb, bb = xb.flip(-1), y[idx].flip(-1), b[idx].flip(-1)
             else:
                 yb, bb = y[idx], b[idx]
+            # colour jitter: the renderer's lighting is fixed, real cameras' exposure is not
+            gain = 0.8 + 0.4 * torch.rand(len(idx), 3, 1, 1, generator=gen)
+            xb = torch.cat([(xb[:, :3] * gain).clamp(0, 1), xb[:, 3:]], 1)
             sem, bound = model(xb)
             loss = ce(sem, yb) + bce(bound[:, 0], bb)
             opt.zero_grad()

@@ -45,6 +45,11 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
         out["panoptic"] = pq
         out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
         out["instances"]["map50"] = panoptic.instance_map(m.semantics, m.instances, gt_cls, gt_inst)
+    kitchen = gt.layout.get("kitchen_scan") if isinstance(gt.layout, dict) else None
+    if kitchen is not None and m.semantics is not None and m.semantics.plane_ids is not None and m.geometry is not None and data.stream is not None:
+        from stratamap.core.metrics.classification import tables_from_map
+
+        out["classification"] = tables_from_map(m, np.asarray(data.stream.points), kitchen)
     if data.frame_labels is not None and gt.frame_labels and len(gt.frame_labels) == len(data.frame_labels):
         out["frames"] = panoptic.frame_quality(data.frame_labels.frames, gt.frame_labels, gt.vocabulary)
     occ = m.occupancy

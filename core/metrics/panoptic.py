@@ -143,9 +143,25 @@ def _segments(cls: np.ndarray, inst: np.ndarray, vocab: Vocabulary) -> np.ndarra
     return key
 
 
+def _pair_counts(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct (a, b) pairs and their counts (what ``np.unique(axis=0)`` gives, much faster)."""
+    a_ids, a_inv = np.unique(a, return_inverse=True)
+    b_ids, b_inv = np.unique(b, return_inverse=True)
+    combo = a_inv.reshape(-1).astype(np.int64) * len(b_ids) + b_inv.reshape(-1)
+    if len(a_ids) * len(b_ids) <= 4_000_000:
+        counts = np.bincount(combo, minlength=len(a_ids) * len(b_ids))
+        keys = np.flatnonzero(counts)
+        counts = counts[keys]
+    else:
+        keys, counts = np.unique(combo, return_counts=True)
+    return np.stack([a_ids[keys // len(b_ids)], b_ids[keys % len(b_ids)]], 1).reshape(-1, 2), counts
+
+
 def panoptic_quality(
     pred_class: np.ndarray, pred_instance: np.ndarray, gt_class: np.ndarray, gt_instance: np.ndarray, vocab: Vocabulary, iou_threshold: float = 0.5
 ) -> dict[str, Any]:
+    # plain arrays: labels derived from trimesh data arrive as TrackedArray, whose sort is slow
+    pred_class, pred_instance, gt_class, gt_instance = (np.asarray(a).view(np.ndarray) for a in (pred_class, pred_instance, gt_class, gt_instance))
     valid = gt_class != VOID
     gt_key = _segments(np.where(valid, gt_class, 0), gt_instance, vocab)
     pred_key = _segments(pred_class, pred_instance, vocab)
@@ -156,7 +172,7 @@ def panoptic_quality(
     pv, pv_sizes = np.unique(pred_key[(pred_key >= 0) & ~valid], return_counts=True)
     pred_void = dict(zip(pv.tolist(), pv_sizes.tolist(), strict=True))
     both = (gt_key >= 0) & (pred_key >= 0)
-    pairs, inter = np.unique(np.stack([pred_key[both], gt_key[both]], 1), axis=0, return_counts=True)
+    pairs, inter = _pair_counts(pred_key[both], gt_key[both])
 
     matched_pred: set[int] = set()
     matched_gt: set[int] = set()

@@ -33,10 +33,17 @@ def robot_pose(camera_pose: np.ndarray) -> tuple[float, float, float]:
     return float(camera_pose[0, 3]), float(camera_pose[1, 3]), float(np.arctan2(forward[1], forward[0]))
 
 
+def _nbytes(item: tuple[RGBDFrame, FrameSegmentation]) -> int:
+    frame, seg = item
+    return int(frame.rgb.nbytes + frame.depth.nbytes + seg.class_ids.nbytes + seg.instance_ids.nbytes)
+
+
 class SyntheticWorld:
     """A generated scene with its sensors; everything is a deterministic function of the spec."""
 
-    CACHE = 4
+    #: Rendered frames are kept up to this many bytes (at least 4 frames): a segmenter and a
+    #: mapper that read the same frames one after the other then ray cast them once, not twice.
+    CACHE_BYTES = 768 * 2**20
 
     def __init__(self, spec: SceneSpec):
         self.spec = spec
@@ -47,6 +54,7 @@ class SyntheticWorld:
         self.true_poses = make_trajectory(self.scene, spec.trajectory, spec.seed)
         self.reported_poses = drift(self.true_poses, spec.noise.pose_drift, spec.seed)
         self._cache: OrderedDict[int, tuple[RGBDFrame, FrameSegmentation]] = OrderedDict()
+        self._cache_bytes = 0
 
     def __len__(self) -> int:
         return len(self.true_poses)
@@ -71,8 +79,9 @@ class SyntheticWorld:
             FrameSegmentation(k, view.class_ids, view.instance_ids),
         )
         self._cache[k] = out
-        if len(self._cache) > self.CACHE:
-            self._cache.popitem(last=False)
+        self._cache_bytes += _nbytes(out)
+        while len(self._cache) > 4 and self._cache_bytes > self.CACHE_BYTES:
+            self._cache_bytes -= _nbytes(self._cache.popitem(last=False)[1])
         return out
 
     @cached_property
