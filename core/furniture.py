@@ -15,7 +15,8 @@
    over neighbouring fronts labels it cupboard (door), drawer, appliance or panel.
 6. Hinges: a door opens on the side opposite its handle (left/right when the handle sits off the
    vertical centre line, else top/bottom); a door without a handle is a flap hinged at the top
-   when wider than tall, else hinged on the side where its face ends.
+   when wider than tall, else hinged on the side where its face ends. (Thresholds chosen on
+   procedural kitchens.)
 """
 
 from __future__ import annotations
@@ -361,7 +362,9 @@ def hinge_side(front: FrontCandidate) -> str:
     if handles:
         f = max(handles, key=lambda f: abs(float(f.center @ u_axis) - cu) / hw)
         du, dz = (float(f.center @ u_axis) - cu) / hw, (float(f.center[2]) - cz) / hh
-        if abs(du) >= 0.3:
+        # A tall door hinges on a side unless its handle is centred (an appliance's door, hinged
+        # at the bottom); square and wide fronts need the handle well off the centre line.
+        if abs(du) >= (0.1 if front.height > 1.3 * front.width else 0.3):
             return "left" if du > 0 else "right"
         return "bottom" if dz > 0 else "top"
     if front.width > 1.3 * front.height:

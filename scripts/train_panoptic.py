@@ -3,10 +3,12 @@
 The network sees RGB-D (160 x 120) and predicts, per pixel, the map vocabulary's class and
 whether the pixel lies on an instance boundary (instances are then the connected regions of a
 thing class between boundaries: see ``stratamap.core.onnx_adapters.semantic_boundary``).
-Training data: frames rendered by the synthetic generator from scenes of every type with seeds
-1000+ (Kinect-like depth noise); held-out evaluation: seeds 0-2 of every type, never trained on.
-Everything is seeded; on 2 CPU cores the whole run (data, 14 epochs, export, evaluation) takes
-about 25 minutes.
+Frames are rendered at 640 x 480 (the cameras of the scene specs) and shrunk by the
+``onnx_panoptic`` plugin's own preprocessing, so the network trains on what it sees at run time.
+Training data: scenes of every type (and the demo's ``room`` with boxes, books and cups) with
+seeds 1000+ (Kinect-like depth noise); held-out evaluation: seeds 0-2 of every type, never
+trained on. Everything is seeded; on 2 CPU cores the whole run (data, 20 epochs, export,
+evaluation) takes about an hour.
 
     pip install -e '.[train]'
     python scripts/train_panoptic.py --out plugins/segmenters/models
