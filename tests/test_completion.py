@@ -66,10 +66,16 @@ def chair_chamfer(data: PipelineData) -> float:
     return res["chamfer_l1_by_class"]["chair"]
 
 
-def test_model_matching_beats_boxes_on_chairs(mapped):
+@pytest.fixture(scope="module")
+def plane_box_matched(mapped):
+    """plane_box_match on the mapped office, run once for the tests below."""
+    return run(PlaneBoxMatchCompleter(), mapped)[0]
+
+
+def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
     boxes, _ = run(BBoxCompleter(), mapped)
     icp, _ = run(ICPMatchCompleter(), mapped)
-    pbm, _ = run(PlaneBoxMatchCompleter(), mapped)
+    pbm = plane_box_matched
     cd_box, cd_icp, cd_pbm = chair_chamfer(boxes), chair_chamfer(icp), chair_chamfer(pbm)
     assert cd_icp < cd_box and cd_pbm < cd_box
     assert min(cd_icp, cd_pbm) <= 0.03, (cd_icp, cd_pbm)
@@ -151,8 +157,8 @@ def test_index_cache_round_trip(tmp_path):
     assert loaded.shortlist("chair", built.models[library.models[0].id].descriptor, 1) == [library.models[0].id]
 
 
-def test_matching_is_deterministic(mapped):
-    a, _ = run(PlaneBoxMatchCompleter(), mapped)
+def test_matching_is_deterministic(mapped, plane_box_matched):
+    a = plane_box_matched
     b, _ = run(PlaneBoxMatchCompleter(), mapped)
     for ia, ib in zip(a.map.instances, b.map.instances, strict=True):
         assert (ia.completion is None) == (ib.completion is None)

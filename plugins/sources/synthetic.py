@@ -25,6 +25,11 @@ class SyntheticSource(Source):
     Config = SyntheticConfig
     provides = frozenset({"frames", "ground_truth"})
 
+    @classmethod
+    def example_params(cls) -> dict:
+        """A small scene for the conformance kit (the default renders 120 frames at 640 x 480)."""
+        return {"scene": {"camera": {"width": 160, "height": 120}, "trajectory": {"frames": 20}}}
+
     def spec(self) -> SceneSpec:
         cfg: SyntheticConfig = self.config  # type: ignore[assignment]
         spec = SceneSpec.from_yaml(self._resolve(cfg.scene_file)) if cfg.scene_file else cfg.scene
