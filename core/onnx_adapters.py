@@ -125,13 +125,25 @@ def yolo_seg(
 
 def semantic_boundary(
     class_logits: np.ndarray, boundary_logits: np.ndarray, class_map: np.ndarray, is_thing: np.ndarray,
-    boundary_threshold: float = 0.5, min_pixels: int = 20,
+    boundary_threshold: float = 0.5, min_pixels: int = 20, speckle_pixels: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     logits = np.asarray(class_logits, np.float32)[0]
     z = logits - logits.max(axis=0, keepdims=True)
     prob = np.exp(z) / np.exp(z).sum(axis=0, keepdims=True)
     net_class = prob.argmax(axis=0)
     score = prob.max(axis=0).astype(np.float32)
+    if speckle_pixels > 0:
+        # Class specks (connected regions under speckle_pixels) take the class of the nearest
+        # larger region: isolated misfires would otherwise add classes the scene does not have.
+        keep = np.ones(net_class.shape, bool)
+        for c in np.unique(net_class):
+            lab, n = ndimage.label(net_class == c)
+            small = np.bincount(lab.ravel(), minlength=n + 1) < speckle_pixels
+            small[0] = False
+            keep &= ~small[lab]
+        if keep.any() and not keep.all():
+            _, (iy, ix) = ndimage.distance_transform_edt(~keep, return_indices=True)
+            net_class, score = net_class[iy, ix], score[iy, ix]
     class_ids = np.asarray(class_map, np.int64)[net_class].astype(np.uint16)
     boundary = 1 / (1 + np.exp(-np.asarray(boundary_logits, np.float32)[0, 0])) >= boundary_threshold
     instance_ids = np.zeros(class_ids.shape, np.int32)

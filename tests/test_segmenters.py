@@ -189,3 +189,17 @@ def test_clusters_on_real_tabletop_scans_reaches_f1_08():
                 data.set(layer, value, stage.name)
         f1.append(evaluate(data)["instances"]["f1"])
     assert len(f1) >= 5 and np.mean(f1) >= 0.8, f1
+
+
+def test_semantic_boundary_speckle_filter_removes_stray_classes():
+    """A 3-pixel blob of another class inside a region takes the region's class when filtered."""
+    from stratamap.core.onnx_adapters import semantic_boundary
+
+    logits = np.zeros((1, 3, 20, 20), np.float32)
+    logits[0, 1] = 5.0
+    logits[0, 2, 5, 5:8] = 10.0  # three stray pixels of class 2
+    bound = np.full((1, 1, 20, 20), -10.0, np.float32)
+    ident, thing = np.arange(3), np.array([False, False, True])
+    raw, _, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0)
+    clean, inst, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=4)
+    assert (raw == 2).sum() == 3 and (clean == 2).sum() == 0 and (clean == 1).all() and inst.max() == 0

@@ -61,6 +61,9 @@ class ONNXPanopticConfig(StageConfig):
     iou_threshold: float = Field(default=0.7, ge=0.0, le=1.0, description="Non-maximum suppression IoU (yolo_seg).")
     boundary_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Boundary probability above which a pixel separates instances (semantic_boundary).")
     min_pixels: int = Field(default=20, ge=1, description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary).")
+    speckle_pixels: int = Field(
+        default=60, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off; 60 chosen on held-out synthetic walks)."
+    )
     threads: int = Field(default=2, ge=1, description="onnxruntime intra-op threads.")
 
 
@@ -133,7 +136,7 @@ class ONNXPanopticSegmenter(Segmenter):
             tensor, undo = self._prepare(rgb, np.asarray(frame.depth) if depth_channel else None, width, height, cfg)
             result = session.run(None, {inp.name: tensor})
             if layout == "semantic_boundary":
-                cls, ins, _ = adapters.semantic_boundary(result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels)
+                cls, ins, _ = adapters.semantic_boundary(result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels)
             elif layout == "maskrcnn":
                 boxes, labels, scores, masks = result[:4]
                 cls, ins, _ = adapters.maskrcnn(boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold)
