@@ -15,7 +15,8 @@ Per frame:
    s and l at most once per frame) when it reaches ``associate_ratio``; an unassigned segment
    starts a new label.
 3. Label merging: when a segment also covers most of another label's voxels in view
-   (shared-voxel ratio >= ``merge_ratio``) in ``merge_votes`` frames, the two labels merge.
+   (shared-voxel ratio >= ``merge_ratio``) in ``merge_votes`` frames, the two labels merge
+   (only when that label stands for the segment's class, or for none yet).
 4. Voxels take the segment's label (Voxblox++'s confidence rule: agree +1, disagree -1, replace at 0).
 5. Instances: a thing segment's global instance is the one the labels it overlaps stand for,
    weighted by overlap (each label stands for argmax_p sum_c Phi(l, c, p)), unless another segment
@@ -115,11 +116,16 @@ class PanopticState:
                 continue
             assigned[s] = l
             used_labels.add(l)
-        # Shared-voxel ratio: a segment covering most of another label's visible voxels votes to merge them.
+        # Shared-voxel ratio: a segment covering most of another label's visible voxels votes to
+        # merge them, if that label stands for the segment's class (a floor segment spilling over
+        # the foot of a wall whose label is mostly out of view must not swallow the wall).
         for idx in range(len(pairs)):
             s, l = int(pair_seg[idx]), int(pair_label[idx])
             keep = assigned.get(s)
             if keep is None or keep == l:
+                continue
+            other = self.label_class(l)
+            if other not in (0, int(seg_codes[s] >> 32)):
                 continue
             if counts[idx] >= p.merge_ratio * visible[l] and counts[idx] >= 3:
                 key = (keep, l)
@@ -176,6 +182,13 @@ class PanopticState:
             for b in claimed:
                 if a < b:
                     self.seen_apart.add((a, b))
+
+    def label_class(self, label: int) -> int:
+        """The class a label stands for so far (most votes in Phi; 0 before any)."""
+        votes: Counter = Counter()
+        for (c, _), n in self.phi.get(self.resolve(label), Counter()).items():
+            votes[c] += n
+        return int(votes.most_common(1)[0][0]) if votes else 0
 
     def best_instance(self, label: int) -> int:
         by_inst: Counter = Counter()
