@@ -12,8 +12,8 @@ Per frame:
 1. The segmenter's per-pixel (class, instance) pairs define the frame's segments s.
 2. Association: pixels of s fall in voxels; the overlap Pi(s, l) counts those carrying label l.
    Pairs are assigned greedily by decreasing overlap score max(Pi / |s|, Pi / |l in view|) (each
-   s and l at most once per frame) when it reaches ``associate_ratio``; an unassigned segment
-   starts a new label.
+   s and l at most once per frame) when it reaches ``associate_ratio``, except across a stuff
+   class (floor, wall, ceiling: layout never changes class); an unassigned segment starts a new label.
 3. Label merging: when a segment also covers most of another label's voxels in view
    (shared-voxel ratio >= ``merge_ratio``) in ``merge_votes`` frames, the two labels merge
    (only when that label stands for the segment's class, or for none yet).
@@ -110,9 +110,15 @@ class PanopticState:
         score = np.maximum(counts / seg_sizes[pair_seg], counts / np.maximum(vis, 1))
         assigned: dict[int, int] = {}
         used_labels: set[int] = set()
+        is_thing = self.vocabulary.is_thing
         for idx in np.lexsort((-counts, -score)):
             s, l, n = int(pair_seg[idx]), int(pair_label[idx]), int(counts[idx])
             if s in assigned or l in used_labels or score[idx] < p.associate_ratio or n < 3:
+                continue
+            # Layout (stuff) segments and labels pair only with their own class: a wall's label
+            # must not become the floor's because a segmenter calls the foot of the wall floor.
+            c_seg, c_label = int(seg_codes[s] >> 32), self.label_class(l)
+            if c_label and c_seg and c_seg != c_label and not (is_thing[c_seg] and is_thing[c_label]):
                 continue
             assigned[s] = l
             used_labels.add(l)
