@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from stratamap.core.geometry import voxel_downsample
 from stratamap.core.kitchen_scan import LEVEL1, LEVEL2
 from stratamap.core.planes import CRF, Fixture, binned, boundary_points, find_fixtures, multilod_planes, plane_axes, region_grow
 
@@ -104,16 +105,6 @@ class FurnitureResult:
 
 # --------------------------------------------------------------------------------------------
 # 1. Regions
-
-
-def voxel_downsample(points: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    from stratamap.core.planes import cell_keys
-
-    _, inverse = np.unique(cell_keys(points, size), return_inverse=True)
-    inverse = inverse.reshape(-1)
-    counts = np.bincount(inverse)
-    means = np.stack([np.bincount(inverse, weights=points[:, k]) / counts for k in range(3)], axis=1)
-    return means, inverse
 
 
 def orient_to_viewpoints(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:

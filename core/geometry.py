@@ -160,3 +160,21 @@ def ransac_plane(
         d = -float(np.dot(normal, centroid))
     inliers = np.flatnonzero(np.abs(points @ normal + d) < distance)
     return normal, d, inliers
+
+
+def voxel_downsample(points: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cell means of a cubic grid of side ``size``, and for every input point the index of its
+    cell (deterministic, numpy only; cells in lexicographic order of their grid coordinates)."""
+    _, inverse = np.unique(cell_keys(points, size), return_inverse=True)
+    inverse = inverse.reshape(-1)
+    counts = np.bincount(inverse)
+    means = np.stack([np.bincount(inverse, weights=points[:, k]) / counts for k in range(3)], axis=1)
+    return means, inverse
+
+
+def cell_keys(points: np.ndarray, size: float) -> np.ndarray:
+    """One int64 per point naming its cubic cell of side ``size``."""
+    k = np.floor(points / size).astype(np.int64)
+    k -= k.min(axis=0)
+    span = k.max(axis=0) + 1
+    return (k[:, 0] * span[1] + k[:, 1]) * span[2] + k[:, 2]

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from stratamap.core.geometry import cell_keys
+
 
 # --------------------------------------------------------------------------------------------
 # Planes
@@ -74,14 +76,6 @@ def _msac(points: np.ndarray, normals: np.ndarray, threshold: float, normal_cos:
     n, d = _fit_plane(points[inl])
     inl = np.flatnonzero((np.abs(points @ n + d) < threshold) & (np.abs(normals @ n) >= normal_cos))
     return n, d, inl
-
-
-def cell_keys(points: np.ndarray, size: float) -> np.ndarray:
-    """One int64 per point naming its cubic cell of side ``size``."""
-    k = np.floor(points / size).astype(np.int64)
-    k -= k.min(axis=0)
-    span = k.max(axis=0) + 1
-    return (k[:, 0] * span[1] + k[:, 1]) * span[2] + k[:, 2]
 
 
 def multilod_planes(

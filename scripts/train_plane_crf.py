@@ -62,10 +62,10 @@ def training_graphs(seed: int, params):
 def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
     """Table IV pooled over the kitchens of ``seeds`` (per-kitchen decisions concatenated)."""
     from stratamap.core import furniture as fu
-    from stratamap.core.kitchen_scan import LEVEL1, LEVEL1_HORIZONTAL, LEVEL1_VERTICAL, LEVEL2
-    from stratamap.core.metrics.classification import FURNITURE_MACRO, kitchen_tables, per_label
+    from stratamap.core.kitchen_scan import LEVEL2
+    from stratamap.core.metrics.classification import kitchen_tables
 
-    pooled = {"seg_pred": [], "seg_true": [], "f_pred": [], "f_true": [], "doors": 0, "correct": 0}
+    pooled: dict = {"doors": 0, "correct": 0}
     for seed in seeds:
         scene, scan, labels, views = scan_kitchen(seed)
         res = fu.analyse(scan.points, views, crf1, crf2, params)

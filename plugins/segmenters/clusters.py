@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.geometry import ransac_plane
+from stratamap.core.geometry import ransac_plane, voxel_downsample
 from stratamap.core.layers import Semantics
 from stratamap.core.vocabulary import Vocabulary
 
@@ -54,16 +54,6 @@ class ClustersConfig(StageConfig):
     max_planes: int = Field(default=3, ge=0, description="Dominant planes removed at most.")
     min_points: int = Field(default=300, ge=1, description="Smallest instance, in points of the input cloud.")
     class_rules: list[ClassRule] = Field(default_factory=list, description="Size rules naming clusters; unmatched clusters are `object`.")
-
-
-def voxel_downsample(points: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cell means, and for every input point the index of its cell (deterministic, numpy only)."""
-    keys = np.floor(points / size).astype(np.int64)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    counts = np.bincount(inverse)
-    means = np.stack([np.bincount(inverse, weights=points[:, k]) / counts for k in range(3)], axis=1)
-    return means, inverse
 
 
 def estimate_normals(points: np.ndarray, radius: float, viewpoint: np.ndarray) -> np.ndarray:
