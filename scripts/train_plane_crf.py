@@ -6,7 +6,7 @@ decomposed into planar regions and fronts (:mod:`stratamap.core.furniture`); eac
 front takes the majority ground-truth label of its points. Level 1 learns from the regions;
 level 2 from the fronts found on the true furniture faces. Both CRFs are fitted by maximum
 pseudo-likelihood; held-out kitchens (seeds 0..9) are scored with Table IV's metrics. Seeded and
-deterministic; on 2 CPU cores the default run takes about 15 minutes.
+deterministic; on 2 CPU cores the default run took 10 minutes (588 s of training data and fitting).
 
     python scripts/train_plane_crf.py --out plugins/segmenters/models
 """
