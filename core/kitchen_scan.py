@@ -33,6 +33,9 @@ LEVEL1 = ("floor", "table", "ceiling", "wall", "furniture")
 LEVEL1_HORIZONTAL = ("floor", "table", "ceiling")
 LEVEL1_VERTICAL = ("wall", "furniture")
 LEVEL2 = ("cupboard", "drawer", "appliance", "panel")
+#: The map vocabulary's class for each level-1 and level-2 label (a fixed panel is a cabinet face).
+LEVEL1_CLASS = {"floor": "floor", "table": "table", "ceiling": "ceiling", "wall": "wall", "furniture": "cabinet"}
+LEVEL2_CLASS = {"cupboard": "cupboard", "drawer": "drawer", "appliance": "appliance", "panel": "cabinet"}
 #: A surface is horizontal (vertical) when its normal is within this many degrees of (perpendicular to) +z.
 ORIENTATION_TOLERANCE_DEG = 20.0
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from stratamap.core.kitchen_scan import LEVEL1, LEVEL1_HORIZONTAL, LEVEL1_VERTICAL, LEVEL2
+from stratamap.core.kitchen_scan import LEVEL1, LEVEL1_CLASS, LEVEL1_HORIZONTAL, LEVEL1_VERTICAL, LEVEL2, LEVEL2_CLASS
 
 FURNITURE_MACRO = ("cupboard", "drawer", "appliance")
 
@@ -106,9 +106,9 @@ def tables_from_map(m, scan_points: np.ndarray, kitchen: dict[str, Any]) -> dict
     sem = m.semantics
     vocab = sem.vocabulary
     names = np.array(vocab.names, dtype=object)[sem.class_ids]
-    to1 = {"floor": 0, "table": 1, "ceiling": 2, "wall": 3, "cabinet": 4, "cupboard": 4, "drawer": 4, "appliance": 4}
-    to2 = {"cupboard": 0, "drawer": 1, "appliance": 2, "cabinet": 3}
-    pred1 = np.array([LEVEL1.index(LEVEL1[to1[n]]) if n in to1 else -1 for n in names], np.int64)
+    to2 = {cls: LEVEL2.index(lab) for lab, cls in LEVEL2_CLASS.items()}
+    to1 = {cls: LEVEL1.index(lab) for lab, cls in LEVEL1_CLASS.items()} | dict.fromkeys(to2, LEVEL1.index("furniture"))
+    pred1 = np.array([to1.get(n, -1) for n in names], np.int64)
     pred2 = np.array([to2.get(n, -1) for n in names], np.int64)
     pred_front = np.where(pred2 >= 0, sem.instance_ids, -1).astype(np.int64)
     hinge = {inst.id: inst.attributes.get("hinge") for inst in (m.instances or [])}

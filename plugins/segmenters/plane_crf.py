@@ -27,12 +27,11 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.kitchen_scan import LEVEL1_CLASS, LEVEL2_CLASS
 from stratamap.core.layers import ObjectInstance, ObjectInstances, OrientedBox, Semantics
 from stratamap.core.vocabulary import Vocabulary
 
 SHIPPED = Path(__file__).resolve().parent / "models" / "plane_crf.json"
-LEVEL1_CLASS = {"floor": "floor", "table": "table", "ceiling": "ceiling", "wall": "wall", "furniture": "cabinet"}
-LEVEL2_CLASS = {"cupboard": "cupboard", "drawer": "drawer", "appliance": "appliance", "panel": "cabinet"}
 
 
 class PlaneCRFConfig(StageConfig):
@@ -106,6 +105,7 @@ class PlaneCRFSegmenter(Segmenter):
                 if vocab.is_thing[vocab.id(LEVEL1_CLASS[labels[lab]])]:
                     cell_inst[r.indices] = next_id
                     next_id += 1
+        front_of_point = res.front_of[res.cell_of_point]
         instances = ObjectInstances()
         front_ids = {}
         for f in res.fronts:
@@ -116,7 +116,7 @@ class PlaneCRFSegmenter(Segmenter):
             if f.label in ("cupboard", "drawer", "appliance"):
                 u = np.cross([0.0, 0.0, 1.0], f.normal)
                 box = OrientedBox(f.center() - 0.01 * f.normal, float(np.arctan2(u[1], u[0])), np.array([f.width, 0.02, f.height]))
-                instances.add(ObjectInstance(next_id, cname, points[np.isin(res.cell_of_point, f.indices)], box, attributes={
+                instances.add(ObjectInstance(next_id, cname, points[front_of_point == f.id], box, attributes={
                     "hinge": f.hinge if f.label != "drawer" else None,
                     "joint": "prismatic" if f.label == "drawer" else "revolute",
                     "plane_id": int(f.region),

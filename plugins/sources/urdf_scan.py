@@ -27,13 +27,10 @@ from pydantic import Field, model_validator
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.kitchen_scan import LEVEL1, LEVEL2
+from stratamap.core.kitchen_scan import LEVEL1, LEVEL1_CLASS, LEVEL2, LEVEL2_CLASS
 from stratamap.core.sensors import SensorStream
 from stratamap.core.vocabulary import Vocabulary
 
-#: Map class per level-1 / level-2 label (furniture faces take their level-2 class).
-LEVEL1_CLASS = {"floor": "floor", "table": "table", "ceiling": "ceiling", "wall": "wall", "furniture": "cabinet"}
-LEVEL2_CLASS = {"cupboard": "cupboard", "drawer": "drawer", "appliance": "appliance", "panel": "cabinet"}
 
 
 class UrdfScanConfig(StageConfig):
