@@ -39,7 +39,7 @@ class Region:
     indices: np.ndarray  # into the downsampled cloud
     normal: np.ndarray  # facing the sensor (vertical regions) or +z
     d: float
-    orientation: str  # horizontal | vertical | other
+    orientation: str  # horizontal | vertical (slanted regions are left out)
     center: np.ndarray
     zmin: float
     zmax: float
@@ -101,6 +101,20 @@ class FurnitureResult:
     front_of: np.ndarray  # per downsampled point, -1 none
     floor_z: float
     ceiling_z: float
+
+
+def point_labels(res: FurnitureResult) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per downsampled point: level-1 label, region id, level-2 label and front id (-1: none)."""
+    level1 = np.full(len(res.points), -1, np.int64)
+    region = np.full(len(res.points), -1, np.int64)
+    for r in res.regions:
+        level1[r.indices] = res.level1[r.id]
+        region[r.indices] = r.id
+    level2 = np.full(len(res.points), -1, np.int64)
+    for f in res.fronts:
+        if f.label:
+            level2[f.indices] = LEVEL2.index(f.label)
+    return level1, region, level2, res.front_of
 
 
 # --------------------------------------------------------------------------------------------
@@ -214,8 +228,6 @@ def region_graph(points: np.ndarray, regions: list[Region], adjacency: float = 0
             if trees[a].count_neighbors(trees[b], adjacency) == 0:
                 continue
             ra, rb = regions[a], regions[b]
-            if ra.orientation == "other" or rb.orientation == "other":
-                continue
             if ra.orientation == rb.orientation:
                 rel = 0 if ra.orientation == "horizontal" else 1
             elif ra.orientation == "horizontal":
@@ -485,14 +497,12 @@ def label_regions(res: FurnitureResult, cloud: np.ndarray, level1_crf: CRF | Non
     training the second CRF)."""
     p = p or FurnitureParams()
     regions, points = res.regions, res.points
-    labelled = [r.id for r in regions if r.orientation != "other"]
     if level1_override is not None:
         res.level1 = np.asarray(level1_override, np.int64).copy()
-    elif level1_crf is not None and labelled:
-        sub = [regions[i] for i in labelled]
-        X = level1_features(sub, res.floor_z, res.ceiling_z)
-        E, rel = region_graph(points, sub)
-        res.level1[labelled] = level1_crf.predict(X, E, rel)
+    elif level1_crf is not None and regions:
+        X = level1_features(regions, res.floor_z, res.ceiling_z)
+        E, rel = region_graph(points, regions)
+        res.level1 = level1_crf.predict(X, E, rel).astype(np.int64)
     furniture = [i for i in range(len(regions)) if res.level1[i] == LEVEL1.index("furniture") and regions[i].orientation == "vertical"]
     cloud = np.asarray(cloud, float)
     res.fronts = find_fronts(points, regions, furniture, cloud, cKDTree(cloud), p)
