@@ -126,6 +126,7 @@ def yolo_seg(
 def semantic_boundary(
     class_logits: np.ndarray, boundary_logits: np.ndarray, class_map: np.ndarray, is_thing: np.ndarray,
     boundary_threshold: float = 0.5, min_pixels: int = 20, speckle_pixels: int = 0,
+    depth: np.ndarray | None = None, merge_depth_gap: float = 0.0, min_region_score: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     logits = np.asarray(class_logits, np.float32)[0]
     z = logits - logits.max(axis=0, keepdims=True)
@@ -144,7 +145,18 @@ def semantic_boundary(
         if keep.any() and not keep.all():
             _, (iy, ix) = ndimage.distance_transform_edt(~keep, return_indices=True)
             net_class, score = net_class[iy, ix], score[iy, ix]
+    unsure = np.zeros(net_class.shape, bool)
+    if min_region_score > 0:
+        # Regions the network is unsure of as a whole (mean top probability under the threshold)
+        # are left unknown: a misfire over a whole object otherwise adds a class the scene lacks.
+        for c in np.unique(net_class):
+            lab, n = ndimage.label(net_class == c)
+            mean = ndimage.mean(prob.max(axis=0), lab, index=np.arange(1, n + 1))
+            low = np.flatnonzero(np.asarray(mean) < min_region_score) + 1
+            if low.size:
+                unsure |= np.isin(lab, low)
     class_ids = np.asarray(class_map, np.int64)[net_class].astype(np.uint16)
+    class_ids[unsure] = 0
     boundary = 1 / (1 + np.exp(-np.asarray(boundary_logits, np.float32)[0, 0])) >= boundary_threshold
     instance_ids = np.zeros(class_ids.shape, np.int32)
     next_id = 1
@@ -167,4 +179,50 @@ def semantic_boundary(
         remap[big] = np.arange(next_id, next_id + len(big))
         instance_ids[region] = remap[nearest[region]]
         next_id += len(big)
+    if depth is not None and merge_depth_gap > 0:
+        instance_ids = merge_depth_continuous(instance_ids, depth, merge_depth_gap)
     return class_ids, instance_ids, score
+
+
+def merge_depth_continuous(instance_ids: np.ndarray, depth: np.ndarray, relative_gap: float, min_share: float = 0.5) -> np.ndarray:
+    """Merge instances of one class whose shared seam is continuous in depth.
+
+    A spurious boundary across a thin part (a chair's post between seat and base) splits one object
+    in two whose pixels meet at the same depth; two objects that meet in the image mostly do so at
+    a depth step (one occludes the other). Two instances merge when at least ``min_share`` of the
+    4-neighbour pixel pairs along their seam differ in depth by at most ``relative_gap`` x depth.
+    Instance ids are per class, so a seam between ids is always within one class."""
+    d = np.asarray(depth, np.float64)
+    if d.shape != instance_ids.shape:
+        raise ValueError(f"depth is {d.shape}, instances {instance_ids.shape}")
+    pairs, flags = [], []
+    for a, b, da, db in (
+        (instance_ids[:, :-1], instance_ids[:, 1:], d[:, :-1], d[:, 1:]),
+        (instance_ids[:-1], instance_ids[1:], d[:-1], d[1:]),
+    ):
+        seam = (a > 0) & (b > 0) & (a != b)
+        if not seam.any():
+            continue
+        lo, hi = np.minimum(a[seam], b[seam]), np.maximum(a[seam], b[seam])
+        za, zb = da[seam], db[seam]
+        valid = (za > 0) & (zb > 0) & np.isfinite(za) & np.isfinite(zb)
+        pairs.append(lo.astype(np.int64) << 32 | hi.astype(np.int64))
+        flags.append(valid & (np.abs(za - zb) <= relative_gap * np.minimum(za, zb)))
+    if not pairs:
+        return instance_ids
+    keys, inverse = np.unique(np.concatenate(pairs), return_inverse=True)
+    share = np.bincount(inverse, weights=np.concatenate(flags).astype(float)) / np.bincount(inverse)
+    parent = np.arange(int(instance_ids.max()) + 1)
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for key in keys[share >= min_share]:
+        ra, rb = find(int(key >> 32)), find(int(key & 0xFFFFFFFF))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([find(i) for i in range(len(parent))])
+    return roots[instance_ids].astype(instance_ids.dtype)

@@ -156,13 +156,16 @@ class PanopticState:
 
         # Instance association: a mask's instance is the one the labels it overlaps vote for,
         # weighted by overlap (Voxblox++); then the count Phi(l, c, p).
-        label_best: dict[int, int] = {}
+        # Only labels standing for the segment's class vote: a table segment reaching over a
+        # chair's voxels must not take the chair's instance (a segmenter's noisy class borders
+        # would otherwise chain neighbouring objects of different classes into one instance).
+        label_best: dict[int, tuple[int, int]] = {}
         for l in set(pair_label.tolist()):
-            label_best[l] = self.best_instance(l)
+            label_best[l] = (self.label_class(l), self.best_instance(l))
         seg_votes: dict[int, Counter] = defaultdict(Counter)
         for idx in range(len(pairs)):
-            best = label_best[int(pair_label[idx])]
-            if best > 0:
+            c_label, best = label_best[int(pair_label[idx])]
+            if best > 0 and c_label == int(seg_codes[int(pair_seg[idx])] >> 32):
                 seg_votes[int(pair_seg[idx])][best] += int(counts[idx])
         claimed: set[int] = set()
         for s in np.argsort(-seg_sizes, kind="stable"):
@@ -177,7 +180,7 @@ class PanopticState:
                 continue
             votes = seg_votes.get(s, Counter())
             if not votes:
-                votes = Counter({pp: n for (cc, pp), n in self.phi[label].items() if pp > 0})
+                votes = Counter({pp: n for (cc, pp), n in self.phi[label].items() if pp > 0 and cc == c})
             inst = next((pp for pp, _ in votes.most_common() if pp not in claimed), None)
             if inst is None:
                 inst = self.next_instance
@@ -230,16 +233,19 @@ class PanopticState:
             return x
 
         for counter in self.phi.values():
-            by_inst: Counter = Counter()
+            # Per class: a label seen as a chair of one instance and a table of another links
+            # nothing (the class votes disagree, not the instances).
+            by_class: dict[int, Counter] = defaultdict(Counter)
             for (c, pp), n in counter.items():
                 if pp > 0:
-                    by_inst[pp] += n
-            total = sum(by_inst.values())
-            strong = [pp for pp, n in by_inst.items() if n >= self.params.instance_merge_ratio * total]
-            for other in strong[1:]:
-                a, b = find(strong[0]), find(other)
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
+                    by_class[c][pp] += n
+            total = sum(sum(v.values()) for v in by_class.values())
+            for by_inst in by_class.values():
+                strong = [pp for pp, n in by_inst.items() if n >= self.params.instance_merge_ratio * total]
+                for other in strong[1:]:
+                    a, b = find(strong[0]), find(other)
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
         mapping = {x: find(x) for x in list(parent)}
         if mapping:
             for label, counter in self.phi.items():

@@ -58,7 +58,7 @@ def render_frames(types: list[str], seeds: list[int], frames: int, render_size: 
             world = SyntheticWorld(SceneSpec.model_validate(doc))
             for k in range(frames):
                 frame, seg = world.frame(k)
-                x, _ = ONNXPanopticSegmenter._prepare(frame.rgb, frame.depth, WIDTH, HEIGHT, prep)
+                x, _, _ = ONNXPanopticSegmenter._prepare(frame.rgb, frame.depth, WIDTH, HEIGHT, prep)
                 rgbd.append(x[0])
                 cls.append(seg.class_ids[rows][:, cols].astype(np.int64))
                 inst.append(seg.instance_ids[rows][:, cols].astype(np.int64))

@@ -183,3 +183,34 @@ def test_multimap_paths_avoid_what_laser_paths_hit(tmp_path):
     assert full["colliding_laser_only"] >= 1
     assert full["colliding_multimap"] == 0
     assert full["colliding_multimap"] < full["colliding_laser_only"]
+
+
+def test_panoptic_fusion_keeps_instances_of_different_classes_apart():
+    """A table segment reaching over a chair's voxels (a segmenter's class border off by a few
+    pixels) must not take the chair's instance, and a label voted chair of one instance and table
+    of another links neither (eq. 5 counts instance votes per class)."""
+    from collections import Counter
+
+    from stratamap.core.panoptic import PanopticParams, PanopticState
+
+    vocab = Vocabulary.default()
+    chair, table = vocab.id("chair"), vocab.id("table")
+    state = PanopticState(PanopticParams(), vocab)
+    labels, conf = np.zeros(512, np.int32), np.zeros(512, np.int32)
+    for _ in range(3):
+        state.fuse_frame(labels, conf, np.arange(40), np.array([chair] * 30 + [table] * 10), np.array([1] * 30 + [2] * 10))
+    chair_inst = state.best_instance(int(labels[0]))
+    table_inst = state.best_instance(int(labels[35]))
+    # A new view: a table segment over ten chair voxels and five unseen voxels. It starts a label
+    # of its own or joins the chair's; either way its instance is not the chair's.
+    state.fuse_frame(labels, conf, np.concatenate([np.arange(20, 30), np.arange(100, 105)]), np.full(15, table), np.full(15, 7))
+    new_label = int(labels[100])
+    assert all(pp != chair_inst for (c, pp) in state.phi[state.resolve(new_label)] if c == table)
+
+    state.phi[90] = Counter({(chair, chair_inst): 3, (table, table_inst): 2})
+    assert state.merge_instances() == {}
+    state.phi[91] = Counter({(chair, chair_inst): 3, (chair, 99): 2})
+    assert state.merge_instances() == {99: chair_inst}  # within one class, split votes still merge
+    classes, instances = state.label_table()
+    assert classes[labels[0]] == chair and classes[labels[35]] == table
+    assert instances[labels[0]] == chair_inst and instances[labels[35]] == table_inst != chair_inst

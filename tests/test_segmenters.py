@@ -102,7 +102,8 @@ def test_semantic_boundary_layout_splits_instances_at_boundaries(tmp_path):
     boundary[0, 0, 10:40, 30:33] = 5.0  # a boundary cuts the chair region in two
     model = graph_model(tmp_path / "sb.onnx", (1, 4, H, W), {"class_logits": logits, "boundary_logits": boundary})
     (tmp_path / "sb.json").write_text(json.dumps({"layout": "semantic_boundary", "classes": list(vocab.names)}))
-    labels = run(model, frames_data())
+    # Depth merging and the confidence floor off: this checks the boundary split alone.
+    labels = run(model, frames_data(), merge_depth_gap=0.0, min_region_score=0.0)
     seg = labels.frames[0]
     left, right = seg.instance_ids[50, 20], seg.instance_ids[50, 100]
     assert left > 0 and right > 0 and left != right
@@ -203,3 +204,41 @@ def test_semantic_boundary_speckle_filter_removes_stray_classes():
     raw, _, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0)
     clean, inst, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=4)
     assert (raw == 2).sum() == 3 and (clean == 2).sum() == 0 and (clean == 1).all() and inst.max() == 0
+
+
+def test_semantic_boundary_merges_instances_split_at_a_depth_continuous_seam():
+    """A spurious boundary across one object (same depth on both sides) is healed; a boundary at
+    a depth step (one object in front of another) keeps two instances."""
+    from stratamap.core.onnx_adapters import semantic_boundary
+
+    logits = np.zeros((1, 2, 20, 20), np.float32)
+    logits[0, 1, 4:16, 2:18] = 10.0  # one thing region
+    bound = np.full((1, 1, 20, 20), -10.0, np.float32)
+    bound[0, 0, 4:16, 10] = 10.0  # a boundary column splits it in two
+    ident, thing = np.arange(2), np.array([False, True])
+    flat = np.full((20, 20), 2.0, np.float32)
+    split, inst_split, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0)
+    step = np.where(inst_split == inst_split[10, 17], 3.0, 2.0).astype(np.float32)  # the right part a metre farther: two objects
+    _, inst_flat, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=flat, merge_depth_gap=0.06)
+    _, inst_step, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=step, merge_depth_gap=0.06)
+    region = split == 1
+    assert len(np.unique(inst_split[region])) == 2
+    assert len(np.unique(inst_flat[region])) == 1
+    assert len(np.unique(inst_step[region])) == 2
+
+
+def test_semantic_boundary_leaves_unsure_regions_unknown():
+    """A region whose mean top probability is under min_region_score becomes class 0 (unknown);
+    confident regions keep their class."""
+    from stratamap.core.onnx_adapters import semantic_boundary
+
+    logits = np.zeros((1, 3, 20, 20), np.float32)
+    logits[0, 1] = 8.0
+    logits[0, 2, 2:8, 2:8] = 8.3  # class 2 wins here, but barely (p ~ 0.57)
+    bound = np.full((1, 1, 20, 20), -10.0, np.float32)
+    ident, thing = np.arange(3), np.array([False, False, True])
+    kept, _, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, min_region_score=0.5)
+    dropped, inst, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, min_region_score=0.8)
+    assert (kept == 2).sum() == 36
+    assert (dropped == 0).sum() == 36 and (dropped[~((np.arange(20)[:, None] >= 2) & (np.arange(20)[:, None] < 8) & (np.arange(20) >= 2) & (np.arange(20) < 8))] == 1).all()
+    assert inst.max() == 0

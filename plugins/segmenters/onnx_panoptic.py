@@ -64,6 +64,20 @@ class ONNXPanopticConfig(StageConfig):
     speckle_pixels: int = Field(
         default=60, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off; 60 chosen on held-out synthetic walks)."
     )
+    merge_depth_gap: float = Field(
+        default=0.06, ge=0.0, le=0.5,
+        description=(
+            "Same-class instances whose seam is continuous in depth (steps under this fraction of the depth) merge into one "
+            "(semantic_boundary; 0: off; 0.06 chosen on held-out synthetic walks)."
+        ),
+    )
+    min_region_score: float = Field(
+        default=0.8, ge=0.0, le=1.0,
+        description=(
+            "Class regions whose mean top class probability is below this are left unknown (semantic_boundary; 0: off; "
+            "0.8 chosen on held-out synthetic walks)."
+        ),
+    )
     threads: int = Field(default=2, ge=1, description="onnxruntime intra-op threads.")
 
 
@@ -133,10 +147,13 @@ class ONNXPanopticSegmenter(Segmenter):
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         for frame in self.progress(stream.frames, description="onnx_panoptic"):
             rgb = np.asarray(frame.rgb)
-            tensor, undo = self._prepare(rgb, np.asarray(frame.depth) if depth_channel else None, width, height, cfg)
+            tensor, undo, depth_in = self._prepare(rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel)
             result = session.run(None, {inp.name: tensor})
             if layout == "semantic_boundary":
-                cls, ins, _ = adapters.semantic_boundary(result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels)
+                cls, ins, _ = adapters.semantic_boundary(
+                    result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
+                    depth=depth_in, merge_depth_gap=cfg.merge_depth_gap, min_region_score=cfg.min_region_score,
+                )
             elif layout == "maskrcnn":
                 boxes, labels, scores, masks = result[:4]
                 cls, ins, _ = adapters.maskrcnn(boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold)
@@ -156,8 +173,10 @@ class ONNXPanopticSegmenter(Segmenter):
         return "yolo_seg"
 
     @staticmethod
-    def _prepare(rgb: np.ndarray, depth: np.ndarray | None, width: int, height: int, cfg: ONNXPanopticConfig):
-        """The network input (1, C, H, W) float32, and a function taking label images back to the frame."""
+    def _prepare(rgb: np.ndarray, depth: np.ndarray | None, width: int, height: int, cfg: ONNXPanopticConfig, depth_channel: bool = True):
+        """The network input (1, C, H, W) float32 (depth as a 4th channel if ``depth_channel``), a
+        function taking label images back to the frame, and the depth at the network's resolution
+        (metres, 0 where unknown or padded; None without depth)."""
         from PIL import Image
 
         h0, w0 = rgb.shape[:2]
@@ -172,9 +191,13 @@ class ONNXPanopticSegmenter(Segmenter):
             img = img[..., ::-1]
         img = (img * cfg.scale - np.asarray(cfg.mean, np.float32)) / np.asarray(cfg.std, np.float32)
         planes = [img]
+        net_depth = None
         if depth is not None:
-            d = np.asarray(Image.fromarray(np.nan_to_num(depth.astype(np.float32))).resize((nw, nh), Image.NEAREST), np.float32)
-            planes.append((d / cfg.depth_scale)[..., None])
+            d = np.asarray(Image.fromarray(np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)).resize((nw, nh), Image.NEAREST), np.float32)
+            net_depth = np.zeros((height, width), np.float32)
+            net_depth[oy : oy + nh, ox : ox + nw] = d
+            if depth_channel:
+                planes.append((d / cfg.depth_scale)[..., None])
         stacked = np.concatenate(planes, axis=2)
         canvas = np.full((height, width, stacked.shape[2]), 0.0 if cfg.resize == "stretch" else 114.0 * cfg.scale, np.float32)
         canvas[oy : oy + nh, ox : ox + nw] = stacked
@@ -186,7 +209,7 @@ class ONNXPanopticSegmenter(Segmenter):
             cols = np.minimum((np.arange(w0) * nw / w0).astype(int), nw - 1)
             return crop[rows][:, cols]
 
-        return tensor, undo
+        return tensor, undo, net_depth
 
 
 @hookimpl
