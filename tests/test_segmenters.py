@@ -174,6 +174,48 @@ def test_clusters_separates_objects_on_a_table():
     assert sorted(i.class_name for i in out["instances"]) == ["object", "object", "object", "table"]
 
 
+def test_clusters_cuts_a_box_standing_flush_on_another():
+    """A box on a larger box, flush on one side: the flush faces join the two convexly (LCCP keeps
+    one segment), the crease around the upper box's foot proposes the lower box's top as a cut
+    plane, and the cut separates them. Without cuts they stay one."""
+    import trimesh
+
+    from stratamap.core.groundtruth import GroundTruth
+    from stratamap.core.layers import Geometry
+    from stratamap.core.metrics import evaluate
+    from stratamap.plugins.segmenters.clusters import ClustersSegmenter
+
+    vocab = Vocabulary.default()
+    rng = np.random.default_rng(0)
+    table = np.c_[rng.uniform(-0.6, 0.6, (30000, 2)), rng.normal(0, 0.001, 30000)]
+    camera = np.array([-0.9, -1.0, 1.0])
+    lower, upper = trimesh.creation.box(extents=(0.3, 0.2, 0.1)), trimesh.creation.box(extents=(0.1, 0.2, 0.1))
+    parts, inst = [table], [np.ones(len(table), int)]
+    for k, (mesh, off) in enumerate(((lower, (0.0, 0.0, 0.05)), (upper, (0.1, 0.0, 0.15)))):
+        pts, faces = trimesh.sample.sample_surface_even(mesh, 30000, seed=k)
+        pts = pts + off
+        keep = (np.einsum("ij,ij->i", mesh.face_normals[faces], camera - pts) > 0) & (pts[:, 2] > 0.002)
+        if k == 0:
+            keep &= ~((pts[:, 2] > 0.099) & (pts[:, 0] > 0.05))  # the lower top under the upper box
+        parts.append(pts[keep] + rng.normal(0, 0.001, (keep.sum(), 3)))
+        inst.append(np.full(keep.sum(), k + 2))
+    points, inst = np.concatenate(parts), np.concatenate(inst)
+    cls = np.where(inst == 1, vocab.id("table"), vocab.id("object")).astype(np.int32)
+    pose = np.eye(4)
+    pose[:3, 3] = camera
+    stream = SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
+
+    def f1(**params) -> float:
+        data = PipelineData(stream=stream, ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)))
+        data.map.geometry = Geometry(points=points)
+        out = ClustersSegmenter(min_points=200, **params).run(data)
+        data.map.semantics, data.map.instances = out["semantics"], out["instances"]
+        return evaluate(data)["instances"]["f1"]
+
+    assert f1(cut_min_links=0) < 1.0
+    assert f1() == 1.0
+
+
 def test_clusters_on_real_tabletop_scans_reaches_f1_08():
     """mOSD learn split (the test split is kept for reported evaluation)."""
     from stratamap.core.metrics import evaluate

@@ -8,7 +8,11 @@
    facing the sensor (a sphere or a box corner), or nearly coplanar; the concave crease where a box
    stands on another, or leans on a wall, cuts the link (the point-level form of locally convex
    connected patches, LCCP). ``method: euclidean`` links every pair within ``radius`` instead.
-3. Connected components with at least ``min_points`` points are instances; their class comes from
+3. Constrained planar cuts (after CPC, Schoeler et al. 2015): where a segment holds many concave
+   links, the plane of one face along that crease (the top of a box another box stands on) is
+   tried as a cut through the whole segment; it is made when most links it severs are concave,
+   which also separates faces the crease alone does not (two boxes' flush sides).
+4. Connected components with at least ``min_points`` points are instances; their class comes from
    ``class_rules`` (first rule whose size and height ranges fit) or is ``object``.
 
 Works on a voxel-downsampled copy (``voxel_size``) and writes the labels back to every point.
@@ -16,7 +20,7 @@ Works on a voxel-downsampled copy (``voxel_size``) and writes the labels back to
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -53,6 +57,13 @@ class ClustersConfig(StageConfig):
     plane_share: float = Field(default=0.15, gt=0.0, le=1.0, description="A dominant plane holds at least this share of the points.")
     max_planes: int = Field(default=3, ge=0, description="Dominant planes removed at most.")
     min_points: int = Field(default=300, ge=1, description="Smallest instance, in points of the input cloud.")
+    cut_min_links: int = Field(default=5, ge=0, description="Concave patch edges (creases) a segment needs before planar cuts are tried (0: no cuts).")
+    cut_concave_share: float = Field(default=0.5, ge=0.0, le=1.0, description="Share of the patch edges a cut severs that must be concave for the cut to be made.")
+    cut_distance: float = Field(default=0.015, gt=0.0, description="Crease edges (patch centroid midpoints) this close to a candidate plane support it, metres.")
+    cut_crease_deg: float = Field(default=45.0, gt=0.0, le=90.0, description="Concave edges whose patch normals turn by more than this are creases that propose cut planes.")
+    cut_face_patches: int = Field(default=10, ge=1, description="Patches that must lie on a cut plane facing its way (the face the cut follows).")
+    cut_candidates: int = Field(default=20, ge=1, description="Best supported candidate planes tried per segment and cut.")
+    cut_depth: int = Field(default=2, ge=0, description="Cuts applied in sequence at most per segment.")
     class_rules: list[ClassRule] = Field(default_factory=list, description="Size rules naming clusters; unmatched clusters are `object`.")
 
 
@@ -86,10 +97,21 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def convex_segments(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg: ClustersConfig) -> np.ndarray:
-    """LCCP on patches: smooth patches inside coarse cells (supervoxels), merged across convex
-    boundaries. A patch pair's boundary is convex when the patches' mean normals and centroids
-    say so and most point links across it agree; one noisy link cannot join two objects."""
+class PatchGraph(NamedTuple):
+    """Smooth patches (supervoxels) and their adjacency, each edge convex (kept) or concave."""
+
+    patch: np.ndarray  # patch id per point
+    centroid: np.ndarray  # (patches, 3)
+    normal: np.ndarray  # (patches, 3), unit, facing the sensor
+    size: np.ndarray  # points per patch
+    edges: np.ndarray  # (edges, 2) adjacent patch pairs
+    convex: np.ndarray  # per edge: convex or flat, and most point links across it agree
+
+
+def patch_graph(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg: ClustersConfig) -> PatchGraph:
+    """Smooth patches inside coarse cells, and which adjacent patches meet convexly. A patch pair's
+    boundary is convex when the patches' mean normals and centroids say so and most point links
+    across it agree; one noisy link cannot join two objects."""
     cell = np.floor(points / cfg.patch_size).astype(np.int64)
     same_cell = np.all(cell[pairs[:, 0]] == cell[pairs[:, 1]], axis=1)
     smooth = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) >= np.cos(np.radians(cfg.patch_normal_deg))
@@ -111,9 +133,101 @@ def convex_segments(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, 
     dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
     convex = np.einsum("ij,ij->i", normal[pa] - normal[pb], diff) >= -cfg.concavity_tolerance * dist
     flat = np.einsum("ij,ij->i", normal[pa], normal[pb]) >= np.cos(np.radians(cfg.smooth_deg))
-    merge = (convex | flat) & (votes >= cfg.convex_votes)
-    patch_comp = _components(n_patch, np.stack([pa[merge], pb[merge]], 1))
-    return patch_comp[patch]
+    return PatchGraph(patch, centroid, normal, count, np.stack([pa, pb], 1), (convex | flat) & (votes >= cfg.convex_votes))
+
+
+def convex_segments(graph: PatchGraph) -> np.ndarray:
+    """LCCP: patches merged across convex boundaries; a segment id per patch."""
+    return _components(len(graph.centroid), graph.edges[graph.convex])
+
+
+def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) -> np.ndarray:
+    """Split segments along planes through their concave creases (CPC's idea, simplified).
+
+    Candidate planes: for every concave edge inside a segment, the plane of each of its two
+    patches. A candidate's support is the concave edges lying on it (midpoint within
+    ``cut_distance``) with one patch facing its way. The best supported plane cuts the segment
+    when at least ``cut_concave_share`` of the patch edges it severs are concave: a box's own
+    faces meet at convex edges, so a plane through its top severs convex edges only. Patches on
+    the plane facing its way are the face itself and stay with the solid behind it. Returns a
+    segment id per patch."""
+    centroid, normal, edges, convex = graph.centroid, graph.normal, graph.edges, graph.convex
+    labels = segments.copy()
+    next_label = int(labels.max()) + 1 if len(labels) else 0
+    cos_par = np.cos(np.radians(cfg.smooth_deg))
+    for _ in range(cfg.cut_depth):
+        changed = False
+        same = labels[edges[:, 0]] == labels[edges[:, 1]]
+        for seg in np.unique(labels[edges[same & ~convex, 0]]):
+            inside = same & (labels[edges[:, 0]] == seg)
+            concave = inside & ~convex
+            if concave.sum() < cfg.cut_min_links:
+                continue
+            ca, cb = edges[concave, 0], edges[concave, 1]
+            # Creases, not curvature: the faces meeting there turn by more than cut_crease_deg
+            # (a box side on a box top: 90 degrees; a bowl's inside: a few degrees per patch).
+            sharp = np.einsum("ij,ij->i", normal[ca], normal[cb]) <= np.cos(np.radians(cfg.cut_crease_deg))
+            if sharp.sum() < cfg.cut_min_links:
+                continue
+            ca, cb = ca[sharp], cb[sharp]
+            mid = 0.5 * (centroid[ca] + centroid[cb])
+            cand_n = np.concatenate([normal[ca], normal[cb]])
+            cand_p = np.concatenate([centroid[ca], centroid[cb]])
+            score = np.zeros(len(cand_n), np.int64)
+            for start in range(0, len(cand_n), 256):  # candidates x creases, in chunks (large maps)
+                n, p = cand_n[start : start + 256], cand_p[start : start + 256]
+                near = np.abs(n @ mid.T - np.einsum("ij,ij->i", n, p)[:, None]) <= cfg.cut_distance
+                aligned = (np.abs(n @ normal[ca].T) >= cos_par) | (np.abs(n @ normal[cb].T) >= cos_par)
+                score[start : start + 256] = (near & aligned).sum(1)
+            members = np.flatnonzero(labels == seg)
+            side_of = np.zeros(len(labels), bool)
+            chosen, chosen_share = None, cfg.cut_concave_share
+            # The best supported planes, each tried; the one severing the most concave share wins.
+            tried: list[tuple[np.ndarray, float]] = []
+            for best in np.argsort(-score, kind="stable"):
+                if len(tried) >= cfg.cut_candidates or score[best] == 0:
+                    break
+                n, p0 = cand_n[best], cand_p[best]
+                # Distinct planes only: the support of one crease repeats the same plane many times.
+                if any(abs(n @ m) >= cos_par and abs(n @ p0 - d) <= cfg.cut_distance for m, d in tried):
+                    continue
+                tried.append((n, float(n @ p0)))
+                # A crease patch's normal is bent by its neighbour across the crease: refit the
+                # plane to the face's patches (near it, facing its way), twice.
+                for tolerance in (2 * cfg.cut_distance, cfg.cut_distance):
+                    face = members[(np.abs((centroid[members] - p0) @ n) <= tolerance) & (normal[members] @ n >= cos_par)]
+                    if len(face) < 3:
+                        break
+                    w = graph.size[face] / graph.size[face].sum()
+                    p0 = w @ centroid[face]
+                    refit = np.linalg.svd((centroid[face] - p0) * np.sqrt(w)[:, None], full_matrices=False)[2][2]
+                    n = refit if refit @ n >= 0 else -refit
+                offset = (centroid[members] - p0) @ n
+                # Patches on the plane turned less than a crease from it belong to the face (its
+                # rim and crease patches have normals bent by their neighbours).
+                on_face = (np.abs(offset) <= cfg.cut_distance) & (normal[members] @ n >= np.cos(np.radians(cfg.cut_crease_deg)))
+                side = (offset > 0) & ~on_face
+                # A cut follows a real face (the top a box stands on), not a curved surface's
+                # tangent plane (a bowl's concave inside).
+                if side.all() or not side.any() or on_face.sum() < cfg.cut_face_patches:
+                    continue
+                side_of[:] = False
+                side_of[members] = side
+                crossing = inside & (side_of[edges[:, 0]] != side_of[edges[:, 1]])
+                share = (crossing & ~convex).sum() / max(crossing.sum(), 1)
+                if crossing.any() and share >= chosen_share:
+                    chosen, chosen_share = side, share
+            if chosen is None:
+                continue
+            side = chosen
+            labels[members[side]] = next_label
+            next_label += 1
+            changed = True
+        if not changed:
+            break
+    # A side may fall apart into pieces: keep connected parts apart.
+    same = labels[edges[:, 0]] == labels[edges[:, 1]]
+    return _components(len(labels), edges[same])
 
 
 class ClustersSegmenter(Segmenter):
@@ -176,7 +290,11 @@ class ClustersSegmenter(Segmenter):
             sub = cells[idx]
             pairs = cKDTree(sub).query_pairs(cfg.radius, output_type="ndarray")
             if cfg.method == "convex" and len(pairs):
-                comp = convex_segments(sub, estimate_normals(sub, cfg.normal_radius, viewpoint), pairs, cfg)
+                graph = patch_graph(sub, estimate_normals(sub, cfg.normal_radius, viewpoint), pairs, cfg)
+                comp = convex_segments(graph)
+                if cfg.cut_min_links > 0:
+                    comp = planar_cuts(graph, comp, cfg)
+                comp = comp[graph.patch]
             else:
                 comp = _components(len(sub), pairs)
             labels[idx] = comp
