@@ -11,7 +11,9 @@ Three output layouts, the ones people actually export:
   class-aware non-maximum suppression;
 * ``semantic_boundary`` (stratamap's own model): class logits (1, C, H, W) and instance-boundary
   logits (1, 1, H, W); instances are the connected regions of each thing class once boundary
-  pixels are removed, boundary pixels then join the nearest region of their class.
+  pixels are removed, boundary pixels then join the nearest region of their class. Optional
+  clean-ups: class specks take the class around them, class regions the network is unsure of are
+  left unknown, and with depth, instances meeting at a depth-continuous seam merge.
 
 Every adapter returns ``(class_ids, instance_ids, scores)`` at the network's input resolution,
 with class ids already mapped to the map's vocabulary (unmapped classes become 0, unknown).
@@ -149,9 +151,10 @@ def semantic_boundary(
     if min_region_score > 0:
         # Regions the network is unsure of as a whole (mean top probability under the threshold)
         # are left unknown: a misfire over a whole object otherwise adds a class the scene lacks.
+        top = prob.max(axis=0)
         for c in np.unique(net_class):
             lab, n = ndimage.label(net_class == c)
-            mean = ndimage.mean(prob.max(axis=0), lab, index=np.arange(1, n + 1))
+            mean = ndimage.mean(top, lab, index=np.arange(1, n + 1))
             low = np.flatnonzero(np.asarray(mean) < min_region_score) + 1
             if low.size:
                 unsure |= np.isin(lab, low)

@@ -122,6 +122,19 @@ def test_bad_model_file_is_named(tmp_path):
         run(tmp_path / "missing.onnx", frames_data())
 
 
+def test_rgbd_model_on_frames_without_depth_is_named(tmp_path):
+    from stratamap.core.errors import DataError
+
+    vocab = Vocabulary.default()
+    logits = np.zeros((1, len(vocab.names), H, W), np.float32)
+    boundary = np.zeros((1, 1, H, W), np.float32)
+    model = graph_model(tmp_path / "rgbd.onnx", (1, 4, H, W), {"class_logits": logits, "boundary_logits": boundary})
+    data = frames_data()
+    data.stream.frames[1].depth = None
+    with pytest.raises(DataError, match="frame 1 .*no depth.*rgbd.onnx"):
+        run(model, data, layout="semantic_boundary")
+
+
 def test_shipped_model_loads_in_plain_onnxruntime_as_documented():
     from stratamap.plugins.segmenters.onnx_panoptic import SHIPPED
 

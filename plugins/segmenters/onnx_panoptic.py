@@ -147,6 +147,8 @@ class ONNXPanopticSegmenter(Segmenter):
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         for frame in self.progress(stream.frames, description="onnx_panoptic"):
             rgb = np.asarray(frame.rgb)
+            if depth_channel and frame.depth is None:
+                raise DataError(f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} takes RGB-D input")
             tensor, undo, depth_in = self._prepare(rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel)
             result = session.run(None, {inp.name: tensor})
             if layout == "semantic_boundary":
