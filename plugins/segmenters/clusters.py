@@ -8,10 +8,11 @@
    facing the sensor (a sphere or a box corner), or nearly coplanar; the concave crease where a box
    stands on another, or leans on a wall, cuts the link (the point-level form of locally convex
    connected patches, LCCP). ``method: euclidean`` links every pair within ``radius`` instead.
-3. Constrained planar cuts (after CPC, Schoeler et al. 2015): where a segment holds many concave
-   links, the plane of one face along that crease (the top of a box another box stands on) is
-   tried as a cut through the whole segment; it is made when most links it severs are concave,
-   which also separates faces the crease alone does not (two boxes' flush sides).
+3. Constrained planar cuts (after CPC, Schoeler et al. 2015): where a segment holds sharp concave
+   creases between patches, the planes of the faces along them (the top of a box another box
+   stands on) are tried as cuts through the whole segment; one is made when most patch edges it
+   severs are concave, which also separates faces the crease alone does not (two boxes' flush
+   sides). Curved concave surfaces (a bowl's inside) have no sharp creases and no face to cut along.
 4. Connected components with at least ``min_points`` points are instances; their class comes from
    ``class_rules`` (first rule whose size and height ranges fit) or is ``object``.
 
