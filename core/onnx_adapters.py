@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 
 def _paste(class_ids, instance_ids, scores, masks, labels, confidences) -> None:
@@ -215,17 +217,12 @@ def merge_depth_continuous(instance_ids: np.ndarray, depth: np.ndarray, relative
         return instance_ids
     keys, inverse = np.unique(np.concatenate(pairs), return_inverse=True)
     share = np.bincount(inverse, weights=np.concatenate(flags).astype(float)) / np.bincount(inverse)
-    parent = np.arange(int(instance_ids.max()) + 1)
-
-    def find(x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
-    for key in keys[share >= min_share]:
-        ra, rb = find(int(key >> 32)), find(int(key & 0xFFFFFFFF))
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    roots = np.array([find(i) for i in range(len(parent))])
+    joined = keys[share >= min_share]
+    size = int(instance_ids.max()) + 1
+    graph = coo_matrix((np.ones(len(joined)), (joined >> 32, joined & 0xFFFFFFFF)), shape=(size, size))
+    component = connected_components(graph, directed=False)[1]
+    # Each merged group keeps its smallest id (0, unlabelled, is never joined).
+    roots = np.full(component.max() + 1, size)
+    np.minimum.at(roots, component, np.arange(size))
+    roots = roots[component]
     return roots[instance_ids].astype(instance_ids.dtype)

@@ -142,6 +142,33 @@ def convex_segments(graph: PatchGraph) -> np.ndarray:
     return _components(len(graph.centroid), graph.edges[graph.convex])
 
 
+def _cut_side(graph: PatchGraph, members: np.ndarray, n: np.ndarray, p0: np.ndarray, cfg: ClustersConfig) -> np.ndarray | None:
+    """Which of a segment's patches lie beyond the face plane (n, p0), the plane first refit to
+    the face; None when the plane follows no real face or leaves one side empty."""
+    centroid, normal = graph.centroid, graph.normal
+    cos_par, cos_crease = np.cos(np.radians(cfg.smooth_deg)), np.cos(np.radians(cfg.cut_crease_deg))
+    # A crease patch's normal is bent by its neighbour across the crease: refit the plane to the
+    # face's patches (near it, facing its way), twice.
+    for tolerance in (2 * cfg.cut_distance, cfg.cut_distance):
+        face = members[(np.abs((centroid[members] - p0) @ n) <= tolerance) & (normal[members] @ n >= cos_par)]
+        if len(face) < 3:
+            break
+        w = graph.size[face] / graph.size[face].sum()
+        p0 = w @ centroid[face]
+        refit = np.linalg.svd((centroid[face] - p0) * np.sqrt(w)[:, None], full_matrices=False)[2][2]
+        n = refit if refit @ n >= 0 else -refit
+    offset = (centroid[members] - p0) @ n
+    # Patches on the plane turned less than a crease from it belong to the face (its rim and
+    # crease patches have normals bent by their neighbours), hence to the solid behind it.
+    on_face = (np.abs(offset) <= cfg.cut_distance) & (normal[members] @ n >= cos_crease)
+    side = (offset > 0) & ~on_face
+    # A cut follows a real face (the top a box stands on), not a curved surface's tangent plane
+    # (a bowl's concave inside).
+    if side.all() or not side.any() or on_face.sum() < cfg.cut_face_patches:
+        return None
+    return side
+
+
 def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) -> np.ndarray:
     """Split segments along planes through their concave creases (CPC's idea, simplified).
 
@@ -155,19 +182,16 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
     centroid, normal, edges, convex = graph.centroid, graph.normal, graph.edges, graph.convex
     labels = segments.copy()
     next_label = int(labels.max()) + 1 if len(labels) else 0
-    cos_par = np.cos(np.radians(cfg.smooth_deg))
+    cos_par, cos_crease = np.cos(np.radians(cfg.smooth_deg)), np.cos(np.radians(cfg.cut_crease_deg))
     for _ in range(cfg.cut_depth):
         changed = False
         same = labels[edges[:, 0]] == labels[edges[:, 1]]
         for seg in np.unique(labels[edges[same & ~convex, 0]]):
             inside = same & (labels[edges[:, 0]] == seg)
-            concave = inside & ~convex
-            if concave.sum() < cfg.cut_min_links:
-                continue
-            ca, cb = edges[concave, 0], edges[concave, 1]
+            ca, cb = edges[inside & ~convex, 0], edges[inside & ~convex, 1]
             # Creases, not curvature: the faces meeting there turn by more than cut_crease_deg
             # (a box side on a box top: 90 degrees; a bowl's inside: a few degrees per patch).
-            sharp = np.einsum("ij,ij->i", normal[ca], normal[cb]) <= np.cos(np.radians(cfg.cut_crease_deg))
+            sharp = np.einsum("ij,ij->i", normal[ca], normal[cb]) <= cos_crease
             if sharp.sum() < cfg.cut_min_links:
                 continue
             ca, cb = ca[sharp], cb[sharp]
@@ -193,24 +217,8 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
                 if any(abs(n @ m) >= cos_par and abs(n @ p0 - d) <= cfg.cut_distance for m, d in tried):
                     continue
                 tried.append((n, float(n @ p0)))
-                # A crease patch's normal is bent by its neighbour across the crease: refit the
-                # plane to the face's patches (near it, facing its way), twice.
-                for tolerance in (2 * cfg.cut_distance, cfg.cut_distance):
-                    face = members[(np.abs((centroid[members] - p0) @ n) <= tolerance) & (normal[members] @ n >= cos_par)]
-                    if len(face) < 3:
-                        break
-                    w = graph.size[face] / graph.size[face].sum()
-                    p0 = w @ centroid[face]
-                    refit = np.linalg.svd((centroid[face] - p0) * np.sqrt(w)[:, None], full_matrices=False)[2][2]
-                    n = refit if refit @ n >= 0 else -refit
-                offset = (centroid[members] - p0) @ n
-                # Patches on the plane turned less than a crease from it belong to the face (its
-                # rim and crease patches have normals bent by their neighbours).
-                on_face = (np.abs(offset) <= cfg.cut_distance) & (normal[members] @ n >= np.cos(np.radians(cfg.cut_crease_deg)))
-                side = (offset > 0) & ~on_face
-                # A cut follows a real face (the top a box stands on), not a curved surface's
-                # tangent plane (a bowl's concave inside).
-                if side.all() or not side.any() or on_face.sum() < cfg.cut_face_patches:
+                side = _cut_side(graph, members, n, p0, cfg)
+                if side is None:
                     continue
                 side_of[:] = False
                 side_of[members] = side
@@ -220,8 +228,7 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
                     chosen, chosen_share = side, share
             if chosen is None:
                 continue
-            side = chosen
-            labels[members[side]] = next_label
+            labels[members[chosen]] = next_label
             next_label += 1
             changed = True
         if not changed:
