@@ -10,7 +10,7 @@ fusion adds little to integration (``benchmarks/mapping_throughput.py`` measures
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import open3d as o3d
@@ -22,6 +22,7 @@ from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry import gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
+from stratamap.core.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
 from stratamap.core.transforms import apply, invert
 
@@ -111,8 +112,20 @@ class TSDFConfig(IntegrationConfig):
     merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
     merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
     instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
-    fragment_touch: float = Field(default=1.5, ge=0.0, description="Same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
+    fragment_touch: float = Field(default=1.5, ge=0.0, description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
+    instances: Literal["masks", "labels"] = Field(
+        default="masks",
+        description=(
+            "How map instances are extracted. 'labels': each label's class and instance (Voxblox++ eq. 6) plus fragment merging. "
+            "'masks': each point's class by its voxel's per-frame class votes; the label instances cut into connected pieces and "
+            "re-joined where the frames' 2D masks keep covering them together (a segmenter's merged masks do not fuse objects)."
+        ),
+    )
+    piece_min_points: int = Field(default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most.")
+    piece_merge_ratio: float = Field(
+        default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
+    )
 
 
 class TSDFMapper(Mapper):
@@ -153,6 +166,7 @@ class TSDFMapper(Mapper):
             vocab,
             voxels_per_block=cfg.block_resolution**3,
         )
+        observations = MaskObservations()
         intr = stream.intrinsics
         K = o3c.Tensor(intr.matrix, o3c.float64)
         integrated = 0
@@ -175,7 +189,7 @@ class TSDFMapper(Mapper):
             vbg.integrate(coords, depth_img, color_img, K, K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels)
             integrated += 1
             if labels is not None:
-                self._fuse_labels(vbg, state, depth, labels.frames[frame.index], intr, frame.pose, cfg)
+                self._fuse_labels(vbg, state, observations, depth, labels.frames[frame.index], intr, frame.pose, cfg)
         if integrated == 0:
             raise DataError(f"tsdf: no frame of {stream.name!r} had valid depth and a pose")
 
@@ -206,7 +220,13 @@ class TSDFMapper(Mapper):
         classes, instances = state.label_table()
         point_labels = self._point_labels(vbg, points, cfg)
         point_class, point_instance = classes[point_labels], instances[point_labels]
-        fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size) if cfg.fragment_touch > 0 else {}
+        fragments: dict[int, int] = {}
+        if cfg.instances == "masks":
+            point_class, point_instance = mask_instances(
+                points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(cfg.piece_min_points, cfg.piece_merge_ratio)
+            )
+        elif cfg.fragment_touch > 0:
+            fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size)
         # Instances too small to keep leave no fragments behind in the semantics layer either.
         ids, sizes = np.unique(point_instance[point_instance > 0], return_counts=True)
         small = ids[sizes < cfg.min_instance_points]
@@ -233,7 +253,9 @@ class TSDFMapper(Mapper):
         flat = buf * res**3 + (local[:, 2] * res + local[:, 1]) * res + local[:, 0]
         return flat, found
 
-    def _fuse_labels(self, vbg: Any, state: PanopticState, depth: np.ndarray, seg: Any, intr: Any, pose: np.ndarray, cfg: TSDFConfig) -> None:
+    def _fuse_labels(
+        self, vbg: Any, state: PanopticState, observations: MaskObservations, depth: np.ndarray, seg: Any, intr: Any, pose: np.ndarray, cfg: TSDFConfig
+    ) -> None:
         d = np.where(depth <= cfg.depth_max, depth, 0)
         pts, pix = intr.backproject(d, stride=label_stride(cfg.label_stride, intr.width))
         if len(pts) == 0:
@@ -244,8 +266,10 @@ class TSDFMapper(Mapper):
         world = apply(pose, pts[keep])
         voxels = np.round(world / cfg.voxel_size).astype(np.int64)
         flat, found = self._flat_indices(vbg, voxels, cfg.block_resolution)
-        flat, cls, inst = flat[found], cls[keep][found], inst[keep][found]
+        flat, cls, inst, voxels = flat[found], cls[keep][found], inst[keep][found], voxels[found]
         flat, first = np.unique(flat, return_index=True)  # one observation per voxel per frame
+        if cfg.instances == "masks":
+            observations.add(voxels[first], cls[first], inst[first])
         label_view = vbg.attribute("label").numpy().reshape(-1)
         conf_view = vbg.attribute("conf").numpy().reshape(-1)
         active = vbg.hashmap().active_buf_indices().numpy().astype(np.int64)

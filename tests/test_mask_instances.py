@@ -1,0 +1,100 @@
+"""Map instances from voxel class votes and pieces re-joined by masks (core.mask_instances)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stratamap.core.mask_instances import (
+    MaskInstanceParams,
+    MaskObservations,
+    agglomerate,
+    atoms,
+    key_voxels,
+    mask_instances,
+    voxel_keys,
+)
+from stratamap.core.vocabulary import Vocabulary
+
+VOXEL = 0.02
+VOCAB = Vocabulary.default()
+CHAIR, DESK, FLOOR = VOCAB.id("chair"), VOCAB.id("desk"), VOCAB.id("floor")
+
+
+def slab(x0: int, y0: int, z0: int, nx: int, ny: int, nz: int) -> np.ndarray:
+    """Integer voxel coordinates of a solid block (a stand-in for an object's surface voxels)."""
+    g = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"), -1).reshape(-1, 3)
+    return g + np.array([x0, y0, z0])
+
+
+def scene():
+    """Two chairs 0.4 m apart that the label fusion fused into one instance; a desk in two pieces
+    0.2 m apart (the TSDF lost the thin part between them), some of whose points the fusion called
+    chair; a floor."""
+    chair_a, chair_b = slab(0, 0, 1, 10, 10, 6), slab(30, 0, 1, 10, 10, 6)
+    desk_top, desk_foot = slab(0, 30, 20, 20, 10, 2), slab(0, 30, 1, 20, 10, 4)
+    floor = slab(-5, -5, 0, 60, 50, 1)
+    voxels = np.concatenate([chair_a, chair_b, desk_top, desk_foot, floor])
+    part = np.repeat(np.arange(5), [len(chair_a), len(chair_b), len(desk_top), len(desk_foot), len(floor)])
+    fused_class = np.array([CHAIR, CHAIR, DESK, DESK, FLOOR])[part]
+    fused_instance = np.array([1, 1, 2, 2, 0])[part]
+    fused_class[(part == 2) & (voxels[:, 0] < 5)] = CHAIR  # a border the label fusion got wrong
+    return voxels, part, fused_class, fused_instance
+
+
+def observe(voxels, part, frames_merged: int, frames: int = 10) -> MaskObservations:
+    """Frames that see everything; the segmenter splits the chairs except in ``frames_merged`` frames
+    and always covers the desk's two pieces with one mask."""
+    obs = MaskObservations()
+    cls = np.array([CHAIR, CHAIR, DESK, DESK, FLOOR])[part]
+    for k in range(frames):
+        inst = np.array([1, 1 if k < frames_merged else 2, 3, 3, 0])[part]
+        obs.add(voxels, cls, inst)
+    return obs
+
+
+def test_voxel_keys_round_trip():
+    v = np.array([[0, 0, 0], [-5, 7, 123456], [-(2**20), 2**20 - 1, -1]])
+    assert np.array_equal(key_voxels(voxel_keys(v)), v)
+    assert len(np.unique(voxel_keys(slab(-3, -3, -3, 7, 7, 7)))) == 343
+    with pytest.raises(ValueError, match="2\\^20"):
+        voxel_keys(np.array([[2**21, 0, 0]]))
+
+
+def test_masks_split_fused_objects_and_join_pieces():
+    voxels, part, fused_class, fused_instance = scene()
+    points = voxels * VOXEL
+    cls, inst = mask_instances(points, fused_class, fused_instance, observe(voxels, part, frames_merged=2), VOCAB, VOXEL)
+    # Class by the frames' votes: the desk's wrongly fused corner is desk again.
+    assert np.all(cls[part == 2] == DESK) and np.all(cls[part == 4] == FLOOR)
+    assert np.all(inst[part == 4] == 0)
+    ids = [set(np.unique(inst[part == k])) for k in range(4)]
+    assert all(len(s) == 1 and 0 not in s for s in ids), ids
+    chair_a, chair_b, desk_top, desk_foot = (s.pop() for s in ids)
+    assert chair_a != chair_b  # most frames split the chairs: the fused instance is cut
+    assert desk_top == desk_foot  # every frame's mask covers both pieces: re-joined
+    assert len({chair_a, chair_b, desk_top}) == 3
+
+
+def test_masks_that_never_split_two_pieces_join_them():
+    voxels, part, fused_class, fused_instance = scene()
+    cls, inst = mask_instances(voxels * VOXEL, fused_class, fused_instance, observe(voxels, part, frames_merged=10), VOCAB, VOXEL)
+    assert len(np.unique(inst[(part == 0) | (part == 1)])) == 1
+
+
+def test_small_pieces_join_the_piece_they_touch():
+    voxels = np.concatenate([slab(0, 0, 0, 10, 10, 3), slab(10, 0, 0, 2, 2, 2)])  # 300 + 8 points
+    cls = np.array([CHAIR] * 300 + [DESK] * 8)
+    piece = atoms(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=20)
+    assert len(np.unique(piece)) == 1 and np.all(cls == CHAIR)
+    cls = np.array([CHAIR] * 300 + [DESK] * 8)
+    piece = atoms(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=5)
+    assert len(np.unique(piece)) == 2
+
+
+def test_agglomeration_is_greedy_by_ratio_and_respects_classes():
+    together = np.array([[0, 8, 3, 9], [8, 0, 1, 0], [3, 1, 0, 0], [9, 0, 0, 0]], float)
+    apart = np.array([[0, 2, 5, 0], [2, 0, 9, 0], [5, 9, 0, 0], [0, 0, 0, 0]], float)
+    group = agglomerate(together, apart, np.array([CHAIR, CHAIR, CHAIR, DESK]), MaskInstanceParams())
+    assert group[0] == group[1] != group[2]  # 8 vs 2 merges; 3+1 vs 5+9 does not
+    assert group[3] != group[0]  # another class never merges, however often together
