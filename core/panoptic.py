@@ -25,6 +25,9 @@ Per frame:
    each holding at least ``instance_merge_ratio`` of that label's votes.
 7. Extraction (eq. 6): every label takes (c*, p*) = argmax Phi(l, c, p); voxels, hence map points,
    take their label's class and instance; stuff classes get instance 0.
+
+The ``tsdf`` mapper's default (``instances: masks``) builds the map's instances from these labels
+differently, robust to a segmenter's merged masks: see :mod:`stratamap.core.mask_instances`.
 """
 
 from __future__ import annotations
