@@ -238,8 +238,22 @@ def mask_instances(
     piece_thing = is_thing[piece_class]
     together, apart = mask_cooccurrence(points, piece, voxel_size, obs, is_thing, params)
     merged = agglomerate(together, apart, np.where(piece_thing, piece_class, -1 - np.arange(count)), params)
-    sizes = np.bincount(merged[piece], minlength=count)
-    instance = np.where(piece_thing[piece] & (sizes[merged[piece]] >= params.min_points), merged[piece] + 1, 0)
+    owner = merged[piece]
+    sizes = np.bincount(owner, minlength=count)
+    # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
+    # group holding most points of its fused instance, if that group is of its class.
+    small = piece_thing[piece] & (sizes[owner] < params.min_points) & (group > 0)
+    if small.any():
+        big = piece_thing[piece] & (sizes[owner] >= params.min_points) & (group > 0)
+        host = piece_majority(np.unique(group[big], return_inverse=True)[1], owner[big])
+        host_of = dict(zip(np.unique(group[big]).tolist(), host.tolist(), strict=True))
+        idx = np.flatnonzero(small)
+        target = np.array([host_of.get(int(g), -1) for g in group[idx]])
+        ok = target >= 0
+        ok[ok] = piece_class[target[ok]] == point_class[idx[ok]]
+        owner[idx[ok]] = target[ok]
+        sizes = np.bincount(owner, minlength=count)
+    instance = np.where(piece_thing[piece] & (sizes[owner] >= params.min_points), owner + 1, 0)
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
     point_class = np.where(is_thing[point_class] & (instance == 0), 0, point_class)
     return point_class.astype(fused_class.dtype), instance.astype(fused_instance.dtype)

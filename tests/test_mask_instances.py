@@ -98,3 +98,20 @@ def test_agglomeration_is_greedy_by_ratio_and_respects_classes():
     group = agglomerate(together, apart, np.array([CHAIR, CHAIR, CHAIR, DESK]), MaskInstanceParams())
     assert group[0] == group[1] != group[2]  # 8 vs 2 merges; 3+1 vs 5+9 does not
     assert group[3] != group[0]  # another class never merges, however often together
+
+
+def test_isolated_small_piece_stays_with_its_fused_instance():
+    """A plant's leaf the TSDF kept apart from the rest (too small to stand alone, touching nothing)
+    keeps the instance its label had, not a class of nothing."""
+    body, leaf = slab(0, 0, 0, 10, 10, 10), slab(0, 0, 15, 3, 3, 2)  # 1000 points; 18 points 10 cm above
+    voxels = np.concatenate([body, leaf])
+    plant = VOCAB.id("plant")
+    cls, inst = np.full(len(voxels), plant), np.full(len(voxels), 4)
+    obs = MaskObservations()
+    obs.add(voxels, cls, np.ones(len(voxels), int))
+    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL)
+    assert np.all(out_cls == plant) and len(np.unique(out_inst)) == 1 and out_inst[0] > 0
+    other = inst.copy()
+    other[len(body) :] = 5  # a leaf of another (fused) instance has no host here: dropped
+    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, other, obs, VOCAB, VOXEL)
+    assert np.all(out_inst[len(body) :] == 0) and np.all(out_cls[len(body) :] == 0)
