@@ -62,7 +62,7 @@ class ONNXPanopticConfig(StageConfig):
     boundary_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Boundary probability above which a pixel separates instances (semantic_boundary).")
     min_pixels: int = Field(default=20, ge=1, description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary).")
     speckle_pixels: int = Field(
-        default=60, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off; 60 chosen on held-out synthetic walks)."
+        default=0, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x 120; 60 suits frame-level use)."
     )
     merge_depth_gap: float = Field(
         default=0.06, ge=0.0, le=0.5,
