@@ -149,7 +149,8 @@ def piece_majority(piece: np.ndarray, values: np.ndarray) -> np.ndarray:
 def mask_cooccurrence(
     points: np.ndarray, piece: np.ndarray, voxel_size: float, obs: MaskObservations, is_thing: np.ndarray, params: MaskInstanceParams
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(together, apart) counts between pieces over all frames' thing segments."""
+    """(together, apart) counts between pieces (ids from 0; -1: a point that takes no part) over
+    all frames' thing segments."""
     count = int(piece.max()) + 1 if len(piece) else 0
     together = np.zeros((count, count))
     apart = np.zeros((count, count))
@@ -236,8 +237,13 @@ def mask_instances(
     count = int(piece.max()) + 1
     piece_class = piece_majority(piece, point_class)
     piece_thing = is_thing[piece_class]
-    together, apart = mask_cooccurrence(points, piece, voxel_size, obs, is_thing, params)
-    merged = agglomerate(together, apart, np.where(piece_thing, piece_class, -1 - np.arange(count)), params)
+    # Only thing pieces take part: stuff never merges, and a big map has many stuff pieces.
+    things = np.flatnonzero(piece_thing)
+    thing_index = np.full(count, -1)
+    thing_index[things] = np.arange(len(things))
+    together, apart = mask_cooccurrence(points, thing_index[piece], voxel_size, obs, is_thing, params)
+    merged = np.arange(count)
+    merged[things] = things[agglomerate(together, apart, piece_class[things], params)]
     owner = merged[piece]
     sizes = np.bincount(owner, minlength=count)
     # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
