@@ -48,6 +48,14 @@ def test_panoptic_fusion_quality_with_the_oracle(tmp_path, noise, minimum):
     assert report["layers"]["instances"]["objects"] >= 15
 
 
+def test_mask_instances_lose_nothing_with_the_oracle(tmp_path):
+    """The 'masks' extraction rebuilds the objects from ground-truth masks as 'labels' does."""
+    report = office_pipeline(tmp_path, "kinect", [{"plugin": "tsdf", "params": {"instances": "masks"}}])
+    assert report["metrics"]["panoptic"]["pq"] >= 0.7, report["metrics"]["panoptic"]
+    assert report["metrics"]["instances"]["f1"] >= 0.7
+    assert report["layers"]["instances"]["objects"] >= 15
+
+
 def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):
     report = office_pipeline(tmp_path, "none", [{"plugin": "semantic_tsdf"}, {"plugin": "instance_clusters"}])
     assert report["metrics"]["panoptic"]["pq_stuff"] > 0.9

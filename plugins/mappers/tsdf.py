@@ -114,12 +114,13 @@ class TSDFConfig(IntegrationConfig):
     instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
     fragment_touch: float = Field(default=1.5, ge=0.0, description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
-    instances: Literal["masks", "labels"] = Field(
-        default="masks",
+    instances: Literal["labels", "masks"] = Field(
+        default="labels",
         description=(
-            "How map instances are extracted. 'labels': each label's class and instance (Voxblox++ eq. 6) plus fragment merging. "
-            "'masks': each point's class by its voxel's per-frame class votes; the label instances cut into connected pieces and "
-            "re-joined where the frames' 2D masks keep covering them together (a segmenter's merged masks do not fuse objects)."
+            "How map instances are extracted. 'labels' (the papers'): each label's class and instance (Voxblox++ eq. 6) plus fragment "
+            "merging. 'masks' (for learned segmenters): each point's class by its voxel's per-frame class votes; the label instances "
+            "cut into connected pieces and re-joined where the frames' 2D masks keep covering them together (one frame's mask over "
+            "two chairs does not fuse them)."
         ),
     )
     piece_min_points: int = Field(default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most.")
