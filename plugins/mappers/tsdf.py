@@ -6,6 +6,8 @@ Semantics and instances (when a segmenter ran): panoptic fusion as in the functi
 3D overlap, counts Phi(l, c, p), label merging by shared-voxel ratio, instance merging, and
 extraction of panoptic entities. Segment labels live in the TSDF's own voxel blocks, so label
 fusion adds little to integration (``benchmarks/mapping_throughput.py`` measures how little).
+With ``instances: masks`` the map's instances come instead from per-voxel class votes and 3D
+pieces re-joined by the frames' masks (:mod:`stratamap.core.mask_instances`), for learned segmenters.
 """
 
 from __future__ import annotations
