@@ -7,6 +7,9 @@ from scipy.spatial import ConvexHull, QhullError
 
 from stratamap.core.layers import OrientedBox
 
+# A voxel itself, then its 26 neighbours by distance (faces, edges, corners).
+VOXEL_NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
+
 
 def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
     """Minimum-area enclosing rectangle of 2D points (rotating calipers over the convex hull).

@@ -31,6 +31,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from stratamap.core.geometry import VOXEL_NEIGHBOURS
 from stratamap.core.vocabulary import Vocabulary
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
@@ -67,33 +68,37 @@ class MaskObservations:
     def __len__(self) -> int:
         return len(self.keys)
 
+    def voxels(self) -> tuple[np.ndarray, np.ndarray]:
+        """The distinct voxel keys observed, and for every observation (frames in order) its index among them."""
+        uniq, inverse = np.unique(np.concatenate(self.keys), return_inverse=True)
+        return uniq, inverse.reshape(-1)
+
 
 @dataclass
 class MaskInstanceParams:
     min_points: int = 60
     merge_ratio: float = 0.5
     min_together: int = 2
-    in_share: float = 0.5  # an atom is in a segment when this share of its voxels seen in the frame is
+    in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
     min_hits: int = 3
 
 
-def point_class_votes(points: np.ndarray, voxel_size: float, obs: MaskObservations, classes: int) -> np.ndarray:
+def point_class_votes(
+    points: np.ndarray, voxel_size: float, obs: MaskObservations, voxels: tuple[np.ndarray, np.ndarray], classes: int
+) -> np.ndarray:
     """Per map point, how many frames gave each class to its voxel (or, if it has none, to the
-    nearest observed voxel of its 26 neighbours)."""
-    keys = np.concatenate(obs.keys)
-    cls = np.concatenate(obs.classes).astype(np.int64)
-    uniq, inv = np.unique(keys, return_inverse=True)
+    nearest observed voxel of its 26 neighbours). ``voxels`` is ``obs.voxels()``."""
+    uniq, inv = voxels
     votes = np.zeros((len(uniq), classes), np.int32)
-    np.add.at(votes, (inv, cls), 1)
+    np.add.at(votes, (inv, np.concatenate(obs.classes).astype(np.int64)), 1)
     base = np.round(points / voxel_size).astype(np.int64)
     out = np.zeros((len(points), classes), np.int32)
     todo = np.ones(len(points), bool)
-    offsets = sorted(((x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v))
-    for off in offsets:
+    for off in VOXEL_NEIGHBOURS:
         idx = np.flatnonzero(todo)
         if len(idx) == 0:
             break
-        k = voxel_keys(base[idx] + np.array(off))
+        k = voxel_keys(base[idx] + off)
         pos = np.minimum(np.searchsorted(uniq, k), len(uniq) - 1)
         hit = uniq[pos] == k
         out[idx[hit]] = votes[pos[hit]]
@@ -147,17 +152,22 @@ def piece_majority(piece: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def mask_cooccurrence(
-    points: np.ndarray, piece: np.ndarray, voxel_size: float, obs: MaskObservations, is_thing: np.ndarray, params: MaskInstanceParams
+    points: np.ndarray,
+    piece: np.ndarray,
+    voxel_size: float,
+    obs: MaskObservations,
+    voxels: tuple[np.ndarray, np.ndarray],
+    is_thing: np.ndarray,
+    params: MaskInstanceParams,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(together, apart) counts between pieces (ids from 0; -1: a point that takes no part) over
-    all frames' thing segments."""
+    all frames' thing segments. ``voxels`` is ``obs.voxels()``."""
     count = int(piece.max()) + 1 if len(piece) else 0
     together = np.zeros((count, count))
     apart = np.zeros((count, count))
     if count == 0 or len(obs) == 0:
         return together, apart
-    all_keys = np.concatenate(obs.keys)
-    uniq, inv = np.unique(all_keys, return_inverse=True)
+    uniq, inv = voxels
     dist, nearest = cKDTree(points).query(key_voxels(uniq) * voxel_size, distance_upper_bound=1.5 * voxel_size)
     piece_of_key = np.where(np.isfinite(dist), piece[np.minimum(nearest, len(piece) - 1)], -1)
     start = 0
@@ -230,7 +240,8 @@ def mask_instances(
     is_thing = np.asarray(vocabulary.is_thing)
     if len(points) == 0 or len(obs) == 0:
         return fused_class.copy(), fused_instance.copy()
-    votes = point_class_votes(points, voxel_size, obs, len(vocabulary.names))
+    voxels = obs.voxels()
+    votes = point_class_votes(points, voxel_size, obs, voxels, len(vocabulary.names))
     point_class = np.where(votes.sum(1) > 0, votes.argmax(1), fused_class).astype(np.int64)
     group = np.where(point_class == fused_class, fused_instance, -1)
     piece = atoms(points, point_class, group, 1.5 * voxel_size, params.min_points)
@@ -241,7 +252,7 @@ def mask_instances(
     things = np.flatnonzero(piece_thing)
     thing_index = np.full(count, -1)
     thing_index[things] = np.arange(len(things))
-    together, apart = mask_cooccurrence(points, thing_index[piece], voxel_size, obs, is_thing, params)
+    together, apart = mask_cooccurrence(points, thing_index[piece], voxel_size, obs, voxels, is_thing, params)
     merged = np.arange(count)
     merged[things] = things[agglomerate(together, apart, piece_class[things], params)]
     owner = merged[piece]
@@ -251,13 +262,13 @@ def mask_instances(
     small = piece_thing[piece] & (sizes[owner] < params.min_points) & (group > 0)
     if small.any():
         big = piece_thing[piece] & (sizes[owner] >= params.min_points) & (group > 0)
-        host = piece_majority(np.unique(group[big], return_inverse=True)[1], owner[big])
-        host_of = dict(zip(np.unique(group[big]).tolist(), host.tolist(), strict=True))
+        hosted, which = np.unique(group[big], return_inverse=True)
+        host = piece_majority(which.reshape(-1), owner[big])
         idx = np.flatnonzero(small)
-        target = np.array([host_of.get(int(g), -1) for g in group[idx]])
-        ok = target >= 0
-        ok[ok] = piece_class[target[ok]] == point_class[idx[ok]]
-        owner[idx[ok]] = target[ok]
+        pos = np.minimum(np.searchsorted(hosted, group[idx]), max(len(hosted) - 1, 0))
+        ok = (hosted[pos] == group[idx]) if len(hosted) else np.zeros(len(idx), bool)
+        ok[ok] = piece_class[host[pos[ok]]] == point_class[idx[ok]]
+        owner[idx[ok]] = host[pos[ok]]
         sizes = np.bincount(owner, minlength=count)
     instance = np.where(piece_thing[piece] & (sizes[owner] >= params.min_points), owner + 1, 0)
     # Thing points left without an instance (a piece too small to stand alone) carry no class.

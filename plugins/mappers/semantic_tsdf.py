@@ -20,7 +20,8 @@ from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.layers import Geometry, Semantics
 from stratamap.core.transforms import apply, invert
-from stratamap.plugins.mappers.tsdf import NEIGHBOURS, IntegrationConfig, canonical_mesh, label_stride, position_order
+from stratamap.core.geometry import VOXEL_NEIGHBOURS
+from stratamap.plugins.mappers.tsdf import IntegrationConfig, canonical_mesh, label_stride, position_order
 
 
 
@@ -100,7 +101,7 @@ class SemanticTSDFMapper(Mapper):
         table = probs.value_tensor().numpy()
         base = np.round(points / cfg.voxel_size).astype(np.int64)
         class_ids = np.zeros(len(points), np.int32)
-        for offset in NEIGHBOURS:
+        for offset in VOXEL_NEIGHBOURS:
             todo = np.flatnonzero(class_ids == 0)
             if len(todo) == 0:
                 break

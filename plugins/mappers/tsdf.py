@@ -22,14 +22,11 @@ from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.geometry import gravity_aligned_box
+from stratamap.core.geometry import VOXEL_NEIGHBOURS, gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
 from stratamap.core.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
 from stratamap.core.transforms import apply, invert
-
-# The voxel itself, then its 26 neighbours by distance (faces, edges, corners).
-NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
 
 
 def label_stride(configured: int | None, width: int) -> int:
@@ -283,7 +280,7 @@ class TSDFMapper(Mapper):
         label_view = vbg.attribute("label").numpy().reshape(-1)
         base = np.round(points / cfg.voxel_size).astype(np.int64)
         out = np.zeros(len(points), np.int64)
-        for offset in NEIGHBOURS:
+        for offset in VOXEL_NEIGHBOURS:
             todo = out == 0
             if not todo.any():
                 break
