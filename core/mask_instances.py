@@ -17,6 +17,11 @@ the other way round, from evidence that averages out over frames:
    together / (together + apart) exceeds ``merge_ratio`` (and together >= ``min_together``).
    An object cut by a thin part the TSDF does not keep (a chair's post) is re-joined, because
    masks cover it whole; two chairs a few frames merged stay apart, because most frames split them.
+   Objects are compact: groups with no points within ``near_gap`` of each other merge only when
+   the masks are near unanimous (``far_ratio``; a plant's pot and leaves, with the stem lost),
+   so books a segmenter often covers together, or chairs seen one behind the other, stay apart.
+4. **Fragments**: an instance under ``min_class_share`` of the median size of its class's
+   instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped.
 
 With ground-truth masks this reproduces the objects (the oracle's map PQ does not drop);
 with a segmenter's masks it stops one bad frame from fusing two objects.
@@ -81,6 +86,9 @@ class MaskInstanceParams:
     min_together: int = 2
     in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
     min_hits: int = 3
+    near_gap: float = 0.3  # m; 0: no limit on how far apart merged groups may be
+    far_ratio: float = 0.9  # the together share groups farther apart than near_gap need
+    min_class_share: float = 0.1  # 0: keep every instance of min_points or more
 
 
 def point_class_votes(
@@ -196,10 +204,34 @@ def mask_cooccurrence(
     return together, apart
 
 
-def agglomerate(together: np.ndarray, apart: np.ndarray, piece_class: np.ndarray, params: MaskInstanceParams) -> np.ndarray:
+def piece_proximity(points: np.ndarray, piece: np.ndarray, count: int, gap: float) -> np.ndarray:
+    """(count, count) bool: which pieces (ids from 0; -1: none) come within about ``gap`` of each
+    other. One point per piece and ``gap / 2`` cell stands in for the piece, so "about" is up to a
+    cell either way: cheap on maps of 10^5 thing points, and objects are far from that borderline."""
+    near = np.zeros((count, count), bool)
+    use = piece >= 0
+    if count == 0 or not use.any():
+        return near
+    cell = np.floor(points[use] / (gap / 2)).astype(np.int64)
+    cell -= cell.min(0)
+    span = cell.max(0) + 1
+    code = ((cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]) * count + piece[use]
+    _, first = np.unique(code, return_index=True)
+    owner = piece[use][first]
+    pairs = cKDTree(points[use][first]).query_pairs(gap, output_type="ndarray")
+    a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
+    near[a[a != b], b[a != b]] = True
+    return near | near.T
+
+
+def agglomerate(
+    together: np.ndarray, apart: np.ndarray, piece_class: np.ndarray, params: MaskInstanceParams, near: np.ndarray | None = None
+) -> np.ndarray:
     """Greedy agglomeration: merge the same-class pair of groups with the highest
-    together / (together + apart) while it exceeds ``merge_ratio``. Returns a group per piece."""
+    together / (together + apart) while it exceeds ``merge_ratio`` (``far_ratio`` for groups that
+    ``near`` does not mark as neighbours, when given). Returns a group per piece."""
     together, apart = together.copy(), apart.copy()
+    near = None if near is None else near.copy()
     count = len(piece_class)
     group = np.arange(count)
     alive = np.ones(count, bool)
@@ -208,6 +240,8 @@ def agglomerate(together: np.ndarray, apart: np.ndarray, piece_class: np.ndarray
         total = together + apart
         score = np.where(total > 0, together / np.maximum(total, 1), 0.0)
         ok = same_class & alive[:, None] & alive[None, :] & (together >= params.min_together) & (score > params.merge_ratio)
+        if near is not None:
+            ok &= near | (score > params.far_ratio)
         np.fill_diagonal(ok, False)
         if not ok.any():
             break
@@ -221,6 +255,9 @@ def agglomerate(together: np.ndarray, apart: np.ndarray, piece_class: np.ndarray
             m[h, :] = 0
             m[:, h] = 0
             m[g, g] = 0
+        if near is not None:
+            near[g, :] |= near[h, :]
+            near[:, g] |= near[:, h]
         alive[h] = False
         group[group == h] = g
     return group
@@ -254,11 +291,13 @@ def mask_instances(
     thing_index[things] = np.arange(len(things))
     together, apart = mask_cooccurrence(points, thing_index[piece], voxel_size, obs, voxels, is_thing, params)
     merged = np.arange(count)
-    merged[things] = things[agglomerate(together, apart, piece_class[things], params)]
+    near = piece_proximity(points, thing_index[piece], len(things), params.near_gap) if params.near_gap > 0 else None
+    merged[things] = things[agglomerate(together, apart, piece_class[things], params, near)]
     owner = merged[piece]
     sizes = np.bincount(owner, minlength=count)
     # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
-    # group holding most points of its fused instance, if that group is of its class.
+    # group holding most points of its fused instance, if that group is of its class (and,
+    # with near_gap, has a point within near_gap of it).
     small = piece_thing[piece] & (sizes[owner] < params.min_points) & (group > 0)
     if small.any():
         big = piece_thing[piece] & (sizes[owner] >= params.min_points) & (group > 0)
@@ -268,9 +307,28 @@ def mask_instances(
         pos = np.minimum(np.searchsorted(hosted, group[idx]), max(len(hosted) - 1, 0))
         ok = (hosted[pos] == group[idx]) if len(hosted) else np.zeros(len(idx), bool)
         ok[ok] = piece_class[host[pos[ok]]] == point_class[idx[ok]]
+        if params.near_gap > 0 and ok.any():
+            cand, target = idx[ok], host[pos[ok]]
+            close = np.zeros(len(cand), bool)
+            for h in np.unique(target):
+                mine = target == h
+                dist, _ = cKDTree(points[owner == h]).query(points[cand[mine]], distance_upper_bound=params.near_gap)
+                close[mine] = np.isfinite(dist)
+            ok[np.flatnonzero(ok)[~close]] = False
         owner[idx[ok]] = host[pos[ok]]
         sizes = np.bincount(owner, minlength=count)
     instance = np.where(piece_thing[piece] & (sizes[owner] >= params.min_points), owner + 1, 0)
+    if params.min_class_share > 0:
+        instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share))] = 0
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
     point_class = np.where(is_thing[point_class] & (instance == 0), 0, point_class)
     return point_class.astype(fused_class.dtype), instance.astype(fused_instance.dtype)
+
+
+def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float) -> np.ndarray:
+    """Instance ids (> 0) with fewer points than ``share`` of the median instance of their class."""
+    ids, first, sizes = np.unique(instance, return_index=True, return_counts=True)
+    keep = ids > 0
+    ids, cls, sizes = ids[keep], point_class[first[keep]], sizes[keep]
+    out = [ids[(cls == c) & (sizes < share * np.median(sizes[cls == c]))] for c in np.unique(cls)]
+    return np.concatenate(out) if out else np.zeros(0, ids.dtype)

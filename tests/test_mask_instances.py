@@ -10,8 +10,10 @@ from stratamap.core.mask_instances import (
     MaskObservations,
     agglomerate,
     atoms,
+    class_fragments,
     key_voxels,
     mask_instances,
+    piece_proximity,
     voxel_keys,
 )
 from stratamap.core.vocabulary import Vocabulary
@@ -115,3 +117,72 @@ def test_isolated_small_piece_stays_with_its_fused_instance():
     other[len(body) :] = 5  # a leaf of another (fused) instance has no host here: dropped
     out_cls, out_inst = mask_instances(voxels * VOXEL, cls, other, obs, VOCAB, VOXEL)
     assert np.all(out_inst[len(body) :] == 0) and np.all(out_cls[len(body) :] == 0)
+
+
+def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
+    """Two chair pieces ``gap_voxels`` apart, fused as one instance, that ``frames_together`` of the
+    frames' masks cover as one (the others split them)."""
+    a, b = slab(0, 0, 0, 10, 10, 5), slab(10 + gap_voxels, 0, 0, 10, 10, 5)
+    voxels = np.concatenate([a, b])
+    part = np.repeat([0, 1], [len(a), len(b)])
+    obs = MaskObservations()
+    for k in range(frames):
+        obs.add(voxels, np.full(len(voxels), CHAIR), np.where(part == 0, 1, 1 if k < frames_together else 2))
+    return voxels, part, obs
+
+
+@pytest.mark.parametrize(("gap_voxels", "near_gap", "joined"), [(5, 0.3, True), (50, 0.3, False), (50, 0.0, True)])
+def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
+    """Seven frames in ten covering both: enough 10 cm apart, not 1 m apart (a segmenter's masks
+    that often run over two books or two chairs), unless the distance limit is off."""
+    voxels, part, obs = two_chairs(gap_voxels, frames_together=7)
+    cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=near_gap))
+    assert np.all(inst > 0)
+    assert (len(np.unique(inst)) == 1) == joined
+
+
+def test_far_pieces_join_when_every_mask_covers_both():
+    """A plant's pot and leaves 1 m apart (the stem lost) that every frame's mask covers as one."""
+    voxels, part, obs = two_chairs(50, frames_together=10)
+    cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL)
+    assert len(np.unique(inst)) == 1 and inst[0] > 0
+
+
+def test_piece_proximity():
+    """Near means within about the gap (one point per piece and half-gap cell stands in for it)."""
+    points = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(10, 0, 0, 10, 10, 10), slab(25, 0, 0, 10, 10, 10), slab(100, 0, 0, 10, 10, 10)]) * VOXEL
+    piece = np.repeat([0, 1, 2, 3], 1000)
+    piece[:3] = -1  # points that take no part
+    near = piece_proximity(points, piece, 4, 0.3)
+    assert near[0, 1] and near[1, 0] and near[1, 2]  # touching; 10 cm apart
+    assert not near[:3, 3].any() and not near[3, :3].any()  # 1.3 m and more apart
+    assert not near[0, 0]
+
+
+def test_fragments_of_a_class_are_dropped():
+    """A 'chair' of 64 points beside chairs of 1,000 is a misfire; a lone small cup is not."""
+    voxels = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(30, 0, 0, 10, 10, 10), slab(60, 0, 0, 4, 4, 4), slab(0, 40, 0, 4, 4, 4)])
+    part = np.repeat([0, 1, 2, 3], [1000, 1000, 64, 64])
+    cup = VOCAB.id("cup")
+    cls = np.array([CHAIR, CHAIR, CHAIR, cup])[part]
+    obs = MaskObservations()
+    obs.add(voxels, cls, part + 1)
+    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, part + 1, obs, VOCAB, VOXEL)
+    assert np.all(out_inst[part == 2] == 0) and np.all(out_cls[part == 2] == 0)
+    assert all(len(np.unique(out_inst[part == k])) == 1 and out_inst[part == k][0] > 0 for k in (0, 1, 3))
+    _, kept = mask_instances(voxels * VOXEL, cls, part + 1, obs, VOCAB, VOXEL, MaskInstanceParams(min_class_share=0.0))
+    assert np.all(kept[part == 2] > 0)
+    assert class_fragments(np.array([0, 1, 1, 1, 2, 3, 3, 3]), np.array([0, 4, 4, 4, 4, 4, 4, 4]), 0.5).tolist() == [2]
+
+
+def test_isolated_small_piece_far_from_its_host_is_dropped():
+    body, leaf = slab(0, 0, 0, 10, 10, 10), slab(0, 0, 40, 3, 3, 2)  # 18 points 0.6 m above the body
+    voxels = np.concatenate([body, leaf])
+    plant = VOCAB.id("plant")
+    cls, inst = np.full(len(voxels), plant), np.full(len(voxels), 4)
+    obs = MaskObservations()
+    obs.add(voxels, cls, np.ones(len(voxels), int))
+    _, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL)
+    assert np.all(out_inst[len(body) :] == 0) and np.all(out_inst[: len(body)] > 0)
+    _, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=0.0))
+    assert len(np.unique(out_inst)) == 1

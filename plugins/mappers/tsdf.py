@@ -126,6 +126,16 @@ class TSDFConfig(IntegrationConfig):
     piece_merge_ratio: float = Field(
         default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
     )
+    piece_near_gap: float = Field(
+        default=0.3, ge=0, description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit."
+    )
+    piece_far_ratio: float = Field(
+        default=0.9, gt=0, le=1, description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never)."
+    )
+    piece_min_class_share: float = Field(
+        default=0.1, ge=0, lt=1,
+        description="'masks': instances under this share of the median size of their class's instances in the map are dropped as misfires; 0: keep all.",
+    )
 
 
 class TSDFMapper(Mapper):
@@ -223,7 +233,10 @@ class TSDFMapper(Mapper):
         fragments: dict[int, int] = {}
         if cfg.instances == "masks":
             point_class, point_instance = mask_instances(
-                points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(cfg.piece_min_points, cfg.piece_merge_ratio)
+                points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
+                    min_points=cfg.piece_min_points, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
+                    far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
+                ),
             )
         elif cfg.fragment_touch > 0:
             fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size)
