@@ -86,7 +86,7 @@ class MaskInstanceParams:
     min_together: int = 2
     in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
     min_hits: int = 3
-    near_gap: float = 0.3  # m; 0: no limit on how far apart merged groups may be
+    near_gap: float = 0.2  # m; 0: no limit on how far apart merged groups may be
     far_ratio: float = 0.9  # the together share groups farther apart than near_gap need
     min_class_share: float = 0.1  # 0: keep every instance of min_points or more
 
@@ -205,14 +205,15 @@ def mask_cooccurrence(
 
 
 def piece_proximity(points: np.ndarray, piece: np.ndarray, count: int, gap: float) -> np.ndarray:
-    """(count, count) bool: which pieces (ids from 0; -1: none) come within about ``gap`` of each
-    other. One point per piece and ``gap / 2`` cell stands in for the piece, so "about" is up to a
-    cell either way: cheap on maps of 10^5 thing points, and objects are far from that borderline."""
+    """(count, count) bool: which pieces (ids from 0; -1: none) come within ``gap`` of each other,
+    measured between one point of each piece per ``gap / 4`` cell (cheap on maps of 10^5 thing
+    points). Pieces more than ``gap`` apart are never near; pieces within ``gap / 8`` (touching)
+    always are; in between, near when their sampled points are."""
     near = np.zeros((count, count), bool)
     use = piece >= 0
     if count == 0 or not use.any():
         return near
-    cell = np.floor(points[use] / (gap / 2)).astype(np.int64)
+    cell = np.floor(points[use] / (gap / 4)).astype(np.int64)
     cell -= cell.min(0)
     span = cell.max(0) + 1
     code = ((cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]) * count + piece[use]

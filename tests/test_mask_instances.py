@@ -131,7 +131,7 @@ def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
     return voxels, part, obs
 
 
-@pytest.mark.parametrize(("gap_voxels", "near_gap", "joined"), [(5, 0.3, True), (50, 0.3, False), (50, 0.0, True)])
+@pytest.mark.parametrize(("gap_voxels", "near_gap", "joined"), [(5, 0.2, True), (50, 0.2, False), (50, 0.0, True)])
 def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
     """Seven frames in ten covering both: enough 10 cm apart, not 1 m apart (a segmenter's masks
     that often run over two books or two chairs), unless the distance limit is off."""

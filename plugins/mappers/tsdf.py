@@ -127,7 +127,7 @@ class TSDFConfig(IntegrationConfig):
         default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
     )
     piece_near_gap: float = Field(
-        default=0.3, ge=0, description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit."
+        default=0.2, ge=0, description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit."
     )
     piece_far_ratio: float = Field(
         default=0.9, gt=0, le=1, description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never)."
