@@ -102,21 +102,28 @@ def test_agglomeration_is_greedy_by_ratio_and_respects_classes():
     assert group[3] != group[0]  # another class never merges, however often together
 
 
+def plant_with_leaf(leaf_z: int):
+    """A plant fused as one instance: a 1,000-point body (voxels z 0-9) and an 18-point leaf at
+    voxel height ``leaf_z`` that touches nothing; one frame's mask covers both."""
+    body, leaf = slab(0, 0, 0, 10, 10, 10), slab(0, 0, leaf_z, 3, 3, 2)
+    voxels = np.concatenate([body, leaf])
+    cls, inst = np.full(len(voxels), VOCAB.id("plant")), np.full(len(voxels), 4)
+    obs = MaskObservations()
+    obs.add(voxels, cls, np.ones(len(voxels), int))
+    return voxels, len(body), cls, inst, obs
+
+
 def test_isolated_small_piece_stays_with_its_fused_instance():
     """A plant's leaf the TSDF kept apart from the rest (too small to stand alone, touching nothing)
     keeps the instance its label had, not a class of nothing."""
-    body, leaf = slab(0, 0, 0, 10, 10, 10), slab(0, 0, 15, 3, 3, 2)  # 1000 points; 18 points 10 cm above
-    voxels = np.concatenate([body, leaf])
+    voxels, body, cls, inst, obs = plant_with_leaf(15)  # 12 cm above the body
     plant = VOCAB.id("plant")
-    cls, inst = np.full(len(voxels), plant), np.full(len(voxels), 4)
-    obs = MaskObservations()
-    obs.add(voxels, cls, np.ones(len(voxels), int))
     out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL)
     assert np.all(out_cls == plant) and len(np.unique(out_inst)) == 1 and out_inst[0] > 0
     other = inst.copy()
-    other[len(body) :] = 5  # a leaf of another (fused) instance has no host here: dropped
+    other[body:] = 5  # a leaf of another (fused) instance has no host here: dropped
     out_cls, out_inst = mask_instances(voxels * VOXEL, cls, other, obs, VOCAB, VOXEL)
-    assert np.all(out_inst[len(body) :] == 0) and np.all(out_cls[len(body) :] == 0)
+    assert np.all(out_inst[body:] == 0) and np.all(out_cls[body:] == 0)
 
 
 def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
@@ -176,13 +183,8 @@ def test_fragments_of_a_class_are_dropped():
 
 
 def test_isolated_small_piece_far_from_its_host_is_dropped():
-    body, leaf = slab(0, 0, 0, 10, 10, 10), slab(0, 0, 40, 3, 3, 2)  # 18 points 0.6 m above the body
-    voxels = np.concatenate([body, leaf])
-    plant = VOCAB.id("plant")
-    cls, inst = np.full(len(voxels), plant), np.full(len(voxels), 4)
-    obs = MaskObservations()
-    obs.add(voxels, cls, np.ones(len(voxels), int))
+    voxels, body, cls, inst, obs = plant_with_leaf(40)  # 0.62 m above the body
     _, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL)
-    assert np.all(out_inst[len(body) :] == 0) and np.all(out_inst[: len(body)] > 0)
+    assert np.all(out_inst[body:] == 0) and np.all(out_inst[:body] > 0)
     _, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=0.0))
     assert len(np.unique(out_inst)) == 1
