@@ -36,7 +36,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from stratamap.core.geometry import VOXEL_NEIGHBOURS
+from stratamap.core.geometry import VOXEL_NEIGHBOURS, cell_keys
 from stratamap.core.vocabulary import Vocabulary
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
@@ -213,11 +213,7 @@ def piece_proximity(points: np.ndarray, piece: np.ndarray, count: int, gap: floa
     use = piece >= 0
     if count == 0 or not use.any():
         return near
-    cell = np.floor(points[use] / (gap / 4)).astype(np.int64)
-    cell -= cell.min(0)
-    span = cell.max(0) + 1
-    code = ((cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]) * count + piece[use]
-    _, first = np.unique(code, return_index=True)
+    _, first = np.unique(cell_keys(points[use], gap / 4) * count + piece[use], return_index=True)
     owner = piece[use][first]
     pairs = cKDTree(points[use][first]).query_pairs(gap, output_type="ndarray")
     a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
