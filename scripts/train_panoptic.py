@@ -5,10 +5,12 @@ whether the pixel lies on an instance boundary (instances are then the connected
 thing class between boundaries: see ``stratamap.core.onnx_adapters.semantic_boundary``).
 Frames are rendered at 640 x 480 (the cameras of the scene specs) and shrunk by the
 ``onnx_panoptic`` plugin's own preprocessing, so the network trains on what it sees at run time.
-Training data: scenes of every type (and the demo's ``room`` with boxes, books and cups) with
-seeds 1000+ (Kinect-like depth noise); held-out evaluation: seeds 0-2 of every type, never
-trained on. Everything is seeded; on 2 CPU cores shared with other jobs the whole run (data,
-20 epochs, export, evaluation) took 72 minutes.
+Training data: 16 scenes of every type (and the demo's ``room`` with boxes, books and cups) with
+seeds 1000+ (Kinect-like depth noise), 20 frames of each walk; small things weigh more in the
+loss (``--class-weight-power``). Against the first model (8 scenes x 40 frames, power 0.3) this
+lifted held-out mIoU from 0.76 to 0.80 (both changes at once; not measured apart).
+Held-out evaluation: seeds 0-2 of every type, never trained on. Everything is seeded; on 2 CPU
+cores the whole run (data, 20 epochs, export, evaluation) took 46 minutes.
 
     pip install -e '.[train]'
     python scripts/train_panoptic.py --out plugins/segmenters/models
@@ -137,10 +139,14 @@ def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/models"))
-    parser.add_argument("--scenes-per-type", type=int, default=8)
-    parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--scenes-per-type", type=int, default=16)
+    parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--batch", type=int, default=16)
+    parser.add_argument(
+        "--class-weight-power", type=float, default=0.5,
+        help="Class weights are (all pixels / class pixels) ** this: small things (cups, books) count more.",
+    )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=None, help="Keep rendered frames here (npz) between runs.")
     parser.add_argument("--evaluate-only", action="store_true", help="Re-evaluate the exported model on the held-out scenes and update its JSON.")
@@ -188,7 +194,7 @@ def main() -> None:
     steps = args.epochs * ((len(x) + args.batch - 1) // args.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
     counts = np.bincount(data["cls"].ravel(), minlength=len(vocab.names)).astype(np.float64)
-    weights = torch.tensor(np.where(counts > 0, (counts.sum() / np.maximum(counts, 1)) ** 0.3, 0.0), dtype=torch.float32)
+    weights = torch.tensor(np.where(counts > 0, (counts.sum() / np.maximum(counts, 1)) ** args.class_weight_power, 0.0), dtype=torch.float32)
     ce = nn.CrossEntropyLoss(weight=weights / weights[weights > 0].mean())
     bce = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(4.0))
     gen = torch.Generator().manual_seed(0)
@@ -241,6 +247,7 @@ def main() -> None:
         "depth_scale": DEPTH_SCALE,
         "training": {
             "frames": int(len(x)), "scene_types": TYPES, "seeds": f"1000-{1000 + args.scenes_per_type - 1}", "epochs": args.epochs,
+            "class_weight_power": args.class_weight_power,
             "seconds_data": round(t_data), "seconds_training": round(t_train), "threads": args.threads, "torch": torch.__version__,
         },
         "held_out": {"scenes": "seeds 0-2 of every type, 12 frames each", **scores},
