@@ -131,18 +131,18 @@ def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
     frames' masks cover as one (the others split them)."""
     a, b = slab(0, 0, 0, 10, 10, 5), slab(10 + gap_voxels, 0, 0, 10, 10, 5)
     voxels = np.concatenate([a, b])
-    part = np.repeat([0, 1], [len(a), len(b)])
+    in_b = np.arange(len(voxels)) >= len(a)
     obs = MaskObservations()
     for k in range(frames):
-        obs.add(voxels, np.full(len(voxels), CHAIR), np.where(part == 0, 1, 1 if k < frames_together else 2))
-    return voxels, part, obs
+        obs.add(voxels, np.full(len(voxels), CHAIR), np.where(in_b & (k >= frames_together), 2, 1))
+    return voxels, obs
 
 
 @pytest.mark.parametrize(("gap_voxels", "near_gap", "joined"), [(5, 0.2, True), (50, 0.2, False), (50, 0.0, True)])
 def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
     """Seven frames in ten covering both: enough 10 cm apart, not 1 m apart (a segmenter's masks
     that often run over two books or two chairs), unless the distance limit is off."""
-    voxels, part, obs = two_chairs(gap_voxels, frames_together=7)
+    voxels, obs = two_chairs(gap_voxels, frames_together=7)
     cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=near_gap))
     assert np.all(inst > 0)
     assert (len(np.unique(inst)) == 1) == joined
@@ -150,13 +150,13 @@ def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
 
 def test_far_pieces_join_when_every_mask_covers_both():
     """A plant's pot and leaves 1 m apart (the stem lost) that every frame's mask covers as one."""
-    voxels, part, obs = two_chairs(50, frames_together=10)
+    voxels, obs = two_chairs(50, frames_together=10)
     cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL)
     assert len(np.unique(inst)) == 1 and inst[0] > 0
 
 
 def test_piece_proximity():
-    """Near means within about the gap (one point per piece and half-gap cell stands in for it)."""
+    """Near means within about the gap (one point per piece and quarter-gap cell stands in for it)."""
     points = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(10, 0, 0, 10, 10, 10), slab(25, 0, 0, 10, 10, 10), slab(100, 0, 0, 10, 10, 10)]) * VOXEL
     piece = np.repeat([0, 1, 2, 3], 1000)
     piece[:3] = -1  # points that take no part
