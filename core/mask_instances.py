@@ -20,6 +20,11 @@ the other way round, from evidence that averages out over frames:
    Objects are compact: groups with no points within ``near_gap`` of each other merge only when
    the masks are near unanimous (``far_ratio``; a plant's pot and leaves, with the stem lost),
    so books a segmenter often covers together, or chairs seen one behind the other, stay apart.
+   An object the segmenter calls by two names (half a chair "sofa") is two groups of two classes
+   that masks keep covering together: near groups of different classes merge above
+   ``cross_class_ratio`` when the smaller holds at least ``cross_class_share`` of the larger's
+   points, and the merged group takes the class most of its points have. A book on a shelf that
+   masks often miss is far smaller than the shelf and stays a book.
 4. **Fragments**: an instance under ``min_class_share`` of the median size of its class's
    instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped.
 
@@ -89,6 +94,8 @@ class MaskInstanceParams:
     near_gap: float = 0.2  # m; 0: no limit on how far apart merged groups may be
     far_ratio: float = 0.9  # the together share groups farther apart than near_gap need
     min_class_share: float = 0.1  # 0: keep every instance of min_points or more
+    cross_class_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
+    cross_class_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
 
 
 def point_class_votes(
@@ -222,23 +229,38 @@ def piece_proximity(points: np.ndarray, piece: np.ndarray, count: int, gap: floa
 
 
 def agglomerate(
-    together: np.ndarray, apart: np.ndarray, piece_class: np.ndarray, params: MaskInstanceParams, near: np.ndarray | None = None
+    together: np.ndarray,
+    apart: np.ndarray,
+    piece_class: np.ndarray,
+    params: MaskInstanceParams,
+    near: np.ndarray | None = None,
+    sizes: np.ndarray | None = None,
 ) -> np.ndarray:
     """Greedy agglomeration: merge the same-class pair of groups with the highest
     together / (together + apart) while it exceeds ``merge_ratio`` (``far_ratio`` for groups that
-    ``near`` does not mark as neighbours, when given). Returns a group per piece."""
+    ``near`` does not mark as neighbours, when given). With ``near`` and ``sizes`` (points per
+    piece), near groups of two classes merge above ``cross_class_ratio`` if the smaller has
+    ``cross_class_share`` of the larger's points; a merged group goes on with the larger one's
+    class. Returns a group per piece."""
     together, apart = together.copy(), apart.copy()
     near = None if near is None else near.copy()
     count = len(piece_class)
     group = np.arange(count)
     alive = np.ones(count, bool)
-    same_class = piece_class[:, None] == piece_class[None, :]
+    group_class = np.asarray(piece_class).copy()
+    size = None if sizes is None else np.asarray(sizes, np.float64).copy()
+    cross_class = near is not None and size is not None and params.cross_class_ratio > 0
     while True:
         total = together + apart
         score = np.where(total > 0, together / np.maximum(total, 1), 0.0)
-        ok = same_class & alive[:, None] & alive[None, :] & (together >= params.min_together) & (score > params.merge_ratio)
+        pair_ok = alive[:, None] & alive[None, :] & (together >= params.min_together)
+        same_class = group_class[:, None] == group_class[None, :]
+        ok = same_class & pair_ok & (score > params.merge_ratio)
         if near is not None:
             ok &= near | (score > params.far_ratio)
+        if cross_class:
+            small, large = np.minimum(size[:, None], size[None, :]), np.maximum(size[:, None], size[None, :])
+            ok |= ~same_class & pair_ok & near & (score > params.cross_class_ratio) & (small >= params.cross_class_share * large)
         np.fill_diagonal(ok, False)
         if not ok.any():
             break
@@ -255,6 +277,11 @@ def agglomerate(
         if near is not None:
             near[g, :] |= near[h, :]
             near[:, g] |= near[:, h]
+        if size is not None:
+            if size[h] > size[g]:
+                group_class[g] = group_class[h]
+            size[g] += size[h]
+            size[h] = 0
         alive[h] = False
         group[group == h] = g
     return group
@@ -289,8 +316,13 @@ def mask_instances(
     together, apart = mask_cooccurrence(points, thing_index[piece], voxel_size, obs, voxels, is_thing, params)
     merged = np.arange(count)
     near = piece_proximity(points, thing_index[piece], len(things), params.near_gap) if params.near_gap > 0 else None
-    merged[things] = things[agglomerate(together, apart, piece_class[things], params, near)]
+    thing_sizes = np.bincount(piece, minlength=count)[things]
+    merged[things] = things[agglomerate(together, apart, piece_class[things], params, near, thing_sizes)]
     owner = merged[piece]
+    thing_point = piece_thing[piece]
+    if thing_point.any():  # a group merged across classes takes its points' majority class
+        point_class[thing_point] = piece_majority(owner[thing_point], point_class[thing_point])[owner[thing_point]]
+        piece_class = piece_majority(piece, point_class)
     sizes = np.bincount(owner, minlength=count)
     # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
     # group holding most points of its fused instance, if that group is of its class (and,

@@ -99,7 +99,7 @@ def test_agglomeration_is_greedy_by_ratio_and_respects_classes():
     apart = np.array([[0, 2, 5, 0], [2, 0, 9, 0], [5, 9, 0, 0], [0, 0, 0, 0]], float)
     group = agglomerate(together, apart, np.array([CHAIR, CHAIR, CHAIR, DESK]), MaskInstanceParams())
     assert group[0] == group[1] != group[2]  # 8 vs 2 merges; 3+1 vs 5+9 does not
-    assert group[3] != group[0]  # another class never merges, however often together
+    assert group[3] != group[0]  # another class never merges without proximity and sizes, however often together
 
 
 def plant_with_leaf(leaf_z: int):
@@ -188,3 +188,47 @@ def test_isolated_small_piece_far_from_its_host_is_dropped():
     assert np.all(out_inst[body:] == 0) and np.all(out_inst[:body] > 0)
     _, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=0.0))
     assert len(np.unique(out_inst)) == 1
+
+
+
+def seen_whole_and_alone(voxels: np.ndarray, part_b: np.ndarray, whole: tuple[int, int], alone: tuple[int, int]):
+    """Two touching pieces A and B (B where ``part_b``): ten frames cover both with one mask, half
+    of them calling it ``whole[0]``, half ``whole[1]``; twelve frames see only A, as ``alone[0]``,
+    and twelve only B, as ``alone[1]`` (so each piece's voxels are voted its ``alone`` class)."""
+    obs = MaskObservations()
+    for k in range(10):
+        obs.add(voxels, np.full(len(voxels), whole[k % 2]), np.ones(len(voxels), int))
+    for _ in range(12):
+        for sel, cls in ((~part_b, alone[0]), (part_b, alone[1])):
+            obs.add(voxels[sel], np.full(int(sel.sum()), cls), np.ones(int(sel.sum()), int))
+    return obs, np.where(part_b, alone[1], alone[0]), np.where(part_b, 2, 1)
+
+
+@pytest.mark.parametrize("cross_ratio", [0.8, 0.0])
+def test_an_object_called_by_two_names_is_one_instance(cross_ratio):
+    """Half a chair the segmenter calls 'sofa', which masks keep covering whole: one instance of the
+    class most of its points have, unless cross-class merging is off."""
+    voxels = np.concatenate([slab(0, 0, 0, 10, 10, 6), slab(10, 0, 0, 8, 10, 6)])  # 600 + 480 points, touching
+    part_b = np.arange(len(voxels)) >= 600
+    sofa = VOCAB.id("sofa")
+    obs, cls, inst = seen_whole_and_alone(voxels, part_b, (CHAIR, sofa), (CHAIR, sofa))
+    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_class_ratio=cross_ratio))
+    assert np.all(out_inst > 0)
+    if cross_ratio:
+        assert len(np.unique(out_inst)) == 1 and np.all(out_cls == CHAIR)
+    else:
+        assert len(np.unique(out_inst)) == 2 and np.all(out_cls[part_b] == sofa) and np.all(out_cls[~part_b] == CHAIR)
+
+
+@pytest.mark.parametrize(("share", "kept_apart"), [(0.1, True), (0.0, False)])
+def test_a_small_thing_on_furniture_keeps_its_class(share, kept_apart):
+    """A book (80 points) on a shelf (1,000) that every view of the whole covers with the shelf's
+    mask, while close views call it a book: far smaller than the shelf, so it stays a book."""
+    voxels = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(2, 2, 10, 4, 4, 5)])
+    part_b = np.arange(len(voxels)) >= 1000
+    shelf, book = VOCAB.id("shelf"), VOCAB.id("book")
+    obs, cls, inst = seen_whole_and_alone(voxels, part_b, (shelf, shelf), (shelf, book))
+    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_class_share=share))
+    assert np.all(out_inst > 0) and np.all(out_cls[~part_b] == shelf)
+    assert (out_inst[part_b][0] != out_inst[0]) == kept_apart
+    assert np.all(out_cls[part_b] == (book if kept_apart else shelf))

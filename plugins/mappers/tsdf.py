@@ -136,6 +136,17 @@ class TSDFConfig(IntegrationConfig):
         default=0.1, ge=0, lt=1,
         description="'masks': instances under this share of the median size of their class's instances in the map are dropped as misfires; 0: keep all.",
     )
+    piece_cross_ratio: float = Field(
+        default=0.8, ge=0, le=1,
+        description=(
+            "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw them in one mask "
+            "more than this share of the time, taking their points' majority class; 0: never."
+        ),
+    )
+    piece_cross_share: float = Field(
+        default=0.1, ge=0, le=1,
+        description="'masks': ... only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
+    )
 
 
 class TSDFMapper(Mapper):
@@ -236,6 +247,7 @@ class TSDFMapper(Mapper):
                 points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
                     min_points=cfg.piece_min_points, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
                     far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
+                    cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
                 ),
             )
         elif cfg.fragment_touch > 0:
