@@ -145,7 +145,7 @@ class TSDFConfig(IntegrationConfig):
     )
     piece_cross_share: float = Field(
         default=0.1, ge=0, le=1,
-        description="'masks': ... only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
+        description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
     )
 
 
