@@ -320,7 +320,7 @@ def mask_instances(
     merged[things] = things[agglomerate(together, apart, piece_class[things], params, near, thing_sizes)]
     owner = merged[piece]
     thing_point = piece_thing[piece]
-    if thing_point.any():  # a group merged across classes takes its points' majority class
+    if params.cross_class_ratio > 0 and thing_point.any():  # a group merged across classes takes its points' majority class
         point_class[thing_point] = piece_majority(owner[thing_point], point_class[thing_point])[owner[thing_point]]
         piece_class = piece_majority(piece, point_class)
     sizes = np.bincount(owner, minlength=count)

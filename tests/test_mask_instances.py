@@ -190,7 +190,6 @@ def test_isolated_small_piece_far_from_its_host_is_dropped():
     assert len(np.unique(out_inst)) == 1
 
 
-
 def seen_whole_and_alone(voxels: np.ndarray, part_b: np.ndarray, whole: tuple[int, int], alone: tuple[int, int]):
     """Two touching pieces A and B (B where ``part_b``): ten frames cover both with one mask, half
     of them calling it ``whole[0]``, half ``whole[1]``; twelve frames see only A, as ``alone[0]``,
