@@ -67,7 +67,7 @@ class ONNXPanopticConfig(StageConfig):
     merge_depth_gap: float = Field(
         default=0.06, ge=0.0, le=0.5,
         description=(
-            "Same-class instances whose seam is continuous in depth (steps under this fraction of the depth) merge into one "
+            "Instances whose seam is continuous in depth (steps under this fraction of the depth) merge into one "
             "(semantic_boundary; 0: off; 0.06 chosen on held-out synthetic walks)."
         ),
     )
