@@ -282,6 +282,20 @@ def test_semantic_boundary_merges_instances_split_at_a_depth_continuous_seam():
     assert len(np.unique(inst_step[region])) == 2
 
 
+def test_depth_continuous_merge_counts_seams_between_classes():
+    """As documented: every depth-continuous seam counts, so two instances of one class that meet
+    only through an instance of another class get one id."""
+    from stratamap.core.onnx_adapters import merge_depth_continuous
+
+    ids = np.zeros((6, 9), np.int32)
+    ids[1:5, 0:3], ids[1:5, 3:6], ids[1:5, 6:9] = 1, 2, 3  # chair | table | chair, side by side
+    flat = np.full(ids.shape, 2.0, np.float32)
+    merged = merge_depth_continuous(ids, flat, 0.06)
+    assert len(np.unique(merged[1:5])) == 1
+    step = np.where(ids == 2, 3.0, 2.0).astype(np.float32)  # the table a metre behind: no seam holds
+    assert len(np.unique(merge_depth_continuous(ids, step, 0.06)[1:5])) == 3
+
+
 def test_semantic_boundary_leaves_unsure_regions_unknown():
     """A region whose mean top probability is under min_region_score becomes class 0 (unknown);
     confident regions keep their class."""
