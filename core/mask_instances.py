@@ -327,9 +327,9 @@ def mask_instances(
     # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
     # group holding most points of its fused instance, if that group is of its class (and,
     # with near_gap, has a point within near_gap of it).
-    small = piece_thing[piece] & (sizes[owner] < params.min_points) & (group > 0)
+    small = thing_point & (sizes[owner] < params.min_points) & (group > 0)
     if small.any():
-        big = piece_thing[piece] & (sizes[owner] >= params.min_points) & (group > 0)
+        big = thing_point & (sizes[owner] >= params.min_points) & (group > 0)
         hosted, which = np.unique(group[big], return_inverse=True)
         host = piece_majority(which.reshape(-1), owner[big])
         idx = np.flatnonzero(small)
@@ -346,7 +346,7 @@ def mask_instances(
             ok[np.flatnonzero(ok)[~close]] = False
         owner[idx[ok]] = host[pos[ok]]
         sizes = np.bincount(owner, minlength=count)
-    instance = np.where(piece_thing[piece] & (sizes[owner] >= params.min_points), owner + 1, 0)
+    instance = np.where(thing_point & (sizes[owner] >= params.min_points), owner + 1, 0)
     if params.min_class_share > 0:
         instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share))] = 0
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
