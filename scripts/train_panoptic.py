@@ -64,6 +64,7 @@ def render_frames(types: list[str], seeds: list[int], frames: int, render_size: 
                 frame, seg = world.frame(k)
                 x, _, _ = ONNXPanopticSegmenter._prepare(frame.rgb, frame.depth, WIDTH, HEIGHT, prep)
                 rgbd.append(x[0])
+                # labels kept compact (int16 / int32) in memory and in the cache; widened to int64 per batch
                 cls.append(seg.class_ids[rows][:, cols].astype(np.int16))
                 inst.append(seg.instance_ids[rows][:, cols].astype(np.int32))
     return {"x": np.stack(rgbd).astype(np.float32), "cls": np.stack(cls), "inst": np.stack(inst)}
