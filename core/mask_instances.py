@@ -25,8 +25,10 @@ the other way round, from evidence that averages out over frames:
    ``cross_class_ratio`` when the smaller holds at least ``cross_class_share`` of the larger's
    points, and the merged group takes the class most of its points have. A book on a shelf that
    masks often miss is far smaller than the shelf and stays a book.
-4. **Fragments**: an instance under ``min_class_share`` of the median size of its class's
-   instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped.
+4. **Fragments**: an instance under ``min_class_share`` of the typical size of its class's
+   instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped;
+   typical is the size of the instance the class's median point lies in, which a crowd of
+   misfires does not pull down as it does the median instance (``fragment_reference``).
 
 With ground-truth masks this reproduces the objects (the oracle's map PQ does not drop);
 with a segmenter's masks it stops one bad frame from fusing two objects.
@@ -94,6 +96,7 @@ class MaskInstanceParams:
     near_gap: float = 0.2  # m; 0: no limit on how far apart merged groups may be
     far_ratio: float = 0.9  # the together share groups farther apart than near_gap need
     min_class_share: float = 0.1  # 0: keep every instance of min_points or more
+    fragment_reference: str = "point_median"  # "median": the class's median instance; "point_median": the instance its median point is in
     cross_class_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
     cross_class_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
 
@@ -348,16 +351,27 @@ def mask_instances(
         sizes = np.bincount(owner, minlength=count)
     instance = np.where(thing_point & (sizes[owner] >= params.min_points), owner + 1, 0)
     if params.min_class_share > 0:
-        instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share))] = 0
+        instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share, params.fragment_reference))] = 0
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
     point_class = np.where(is_thing[point_class] & (instance == 0), 0, point_class)
     return point_class.astype(fused_class.dtype), instance.astype(fused_instance.dtype)
 
 
-def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float) -> np.ndarray:
-    """Instance ids (> 0) with fewer points than ``share`` of the median instance of their class."""
+def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float, reference: str = "median") -> np.ndarray:
+    """Instance ids (> 0) with fewer points than ``share`` of the reference size of their class:
+    its median instance (``"median"``), or the instance its median point is in (``"point_median"``,
+    the size-weighted median: many fragments beside a few real objects do not drag it down)."""
+    if reference not in ("median", "point_median"):
+        raise ValueError(f"reference must be 'median' or 'point_median', not {reference!r}")
     ids, first, sizes = np.unique(instance, return_index=True, return_counts=True)
     keep = ids > 0
     ids, cls, sizes = ids[keep], point_class[first[keep]], sizes[keep]
-    out = [ids[(cls == c) & (sizes < share * np.median(sizes[cls == c]))] for c in np.unique(cls)]
+
+    def typical(of_class: np.ndarray) -> float:
+        if reference == "median":
+            return float(np.median(of_class))
+        ordered = np.sort(of_class)
+        return float(ordered[np.searchsorted(np.cumsum(ordered), 0.5 * ordered.sum())])
+
+    out = [ids[(cls == c) & (sizes < share * typical(sizes[cls == c]))] for c in np.unique(cls)]
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)

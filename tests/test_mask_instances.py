@@ -231,3 +231,14 @@ def test_a_small_thing_on_furniture_keeps_its_class(share, kept_apart):
     assert np.all(out_inst > 0) and np.all(out_cls[~part_b] == shelf)
     assert (out_inst[part_b][0] != out_inst[0]) == kept_apart
     assert np.all(out_cls[part_b] == (book if kept_apart else shelf))
+
+
+def test_point_median_fragments_are_not_dragged_down_by_many_fragments():
+    """Four misfire 'chairs' beside two real ones pull the plain median down to a misfire's size;
+    the size-weighted median (the instance a median point is in) stays a real chair's."""
+    sizes = [95, 216, 228, 341, 8023, 10432]
+    instance = np.repeat(np.arange(1, 7), sizes)
+    point_class = np.full(len(instance), CHAIR)
+    assert class_fragments(instance, point_class, 0.1).tolist() == []
+    assert class_fragments(instance, point_class, 0.1, "point_median").tolist() == [1, 2, 3, 4]
+

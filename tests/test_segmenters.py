@@ -296,6 +296,35 @@ def test_depth_continuous_merge_counts_seams_between_classes():
     assert len(np.unique(merge_depth_continuous(ids, step, 0.06)[1:5])) == 3
 
 
+def test_depth_continuous_merge_bridges_only_through_smaller_instances():
+    """bridges='smaller': two cups standing on one table (continuous seams, the table far larger)
+    stay two cups, where 'any' makes them one; a post smaller than both parts of a chair (seat
+    above, base below) still joins them."""
+    from stratamap.core.onnx_adapters import merge_depth_continuous
+
+    TABLE, CUP, CHAIR, POST = 1, 2, 3, 4
+    ids = np.zeros((12, 20), np.int32)
+    cls = np.zeros(ids.shape, np.int64)
+    ids[6:12, :], cls[6:12, :] = 1, TABLE
+    ids[3:6, 2:5], cls[3:6, 2:5] = 2, CUP
+    ids[3:6, 14:17], cls[3:6, 14:17] = 3, CUP
+    flat = np.full(ids.shape, 2.0, np.float32)
+    any_bridge = merge_depth_continuous(ids, flat, 0.06)
+    assert any_bridge[4, 3] == any_bridge[4, 15]
+    smaller = merge_depth_continuous(ids, flat, 0.06, class_ids=cls, bridges="smaller")
+    assert smaller[4, 3] != smaller[4, 15]
+
+    chair = np.zeros((12, 8), np.int32)
+    ccls = np.zeros(chair.shape, np.int64)
+    chair[0:5, :], ccls[0:5, :] = 1, CHAIR  # seat and back
+    chair[5:7, 3:5], ccls[5:7, 3:5] = 2, POST  # the post, called something else
+    chair[7:12, :], ccls[7:12, :] = 3, CHAIR  # the base
+    merged = merge_depth_continuous(chair, np.full(chair.shape, 2.0, np.float32), 0.06, class_ids=ccls, bridges="smaller")
+    assert merged[2, 2] == merged[9, 2]
+    with pytest.raises(ValueError, match="class_ids"):
+        merge_depth_continuous(chair, np.full(chair.shape, 2.0, np.float32), 0.06, bridges="smaller")
+
+
 def test_semantic_boundary_leaves_unsure_regions_unknown():
     """A region whose mean top probability is under min_region_score becomes class 0 (unknown);
     confident regions keep their class."""

@@ -134,7 +134,14 @@ class TSDFConfig(IntegrationConfig):
     )
     piece_min_class_share: float = Field(
         default=0.1, ge=0, lt=1,
-        description="'masks': instances under this share of the median size of their class's instances in the map are dropped as misfires; 0: keep all.",
+        description="'masks': instances under this share of the typical size of their class's instances (piece_fragment_reference) are dropped as misfires; 0: keep all.",
+    )
+    piece_fragment_reference: Literal["median", "point_median"] = Field(
+        default="point_median",
+        description=(
+            "'masks': the size piece_min_class_share is a share of: the class's median instance, or the instance its median point is "
+            "in (the size-weighted median: four misfire 'chairs' beside two real ones do not pull it down to a misfire's size)."
+        ),
     )
     piece_cross_ratio: float = Field(
         default=0.8, ge=0, le=1,
@@ -247,6 +254,7 @@ class TSDFMapper(Mapper):
                 points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
                     min_points=cfg.piece_min_points, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
                     far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
+                    fragment_reference=cfg.piece_fragment_reference,
                     cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
                 ),
             )

@@ -60,7 +60,10 @@ class ONNXPanopticConfig(StageConfig):
     mask_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Mask probability above which a pixel belongs to the detection.")
     iou_threshold: float = Field(default=0.7, ge=0.0, le=1.0, description="Non-maximum suppression IoU (yolo_seg).")
     boundary_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Boundary probability above which a pixel separates instances (semantic_boundary).")
-    min_pixels: int = Field(default=20, ge=1, description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary).")
+    min_pixels: int = Field(
+        default=12, ge=1,
+        description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary; 12 chosen on held-out walks: a cup is ~20).",
+    )
     speckle_pixels: int = Field(
         default=0, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x 120; 60 suits frame-level use)."
     )
@@ -69,6 +72,13 @@ class ONNXPanopticConfig(StageConfig):
         description=(
             "Instances whose seam is continuous in depth (steps under this fraction of the depth) merge into one "
             "(semantic_boundary; 0: off; 0.06 chosen on held-out synthetic walks)."
+        ),
+    )
+    merge_bridges: Literal["any", "smaller"] = Field(
+        default="smaller",
+        description=(
+            "Which depth-continuous chains merge two instances of a class (semantic_boundary): 'any'; 'smaller': only through "
+            "instances of other classes each smaller than both (a chair's post bridges seat and base, a table under two cups does not)."
         ),
     )
     min_region_score: float = Field(
@@ -155,6 +165,7 @@ class ONNXPanopticSegmenter(Segmenter):
                 cls, ins, _ = adapters.semantic_boundary(
                     result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
                     depth=depth_in, merge_depth_gap=cfg.merge_depth_gap, min_region_score=cfg.min_region_score,
+                    merge_bridges=cfg.merge_bridges,
                 )
             elif layout == "maskrcnn":
                 boxes, labels, scores, masks = result[:4]
