@@ -29,6 +29,14 @@ the other way round, from evidence that averages out over frames:
    instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped;
    typical is the size of the instance the class's median point lies in, which a crowd of
    misfires does not pull down as it does the median instance (``fragment_reference``).
+5. **Size prior** (the shape filter of instance clustering, used to cut instead of reject): an
+   instance longer than any single object of its class (``max_length``: two cups side by side
+   are 0.2 m, no cup is) is as many objects as the prior says fit, found by k-means along its
+   longest horizontal axis; it is cut only if the parts come out of comparable size
+   (``split_balance``), so a monitor whose instance took a scrap of something far beyond it is
+   not cut into two monitors.
+   Touching objects of one class are one 2D segment in every frame of a segmenter that works
+   at a coarse resolution, so the masks of step 3 hold no evidence against them; the size does.
 
 With ground-truth masks this reproduces the objects (the oracle's map PQ does not drop);
 with a segmenter's masks it stops one bad frame from fusing two objects.
@@ -36,9 +44,11 @@ with a segmenter's masks it stops one bad frame from fusing two objects.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.cluster.vq import kmeans2
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -48,6 +58,19 @@ from stratamap.core.vocabulary import Vocabulary
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
 _BITS = 21
+
+#: Longest horizontal side (m) one object of a class has in indoor scenes, with a margin for the
+#: map's noise: an instance longer than this is several objects (step 5). Classes whose single
+#: objects come in any length (tables, shelves, counters, sofas) have no entry.
+DEFAULT_MAX_LENGTH: dict[str, float] = {
+    "cup": 0.15,
+    "bottle": 0.15,
+    "book": 0.45,
+    "laptop": 0.45,
+    "microwave": 0.7,
+    "monitor": 1.0,
+    "cabinet": 1.3,  # one unit; wider runs of cabinets are several units
+}
 
 
 def voxel_keys(voxels: np.ndarray) -> np.ndarray:
@@ -99,6 +122,8 @@ class MaskInstanceParams:
     fragment_reference: str = "point_median"  # "median": the class's median instance; "point_median": the instance its median point is in
     cross_class_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
     cross_class_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
+    max_length: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_MAX_LENGTH))  # class -> m; {}: no size prior
+    split_balance: float = 0.35  # parts of an over-long instance must each hold this share of the largest part's points
 
 
 def point_class_votes(
@@ -352,6 +377,8 @@ def mask_instances(
     instance = np.where(thing_point & (sizes[owner] >= params.min_points), owner + 1, 0)
     if params.min_class_share > 0:
         instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share, params.fragment_reference))] = 0
+    if params.max_length:
+        instance = split_oversized(points, point_class, instance, vocabulary, params.max_length, params.split_balance)
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
     point_class = np.where(is_thing[point_class] & (instance == 0), 0, point_class)
     return point_class.astype(fused_class.dtype), instance.astype(fused_instance.dtype)
@@ -375,3 +402,55 @@ def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float,
 
     out = [ids[(cls == c) & (sizes < share * typical(sizes[cls == c]))] for c in np.unique(cls)]
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)
+
+
+def horizontal_length(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Positions along the longest horizontal (x, y) axis of ``points``, and their 2nd-98th percentile span (m)."""
+    xy = points[:, :2] - points[:, :2].mean(0)
+    if len(xy) < 3:
+        return np.zeros(len(xy)), 0.0
+    _, axes = np.linalg.eigh(np.cov(xy.T))
+    along = xy @ axes[:, -1]
+    low, high = np.percentile(along, [2, 98])
+    return along, float(high - low)
+
+
+def split_oversized(
+    points: np.ndarray, point_class: np.ndarray, instance: np.ndarray, vocabulary: Vocabulary, max_length: dict[str, float], balance: float = 0.35
+) -> np.ndarray:
+    """Instance ids with every instance longer than its class's ``max_length`` (longest horizontal
+    span, m; z is up) cut into ``ceil(length / max_length)`` parts by k-means along that span,
+    when the smallest part holds at least ``balance`` of the largest part's points. New parts
+    take new ids above the largest; instances of classes without a limit are left alone."""
+    unknown = sorted(set(max_length) - set(vocabulary.names))
+    if unknown:
+        raise ValueError(f"max_length names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    limit = np.full(len(vocabulary.names), np.inf)
+    for name, length in max_length.items():
+        if not length > 0:
+            raise ValueError(f"max_length[{name!r}] must be a positive length in metres, not {length!r}")
+        limit[vocabulary.id(name)] = length
+    out = np.asarray(instance).copy()
+    next_id = int(out.max(initial=0)) + 1
+    ids, inverse, counts = np.unique(out, return_inverse=True, return_counts=True)
+    by_instance = np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
+    for members in (by_instance[k] for k in np.flatnonzero(ids > 0)):
+        cls = int(np.bincount(point_class[members]).argmax())
+        if not np.isfinite(limit[cls]):
+            continue
+        along, length = horizontal_length(points[members])
+        parts = int(np.ceil(length / limit[cls]))
+        if parts < 2 or len(members) < 2 * parts:
+            continue
+        # seeded at the span's quantiles, k-means is deterministic and keeps parts in order along it
+        seeds = np.percentile(along, 100 * (np.arange(parts) + 0.5) / parts)[:, None]
+        with warnings.catch_warnings():  # an empty part is a failed split, caught by the balance test below
+            warnings.simplefilter("ignore", UserWarning)
+            _, part = kmeans2(along[:, None], seeds, minit="matrix")
+        sizes = np.bincount(part, minlength=parts)
+        if sizes.min() < balance * sizes.max():
+            continue
+        for k in range(1, parts):
+            out[members[part == k]] = next_id
+            next_id += 1
+    return out

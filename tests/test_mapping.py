@@ -12,6 +12,7 @@ import trimesh
 import yaml
 
 from stratamap.core.config import load_pipeline
+from stratamap.core.errors import ConfigError
 from stratamap.core.layers import Geometry, LayeredMap, Semantics
 from stratamap.core.metrics.panoptic import panoptic_quality
 from stratamap.core.metrics.trajectory import ate, rpe, umeyama
@@ -54,6 +55,13 @@ def test_mask_instances_lose_nothing_with_the_oracle(tmp_path):
     assert report["metrics"]["panoptic"]["pq"] >= 0.7, report["metrics"]["panoptic"]
     assert report["metrics"]["instances"]["f1"] >= 0.7
     assert report["layers"]["instances"]["objects"] >= 15
+
+
+def test_size_prior_names_a_misspelt_class_before_integrating(tmp_path):
+    with pytest.raises(ConfigError, match=r"piece_max_length\.cupp"):
+        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cupp": 0.15}}}])
+    with pytest.raises(ConfigError, match="piece_max_length"):
+        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cup": -0.15}}}])
 
 
 def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):

@@ -14,6 +14,7 @@ from stratamap.core.mask_instances import (
     key_voxels,
     mask_instances,
     piece_proximity,
+    split_oversized,
     voxel_keys,
 )
 from stratamap.core.vocabulary import Vocabulary
@@ -242,3 +243,63 @@ def test_point_median_fragments_are_not_dragged_down_by_many_fragments():
     assert class_fragments(instance, point_class, 0.1).tolist() == []
     assert class_fragments(instance, point_class, 0.1, "point_median").tolist() == [1, 2, 3, 4]
 
+
+
+def cup(cx: float, cy: float, rng: np.random.Generator, n: int = 400) -> np.ndarray:
+    """Surface points of a cup (radius 4 cm, 9 cm tall) standing at (cx, cy)."""
+    angle, z = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 0.09, n)
+    return np.c_[cx + 0.04 * np.cos(angle), cy + 0.04 * np.sin(angle), z]
+
+
+def test_size_prior_cuts_two_touching_cups_and_leaves_one_alone():
+    rng = np.random.default_rng(0)
+    pair = np.concatenate([cup(0.0, 0.0, rng), cup(0.085, 0.03, rng)])  # 5 mm apart: one segment
+    truth = np.repeat([0, 1], 400)
+    cls = np.full(len(pair), VOCAB.id("cup"))
+    out = split_oversized(pair, cls, np.ones(len(pair), int), VOCAB, {"cup": 0.15})
+    assert len(np.unique(out)) == 2
+    for part in np.unique(out):  # each part is one cup
+        assert np.bincount(truth[out == part]).max() >= 0.95 * (out == part).sum()
+    single = cup(0.0, 0.0, rng)
+    assert np.all(split_oversized(single, cls[:400], np.full(400, 7), VOCAB, {"cup": 0.15}) == 7)
+    # no limit for the class, or none at all: nothing is cut
+    assert np.all(split_oversized(pair, cls, np.ones(len(pair), int), VOCAB, {"book": 0.45}) == 1)
+    assert np.all(split_oversized(pair, cls, np.ones(len(pair), int), VOCAB, {}) == 1)
+
+
+def test_size_prior_keeps_an_object_with_a_scrap_whole():
+    """A 0.6 m monitor whose instance took a scrap of something 0.7 m beyond it is over the limit,
+    but the parts k-means finds are the monitor and the scrap, not two monitors."""
+    rng = np.random.default_rng(1)
+    screen = np.c_[rng.uniform(0, 0.6, 2000), rng.uniform(0, 0.03, 2000), rng.uniform(0.1, 0.45, 2000)]
+    scrap = np.c_[rng.uniform(1.3, 1.45, 150), rng.uniform(0, 0.1, 150), rng.uniform(0.0, 0.1, 150)]
+    points = np.concatenate([screen, scrap])
+    cls = np.full(len(points), VOCAB.id("monitor"))
+    assert np.all(split_oversized(points, cls, np.ones(len(points), int), VOCAB, {"monitor": 0.8}) == 1)
+    assert len(np.unique(split_oversized(points, cls, np.ones(len(points), int), VOCAB, {"monitor": 0.8}, balance=0.0))) == 2
+
+
+def test_size_prior_rejects_unknown_classes_and_bad_lengths():
+    points, cls, inst = np.zeros((3, 3)), np.full(3, CHAIR), np.ones(3, int)
+    with pytest.raises(ValueError, match="'cupp'"):
+        split_oversized(points, cls, inst, VOCAB, {"cupp": 0.15})
+    with pytest.raises(ValueError, match="positive length"):
+        split_oversized(points, cls, inst, VOCAB, {"cup": 0.0})
+
+
+def test_mask_instances_cuts_touching_objects_the_masks_never_part():
+    """Two cups that every frame's mask covers together: the masks keep them one instance, the size
+    prior (on by default) makes them two; with it off they stay one."""
+    rng = np.random.default_rng(2)
+    points = np.concatenate([cup(0.0, 0.0, rng), cup(0.085, 0.0, rng)])
+    cls = np.full(len(points), VOCAB.id("cup"))
+    voxels = np.unique(np.round(points / VOXEL).astype(np.int64), axis=0)
+    obs = MaskObservations()
+    for _ in range(5):
+        obs.add(voxels, np.full(len(voxels), VOCAB.id("cup")), np.ones(len(voxels), np.int32))
+    params = MaskInstanceParams(min_points=20)
+    _, together = mask_instances(points, cls, np.ones(len(points), np.int32), obs, VOCAB, VOXEL, params)
+    assert len(np.unique(together[together > 0])) == 2
+    params.max_length = {}
+    _, off = mask_instances(points, cls, np.ones(len(points), np.int32), obs, VOCAB, VOXEL, params)
+    assert len(np.unique(off[off > 0])) == 1

@@ -18,13 +18,13 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 import trimesh
-from pydantic import Field
+from pydantic import Field, PositiveFloat
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
-from stratamap.core.errors import DataError
+from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry import VOXEL_NEIGHBOURS, gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
-from stratamap.core.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
+from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
 from stratamap.core.transforms import apply, invert
 
@@ -154,6 +154,17 @@ class TSDFConfig(IntegrationConfig):
         default=0.1, ge=0, le=1,
         description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
     )
+    piece_max_length: dict[str, PositiveFloat] = Field(
+        default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
+        description=(
+            "'masks': per class, the longest horizontal side (m) one object has; a longer instance is several touching objects "
+            "(two cups one segment in every frame) and is cut by k-means along its length. Classes left out are never cut; {}: off."
+        ),
+    )
+    piece_split_balance: float = Field(
+        default=0.35, ge=0, le=1,
+        description="'masks': an over-long instance is cut only if every part holds this share of the largest part's points (a monitor that took a scrap of something far beyond it stays whole).",
+    )
 
 
 class TSDFMapper(Mapper):
@@ -189,6 +200,9 @@ class TSDFMapper(Mapper):
             device=o3c.Device("CPU:0"),
         )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
+        unknown = sorted(set(cfg.piece_max_length) - set(vocab.names)) if cfg.instances == "masks" else []
+        if unknown:  # before integration, not after minutes of it
+            raise ConfigError([(f"tsdf.piece_max_length.{name}", f"not a class of the map's vocabulary {list(vocab.names)}") for name in unknown])
         state = PanopticState(
             PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio),
             vocab,
@@ -256,6 +270,7 @@ class TSDFMapper(Mapper):
                     far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
                     fragment_reference=cfg.piece_fragment_reference,
                     cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
+                    max_length=cfg.piece_max_length, split_balance=cfg.piece_split_balance,
                 ),
             )
         elif cfg.fragment_touch > 0:
