@@ -29,7 +29,12 @@ the other way round, from evidence that averages out over frames:
    instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped;
    typical is the size of the instance the class's median point lies in, which a crowd of
    misfires does not pull down as it does the median instance (``fragment_reference``).
-5. **Size prior** (the shape filter of instance clustering, used to cut instead of reject): an
+5. **Stacked pieces**: furniture does not stand on furniture of its own class, so two instances
+   of such a class (``stacked_classes``: chairs, tables, ...) one above the other, the smaller's
+   footprint at least ``stack_overlap`` inside the larger's (5 cm cells), are one object whose
+   thin joining parts the TSDF lost and the segmenter's boundaries cut: a swivel chair's base and
+   seat, a table's legs and top. Books, boxes and cups do stack and are left out.
+6. **Size prior** (the shape filter of instance clustering, used to cut instead of reject): an
    instance longer than any single object of its class (``max_length``: two cups side by side
    are 0.2 m, no cup is) is as many objects as the prior says fit, found by k-means along its
    longest horizontal axis; it is cut only if the parts come out of comparable size
@@ -59,8 +64,12 @@ from stratamap.core.vocabulary import Vocabulary
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
 _BITS = 21
 
+#: Classes whose objects do not stand on one another (step 5): same-class pieces one above the other are one object.
+DEFAULT_STACKED_CLASSES: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
+FOOTPRINT_CELL = 0.05  # m; coarse enough that a chair base's legs fall in the cells of the seat above them
+
 #: Longest horizontal side (m) one object of a class has in indoor scenes, with a margin for the
-#: map's noise: an instance longer than this is several objects (step 5). Classes whose single
+#: map's noise: an instance longer than this is several objects (step 6). Classes whose single
 #: objects come in any length (tables, shelves, counters, sofas) have no entry.
 DEFAULT_MAX_LENGTH: dict[str, float] = {
     "cup": 0.15,
@@ -122,6 +131,8 @@ class MaskInstanceParams:
     fragment_reference: str = "point_median"  # "median": the class's median instance; "point_median": the instance its median point is in
     cross_class_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
     cross_class_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
+    stacked_classes: tuple[str, ...] = DEFAULT_STACKED_CLASSES  # (): no stacked-piece merging
+    stack_overlap: float = 0.5  # share of the smaller piece's footprint cells inside the larger's
     max_length: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_MAX_LENGTH))  # class -> m; {}: no size prior
     split_balance: float = 0.35  # parts of an over-long instance must each hold this share of the largest part's points
 
@@ -377,6 +388,8 @@ def mask_instances(
     instance = np.where(thing_point & (sizes[owner] >= params.min_points), owner + 1, 0)
     if params.min_class_share > 0:
         instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share, params.fragment_reference))] = 0
+    if params.stacked_classes:
+        instance = merge_stacked(points, point_class, instance, vocabulary, params.stacked_classes, params.stack_overlap)
     if params.max_length:
         instance = split_oversized(points, point_class, instance, vocabulary, params.max_length, params.split_balance)
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
@@ -402,6 +415,47 @@ def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float,
 
     out = [ids[(cls == c) & (sizes < share * typical(sizes[cls == c]))] for c in np.unique(cls)]
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)
+
+
+def merge_stacked(
+    points: np.ndarray, point_class: np.ndarray, instance: np.ndarray, vocabulary: Vocabulary, classes: tuple[str, ...] | list[str],
+    overlap: float = 0.5, cell: float = FOOTPRINT_CELL,
+) -> np.ndarray:
+    """Instance ids with same-class instances of ``classes`` one above the other merged: smallest
+    first, an instance joins the larger one of its class holding the biggest share (at least
+    ``overlap``) of its footprint, counted in horizontal cells of side ``cell`` (z is up)."""
+    unknown = sorted(set(classes) - set(vocabulary.names))
+    if unknown:
+        raise ValueError(f"stacked classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    out = np.asarray(instance).copy()
+    wanted = {vocabulary.id(name) for name in classes}
+    ids, inverse, counts = np.unique(out, return_inverse=True, return_counts=True)
+    by_instance = np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
+    if len(points) == 0:
+        return out
+    flat = np.c_[points[:, :2], np.zeros(len(points))]
+    keys = cell_keys(flat, cell)
+    pieces: dict[int, tuple[int, int, np.ndarray]] = {}  # id -> (class, points, footprint cells)
+    for k in np.flatnonzero(ids > 0):
+        members = by_instance[k]
+        cls = int(np.bincount(point_class[members]).argmax())
+        if cls in wanted:
+            pieces[int(ids[k])] = (cls, len(members), np.unique(keys[members]))
+    for small in sorted(pieces, key=lambda i: (pieces[i][1], i)):
+        cls, size, cells = pieces[small]
+        best, best_share = None, overlap
+        for other, (other_cls, other_size, other_cells) in pieces.items():
+            if other == small or other_cls != cls or other_size < size:
+                continue
+            share = np.intersect1d(cells, other_cells, assume_unique=True).size / cells.size
+            if share >= best_share:
+                best, best_share = other, share
+        if best is not None:
+            out[out == small] = best
+            _, best_size, best_cells = pieces.pop(best)
+            pieces[best] = (cls, best_size + size, np.union1d(best_cells, cells))
+            del pieces[small]
+    return out
 
 
 def horizontal_length(points: np.ndarray) -> tuple[np.ndarray, float]:

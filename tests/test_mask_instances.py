@@ -13,6 +13,7 @@ from stratamap.core.mask_instances import (
     class_fragments,
     key_voxels,
     mask_instances,
+    merge_stacked,
     piece_proximity,
     split_oversized,
     voxel_keys,
@@ -303,3 +304,23 @@ def test_mask_instances_cuts_touching_objects_the_masks_never_part():
     params.max_length = {}
     _, off = mask_instances(points, cls, np.ones(len(points), np.int32), obs, VOCAB, VOXEL, params)
     assert len(np.unique(off[off > 0])) == 1
+
+
+def test_stacked_pieces_of_furniture_join_and_side_by_side_ones_do_not():
+    """A swivel chair's base under its seat is one chair; a chair beside it is another; two books
+    in a pile stay two books (books stack, so the class is not listed)."""
+    rng = np.random.default_rng(3)
+    seat = np.c_[rng.uniform(0, 0.5, 1500), rng.uniform(0, 0.5, 1500), rng.uniform(0.42, 1.0, 1500)]
+    base = np.c_[rng.uniform(0.0, 0.5, 300), rng.uniform(0.0, 0.5, 300), rng.uniform(0.0, 0.12, 300)]
+    beside = seat + [0.55, 0, 0]
+    book_a = np.c_[rng.uniform(2, 2.25, 200), rng.uniform(0, 0.3, 200), rng.uniform(0.75, 0.78, 200)]
+    book_b = book_a + [0.01, 0.01, 0.04]
+    points = np.concatenate([seat, base, beside, book_a, book_b])
+    instance = np.repeat([1, 2, 3, 4, 5], [1500, 300, 1500, 200, 200])
+    cls = np.repeat([CHAIR, CHAIR, CHAIR, VOCAB.id("book"), VOCAB.id("book")], [1500, 300, 1500, 200, 200])
+    out = merge_stacked(points, cls, instance, VOCAB, ("chair", "table"))
+    assert np.all(out[instance == 2] == 1) and np.all(out[instance == 1] == 1)
+    assert np.all(out[instance == 3] == 3) and np.all(out[instance == 4] == 4) and np.all(out[instance == 5] == 5)
+    assert np.array_equal(merge_stacked(points, cls, instance, VOCAB, ()), instance)
+    with pytest.raises(ValueError, match="'chiar'"):
+        merge_stacked(points, cls, instance, VOCAB, ("chiar",))

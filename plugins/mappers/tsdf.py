@@ -24,7 +24,7 @@ from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry import VOXEL_NEIGHBOURS, gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
-from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, MaskInstanceParams, MaskObservations, mask_instances
+from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
 from stratamap.core.transforms import apply, invert
 
@@ -154,6 +154,16 @@ class TSDFConfig(IntegrationConfig):
         default=0.1, ge=0, le=1,
         description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
     )
+    piece_stacked_classes: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_STACKED_CLASSES),
+        description=(
+            "'masks': classes whose objects never stand on one another: two instances of one of them, one above the other, are one "
+            "object whose thin joining parts the TSDF lost (a swivel chair's base and seat, a table's legs and top); []: off."
+        ),
+    )
+    piece_stack_overlap: float = Field(
+        default=0.5, gt=0, le=1, description="'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the larger one."
+    )
     piece_max_length: dict[str, PositiveFloat] = Field(
         default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
         description=(
@@ -200,9 +210,11 @@ class TSDFMapper(Mapper):
             device=o3c.Device("CPU:0"),
         )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
-        unknown = sorted(set(cfg.piece_max_length) - set(vocab.names)) if cfg.instances == "masks" else []
-        if unknown:  # before integration, not after minutes of it
-            raise ConfigError([(f"tsdf.piece_max_length.{name}", f"not a class of the map's vocabulary {list(vocab.names)}") for name in unknown])
+        if cfg.instances == "masks":  # before integration, not after minutes of it
+            problems = [(f"tsdf.piece_max_length.{name}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_max_length) - set(vocab.names))]
+            problems += [(f"tsdf.piece_stacked_classes: {name!r}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_stacked_classes) - set(vocab.names))]
+            if problems:
+                raise ConfigError([(key, f"{message} {list(vocab.names)}") for key, message in problems])
         state = PanopticState(
             PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio),
             vocab,
@@ -270,6 +282,7 @@ class TSDFMapper(Mapper):
                     far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
                     fragment_reference=cfg.piece_fragment_reference,
                     cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
+                    stacked_classes=tuple(cfg.piece_stacked_classes), stack_overlap=cfg.piece_stack_overlap,
                     max_length=cfg.piece_max_length, split_balance=cfg.piece_split_balance,
                 ),
             )
