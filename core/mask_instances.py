@@ -428,13 +428,12 @@ def merge_stacked(
     if unknown:
         raise ValueError(f"stacked classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
     out = np.asarray(instance).copy()
+    if len(points) == 0:
+        return out
     wanted = {vocabulary.id(name) for name in classes}
     ids, inverse, counts = np.unique(out, return_inverse=True, return_counts=True)
     by_instance = np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
-    if len(points) == 0:
-        return out
-    flat = np.c_[points[:, :2], np.zeros(len(points))]
-    keys = cell_keys(flat, cell)
+    keys = cell_keys(np.c_[points[:, :2], np.zeros(len(points))], cell)
     pieces: dict[int, tuple[int, int, np.ndarray]] = {}  # id -> (class, points, footprint cells)
     for k in np.flatnonzero(ids > 0):
         members = by_instance[k]
