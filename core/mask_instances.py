@@ -417,6 +417,12 @@ def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float,
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)
 
 
+def members_by_instance(instance: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The distinct instance ids (sorted, 0 included if present) and the point indices of each."""
+    ids, inverse, counts = np.unique(instance, return_inverse=True, return_counts=True)
+    return ids, np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
+
+
 def merge_stacked(
     points: np.ndarray, point_class: np.ndarray, instance: np.ndarray, vocabulary: Vocabulary, classes: tuple[str, ...] | list[str],
     overlap: float = 0.5, cell: float = FOOTPRINT_CELL,
@@ -431,8 +437,7 @@ def merge_stacked(
     if len(points) == 0:
         return out
     wanted = {vocabulary.id(name) for name in classes}
-    ids, inverse, counts = np.unique(out, return_inverse=True, return_counts=True)
-    by_instance = np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
+    ids, by_instance = members_by_instance(out)
     keys = cell_keys(np.c_[points[:, :2], np.zeros(len(points))], cell)
     pieces: dict[int, tuple[int, int, np.ndarray]] = {}  # id -> (class, points, footprint cells)
     for k in np.flatnonzero(ids > 0):
@@ -485,8 +490,7 @@ def split_oversized(
         limit[vocabulary.id(name)] = length
     out = np.asarray(instance).copy()
     next_id = int(out.max(initial=0)) + 1
-    ids, inverse, counts = np.unique(out, return_inverse=True, return_counts=True)
-    by_instance = np.split(np.argsort(inverse.reshape(-1), kind="stable"), np.cumsum(counts)[:-1])
+    ids, by_instance = members_by_instance(out)
     for members in (by_instance[k] for k in np.flatnonzero(ids > 0)):
         cls = int(np.bincount(point_class[members]).argmax())
         if not np.isfinite(limit[cls]):
