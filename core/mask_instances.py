@@ -9,7 +9,9 @@ the other way round, from evidence that averages out over frames:
    frames gave its voxel (SemanticFusion-style voting, McCormac et al. 2017), not its label's.
 2. **Atoms**: the points of one class and one fused instance, cut into connected pieces (points
    within ``1.5`` voxels link). Two objects of a class that a merged label covered fall apart
-   where they do not touch; pieces under ``min_points`` join the piece they touch most.
+   where they do not touch; pieces under ``min_points`` join the piece they touch most. Small
+   things have a lower bar (``min_points_by_class``): a whole cup is about a hundred map points at
+   2 cm, and the part of it most frames call "cup" is often under sixty, which then joined the table.
 3. **Agglomeration by masks** (as superpoint merging with 2D masks in open-vocabulary 3D instance
    segmentation, e.g. Open3DIS, Nguyen et al. 2024): in each frame, an atom is *in* a 2D thing
    segment when most of its visible voxels fall in it; two atoms in one segment count a *together*,
@@ -63,6 +65,10 @@ from stratamap.core.vocabulary import Vocabulary
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
 _BITS = 21
+
+#: Pieces of these classes stand alone from this many points (``min_points`` for the others):
+#: a whole cup, bottle or book is 100-300 map points at 2 cm voxels.
+DEFAULT_MIN_POINTS_BY_CLASS: dict[str, int] = {"cup": 30, "bottle": 30, "book": 30}
 
 #: Classes whose objects do not stand on one another (step 5): same-class pieces one above the other are one object.
 DEFAULT_STACKED_CLASSES: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
@@ -121,6 +127,7 @@ class MaskObservations:
 @dataclass
 class MaskInstanceParams:
     min_points: int = 60
+    min_points_by_class: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS))  # class -> points, below min_points
     merge_ratio: float = 0.5
     min_together: int = 2
     in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
@@ -160,27 +167,32 @@ def point_class_votes(
     return out
 
 
-def atoms(points: np.ndarray, point_class: np.ndarray, group: np.ndarray, link: float, min_points: int) -> np.ndarray:
+def atoms(points: np.ndarray, point_class: np.ndarray, group: np.ndarray, link: float, min_points: int | np.ndarray) -> np.ndarray:
     """Connected pieces of same-class, same-``group`` points (ids from 0); pieces under
-    ``min_points`` join (with their class) the neighbouring piece they share most links with."""
+    ``min_points`` (one number, or one per class id) join (with their class) the neighbouring
+    piece they share most links with."""
     n = len(points)
     pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
     a, b = pairs[:, 0], pairs[:, 1]
     same = (point_class[a] == point_class[b]) & (group[a] == group[b])
     graph = coo_matrix((np.ones(int(same.sum())), (a[same], b[same])), shape=(n, n))
     count, piece = connected_components(graph, directed=False)
+    piece_class = np.zeros(count, np.int64)
+    piece_class[piece] = point_class  # a piece keeps its id, and so its class, when others join it
+    per_class = np.asarray(min_points)
+    bar = np.full(count, int(per_class)) if per_class.ndim == 0 else per_class[piece_class]
     for _ in range(3):  # a small piece may touch only other small pieces: a few rounds settle chains
         sizes = np.bincount(piece, minlength=count)
         cross = piece[a] != piece[b]
         src = np.r_[piece[a[cross]], piece[b[cross]]]
         dst = np.r_[piece[b[cross]], piece[a[cross]]]
-        small = sizes[src] < min_points
+        small = sizes[src] < bar[src]
         if not small.any():
             break
         src, dst = src[small], dst[small]
         pair_keys, links = np.unique(src.astype(np.int64) * count + dst, return_counts=True)
         s, d = pair_keys // count, pair_keys % count
-        weight = links * (1 + (sizes[d] >= min_points))  # prefer joining a real piece
+        weight = links * (1 + (sizes[d] >= bar[d]))  # prefer joining a real piece
         order = np.lexsort((-weight, s))
         first = np.r_[True, s[order][1:] != s[order][:-1]]
         target = np.arange(count)
@@ -344,7 +356,8 @@ def mask_instances(
     votes = point_class_votes(points, voxel_size, obs, voxels, len(vocabulary.names))
     point_class = np.where(votes.sum(1) > 0, votes.argmax(1), fused_class).astype(np.int64)
     group = np.where(point_class == fused_class, fused_instance, -1)
-    piece = atoms(points, point_class, group, 1.5 * voxel_size, params.min_points)
+    bar = class_min_points(vocabulary, params.min_points, params.min_points_by_class)
+    piece = atoms(points, point_class, group, 1.5 * voxel_size, bar)
     count = int(piece.max()) + 1
     piece_class = piece_majority(piece, point_class)
     piece_thing = is_thing[piece_class]
@@ -366,9 +379,9 @@ def mask_instances(
     # A piece too small to stand alone that touches nothing (a plant's leaf) goes to the big
     # group holding most points of its fused instance, if that group is of its class (and,
     # with near_gap, has a point within near_gap of it).
-    small = thing_point & (sizes[owner] < params.min_points) & (group > 0)
+    small = thing_point & (sizes[owner] < bar[point_class]) & (group > 0)
     if small.any():
-        big = thing_point & (sizes[owner] >= params.min_points) & (group > 0)
+        big = thing_point & (sizes[owner] >= bar[point_class]) & (group > 0)
         hosted, which = np.unique(group[big], return_inverse=True)
         host = piece_majority(which.reshape(-1), owner[big])
         idx = np.flatnonzero(small)
@@ -385,7 +398,7 @@ def mask_instances(
             ok[np.flatnonzero(ok)[~close]] = False
         owner[idx[ok]] = host[pos[ok]]
         sizes = np.bincount(owner, minlength=count)
-    instance = np.where(thing_point & (sizes[owner] >= params.min_points), owner + 1, 0)
+    instance = np.where(thing_point & (sizes[owner] >= bar[point_class]), owner + 1, 0)
     if params.min_class_share > 0:
         instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share, params.fragment_reference))] = 0
     if params.stacked_classes:
@@ -415,6 +428,17 @@ def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float,
 
     out = [ids[(cls == c) & (sizes < share * typical(sizes[cls == c]))] for c in np.unique(cls)]
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)
+
+
+def class_min_points(vocabulary: Vocabulary, min_points: int, by_class: dict[str, int]) -> np.ndarray:
+    """Per class id, the points a piece needs to stand alone: ``by_class`` where given, else ``min_points``."""
+    unknown = sorted(set(by_class) - set(vocabulary.names))
+    if unknown:
+        raise ValueError(f"min_points_by_class names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    bar = np.full(len(vocabulary.names), int(min_points), np.int64)
+    for name, points in by_class.items():
+        bar[vocabulary.id(name)] = int(points)
+    return bar
 
 
 def members_by_instance(instance: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:

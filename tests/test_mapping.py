@@ -62,6 +62,8 @@ def test_size_prior_names_a_misspelt_class_before_integrating(tmp_path):
         office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cupp": 0.15}}}])
     with pytest.raises(ConfigError, match=r"piece_stacked_classes: 'chiar'"):
         office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_stacked_classes": ["chair", "chiar"]}}])
+    with pytest.raises(ConfigError, match=r"piece_min_points_by_class\.cupp"):
+        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_min_points_by_class": {"cupp": 30}}}])
     with pytest.raises(ConfigError, match="piece_max_length"):
         office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cup": -0.15}}}])
 

@@ -10,6 +10,7 @@ from stratamap.core.mask_instances import (
     MaskObservations,
     agglomerate,
     atoms,
+    class_min_points,
     class_fragments,
     key_voxels,
     mask_instances,
@@ -324,3 +325,23 @@ def test_stacked_pieces_of_furniture_join_and_side_by_side_ones_do_not():
     assert np.array_equal(merge_stacked(points, cls, instance, VOCAB, ()), instance)
     with pytest.raises(ValueError, match="'chiar'"):
         merge_stacked(points, cls, instance, VOCAB, ("chiar",))
+
+
+def test_small_things_stand_alone_from_fewer_points():
+    """A cup whose 'cup' part is 45 points, standing on a table: at the general bar of 60 points it
+    joins the table and takes its class; with cups' own bar (30) it stays a cup."""
+    cup_id, table_id = VOCAB.id("cup"), VOCAB.id("table")
+    table = slab(0, 0, 0, 25, 20, 1) * VOXEL
+    cup_pts = (slab(10, 10, 1, 3, 3, 5) * VOXEL)[:45]
+    points = np.concatenate([table, cup_pts])
+    cls = np.r_[np.full(len(table), table_id), np.full(len(cup_pts), cup_id)]
+    group = np.zeros(len(points), int)
+    general = cls.copy()
+    atoms(points, general, group, 1.5 * VOXEL, 60)
+    assert np.all(general == table_id)
+    per_class = cls.copy()
+    bar = class_min_points(VOCAB, 60, {"cup": 30})
+    pieces = atoms(points, per_class, group, 1.5 * VOXEL, bar)
+    assert np.all(per_class[len(table):] == cup_id) and len(np.unique(pieces)) == 2
+    with pytest.raises(ValueError, match="'cupp'"):
+        class_min_points(VOCAB, 60, {"cupp": 30})

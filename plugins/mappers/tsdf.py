@@ -18,13 +18,13 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 import trimesh
-from pydantic import Field, PositiveFloat
+from pydantic import Field, PositiveFloat, PositiveInt
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry import VOXEL_NEIGHBOURS, gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
-from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
+from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_MIN_POINTS_BY_CLASS, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
 from stratamap.core.transforms import apply, invert
 
@@ -123,6 +123,13 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     piece_min_points: int = Field(default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most.")
+    piece_min_points_by_class: dict[str, PositiveInt] = Field(
+        default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS),
+        description=(
+            "'masks': per class, the points a piece needs to stand alone instead of piece_min_points: a whole cup is about a hundred "
+            "points, and the part most frames call 'cup' would otherwise join the table it stands on."
+        ),
+    )
     piece_merge_ratio: float = Field(
         default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
     )
@@ -212,6 +219,7 @@ class TSDFMapper(Mapper):
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         if cfg.instances == "masks":  # before integration, not after minutes of it
             problems = [(f"tsdf.piece_max_length.{name}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_max_length) - set(vocab.names))]
+            problems += [(f"tsdf.piece_min_points_by_class.{name}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_min_points_by_class) - set(vocab.names))]
             problems += [(f"tsdf.piece_stacked_classes: {name!r}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_stacked_classes) - set(vocab.names))]
             if problems:
                 raise ConfigError([(key, f"{message} {list(vocab.names)}") for key, message in problems])
@@ -278,7 +286,7 @@ class TSDFMapper(Mapper):
         if cfg.instances == "masks":
             point_class, point_instance = mask_instances(
                 points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
-                    min_points=cfg.piece_min_points, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
+                    min_points=cfg.piece_min_points, min_points_by_class=cfg.piece_min_points_by_class, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
                     far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
                     fragment_reference=cfg.piece_fragment_reference,
                     cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
