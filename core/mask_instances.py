@@ -127,7 +127,7 @@ class MaskObservations:
 @dataclass
 class MaskInstanceParams:
     min_points: int = 60
-    min_points_by_class: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS))  # class -> points, below min_points
+    min_points_by_class: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS))  # class -> points instead of min_points
     merge_ratio: float = 0.5
     min_together: int = 2
     in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
