@@ -52,6 +52,7 @@ with a segmenter's masks it stops one bad frame from fusing two objects.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -430,11 +431,16 @@ def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float,
     return np.concatenate(out) if out else np.zeros(0, ids.dtype)
 
 
+def require_classes(names: Iterable[str], vocabulary: Vocabulary, setting: str) -> None:
+    """Raise ValueError naming ``setting`` and every name in ``names`` that is not a class of ``vocabulary``."""
+    unknown = sorted(set(names) - set(vocabulary.names))
+    if unknown:
+        raise ValueError(f"{setting} names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+
+
 def class_min_points(vocabulary: Vocabulary, min_points: int, by_class: dict[str, int]) -> np.ndarray:
     """Per class id, the points a piece needs to stand alone: ``by_class`` where given, else ``min_points``."""
-    unknown = sorted(set(by_class) - set(vocabulary.names))
-    if unknown:
-        raise ValueError(f"min_points_by_class names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    require_classes(by_class, vocabulary, "min_points_by_class")
     bar = np.full(len(vocabulary.names), int(min_points), np.int64)
     for name, points in by_class.items():
         bar[vocabulary.id(name)] = int(points)
@@ -454,9 +460,7 @@ def merge_stacked(
     """Instance ids with same-class instances of ``classes`` one above the other merged: smallest
     first, an instance joins the larger one of its class holding the biggest share (at least
     ``overlap``) of its footprint, counted in horizontal cells of side ``cell`` (z is up)."""
-    unknown = sorted(set(classes) - set(vocabulary.names))
-    if unknown:
-        raise ValueError(f"stacked classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    require_classes(classes, vocabulary, "stacked_classes")
     out = np.asarray(instance).copy()
     if len(points) == 0:
         return out
@@ -504,9 +508,7 @@ def split_oversized(
     span, m; z is up) cut into ``ceil(length / max_length)`` parts by k-means along that span,
     when the smallest part holds at least ``balance`` of the largest part's points. New parts
     take new ids above the largest; instances of classes without a limit are left alone."""
-    unknown = sorted(set(max_length) - set(vocabulary.names))
-    if unknown:
-        raise ValueError(f"max_length names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+    require_classes(max_length, vocabulary, "max_length")
     limit = np.full(len(vocabulary.names), np.inf)
     for name, length in max_length.items():
         if not length > 0:

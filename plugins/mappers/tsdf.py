@@ -218,11 +218,12 @@ class TSDFMapper(Mapper):
         )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         if cfg.instances == "masks":  # before integration, not after minutes of it
-            problems = [(f"tsdf.piece_max_length.{name}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_max_length) - set(vocab.names))]
-            problems += [(f"tsdf.piece_min_points_by_class.{name}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_min_points_by_class) - set(vocab.names))]
-            problems += [(f"tsdf.piece_stacked_classes: {name!r}", "not a class of the map's vocabulary") for name in sorted(set(cfg.piece_stacked_classes) - set(vocab.names))]
+            named = {"piece_max_length.{}": cfg.piece_max_length, "piece_min_points_by_class.{}": cfg.piece_min_points_by_class,
+                     "piece_stacked_classes: {!r}": cfg.piece_stacked_classes}
+            problems = [(f"tsdf.{key.format(name)}", f"not a class of the map's vocabulary {list(vocab.names)}")
+                        for key, names in named.items() for name in sorted(set(names) - set(vocab.names))]
             if problems:
-                raise ConfigError([(key, f"{message} {list(vocab.names)}") for key, message in problems])
+                raise ConfigError(problems)
         state = PanopticState(
             PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio),
             vocab,
