@@ -20,7 +20,9 @@ from stratamap.core.pipeline import Pipeline
 from stratamap.core.stages import PipelineData
 from stratamap.core.transforms import make_pose
 from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.sensors import CameraIntrinsics
 from stratamap.plugins.mappers.instance_clusters import InstanceClustersMapper
+from stratamap.plugins.mappers.tsdf import vote_stride
 
 from .conftest import shared_data
 
@@ -55,6 +57,33 @@ def test_mask_instances_lose_nothing_with_the_oracle(tmp_path):
     assert report["metrics"]["panoptic"]["pq"] >= 0.7, report["metrics"]["panoptic"]
     assert report["metrics"]["instances"]["f1"] >= 0.7
     assert report["layers"]["instances"]["objects"] >= 15
+
+
+@pytest.mark.parametrize(("fx", "voxel_size", "depth_max"), [(532.6, 0.02, 5.0), (525.0, 0.01, 4.0), (1050.0, 0.02, 3.0), (300.0, 0.05, 8.0)])
+def test_vote_stride_gives_every_voxel_in_range_a_vote(fx, voxel_size, depth_max):
+    """'masks' counts one class vote per voxel per frame, so the sampling stride may be as wide as
+    the voxels at depth_max allow, and no wider: a wall at that range is sampled in every voxel."""
+    width, height = 320, 240
+    intr = CameraIntrinsics(width, height, fx, fx, (width - 1) / 2, (height - 1) / 2)
+    stride = vote_stride(None, intr, voxel_size, depth_max)
+    assert stride * depth_max / fx <= voxel_size
+    assert stride == 1 or (stride + 1) * depth_max / fx > voxel_size
+    assert vote_stride(3, intr, voxel_size, depth_max) == 3
+
+    wall = np.full((height, width), 0.999 * depth_max)
+
+    def voxels(step):
+        pts, _ = intr.backproject(wall, stride=step)
+        return set(map(tuple, np.floor(pts[:, :2] / voxel_size).astype(int)))
+
+    every, sampled = voxels(1), voxels(stride)
+    # The strided grid stops up to stride - 1 pixels before the far image edges: ignore that rim.
+    lo = np.min(list(every), axis=0) + 1
+    hi = np.max(list(every), axis=0) - 1
+    inner = {v for v in every if np.all(v >= lo) and np.all(v <= hi)}
+    assert inner <= sampled
+    if stride > 1:  # one pixel wider and whole columns of voxels go without a sample
+        assert not inner <= voxels(stride + 1)
 
 
 def test_size_prior_names_a_misspelt_class_before_integrating(tmp_path):
