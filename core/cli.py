@@ -85,7 +85,8 @@ def _fail(exc: BaseException) -> None:
     raise typer.Exit(code=2)
 
 
-def _run(config: Path, out: Path | None, overrides: list[str] | None) -> dict:
+def _run(config: Path, out: Path | None, overrides: list[str] | None) -> tuple[dict, Path]:
+    """Run a pipeline file; return its report and the folder it was written to."""
     from stratamap.core.config import load_pipeline
     from stratamap.core.pipeline import Pipeline
     from stratamap.core.registry import default_registry
@@ -106,7 +107,7 @@ def _run(config: Path, out: Path | None, overrides: list[str] | None) -> dict:
         _fail(exc)
     finally:
         registry.plugin_manager.unregister(observer)
-    return report
+    return report, pipeline.out_dir
 
 
 def _print_report(report: dict, out: Path) -> None:
@@ -131,8 +132,8 @@ def run(
     overrides: SetOption = None,
 ) -> None:
     """Run a pipeline: read, segment, map, complete, export; write map/, export/ and report.json."""
-    report = _run(config, out, overrides)
-    _print_report(report, out or Path("."))
+    report, written = _run(config, out, overrides)
+    _print_report(report, written)
 
 
 @app.command()
@@ -220,8 +221,8 @@ def demo(
     config = repo_root() / "configs" / "demo.yaml"
     if not config.is_file():
         _fail(StratamapError(f"{config} not found: run the demo from a stratamap checkout"))
-    report = _run(config, out, overrides)
-    _print_report(report, out)
+    report, written = _run(config, out, overrides)
+    _print_report(report, written)
 
 
 models_app = typer.Typer(help="Model libraries (the CAD database completers match against).", no_args_is_help=True)

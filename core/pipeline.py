@@ -12,6 +12,7 @@ from typing import Any
 
 from stratamap.core.atomic import write_json
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
+from stratamap.core.errors import ConfigError
 from stratamap.core.registry import Registry, default_registry
 from stratamap.core.stages import LAYERS, Exporter, PipelineData, Stage
 
@@ -86,7 +87,7 @@ class Pipeline:
         spec = self.validated.spec
         out = out_dir or spec.output.dir
         if out is None:
-            raise ValueError("no output folder: pass --out DIR or set output.dir in the pipeline file")
+            raise ConfigError([("output.dir", "no output folder: pass --out DIR or set output.dir in the pipeline file")], self.validated.origin)
         self.out_dir = Path(out)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         data = self.data = PipelineData()

@@ -116,6 +116,14 @@ def test_cli_validate_misspelt_key_exits_nonzero_with_path(tmp_path):
     assert "stages[1].params.voxel_sise" in result.output
 
 
+def test_cli_run_without_an_output_folder_says_how_to_give_one(tmp_path):
+    path = write(tmp_path, GOOD)
+    result = runner.invoke(app, ["run", str(path)])
+    assert result.exit_code != 0
+    assert isinstance(result.exception, SystemExit), result.exception  # a message, not a traceback
+    assert "output.dir" in result.output and "--out" in result.output and str(path) in result.output
+
+
 def test_cli_validate_missing_layer_exits_nonzero(tmp_path):
     doc = json.loads(json.dumps(GOOD))
     doc["stages"] = [{"plugin": "bbox"}, {"plugin": "oracle"}, {"plugin": "tsdf"}]
