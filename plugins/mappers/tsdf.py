@@ -26,6 +26,7 @@ from stratamap.core.geometry import VOXEL_NEIGHBOURS, gravity_aligned_box
 from stratamap.core.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
 from stratamap.core.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_MIN_POINTS_BY_CLASS, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.core.panoptic import PanopticParams, PanopticState
+from stratamap.core.sensors import CameraIntrinsics
 from stratamap.core.transforms import apply, invert
 
 
@@ -34,9 +35,9 @@ def label_stride(configured: int | None, width: int) -> int:
     return configured if configured is not None else max(1, round(width / 160))
 
 
-def vote_stride(configured: int | None, intrinsics: Any, voxel_size: float, depth_max: float) -> int:
+def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size: float, depth_max: float) -> int:
     """Pixel stride of the per-voxel class votes ('masks'): the widest at which neighbouring samples
-    still fall less than a voxel apart at depth_max, so that every voxel a frame sees in range gets
+    still fall at most a voxel apart at depth_max, so that every voxel a frame sees in range gets
     that frame's vote. Denser sampling adds no weight: a voxel votes once per frame."""
     if configured is not None:
         return configured
