@@ -135,6 +135,24 @@ def test_rgbd_model_on_frames_without_depth_is_named(tmp_path):
         run(model, data, layout="semantic_boundary")
 
 
+def test_model_that_does_not_fit_its_layout_is_named(tmp_path):
+    from stratamap.core.errors import DataError
+
+    vocab = Vocabulary.default()
+    logits = np.zeros((1, len(vocab.names), H, W), np.float32)
+    boundary = np.zeros((1, 1, H, W), np.float32)
+    model = graph_model(tmp_path / "semantic.onnx", (1, 4, H, W), {"class_logits": logits, "boundary_logits": boundary})
+    with pytest.raises(DataError, match=r"semantic\.onnx has outputs \['class_logits', 'boundary_logits'\], but the 'maskrcnn' layout reads 4"):
+        run(model, frames_data(), layout="maskrcnn")
+    # Two outputs, as YOLO-seg has, but 8 detection rows cannot hold 4 box values, a class and 8 mask coefficients.
+    yolo = graph_model(tmp_path / "short.onnx", (1, 3, H, W), {"output0": np.zeros((1, 8, 6), np.float32), "output1": np.ones((1, 8, 12, 16), np.float32)})
+    with pytest.raises(DataError, match=r"short\.onnx on frame 0: its outputs do not fit the 'yolo_seg' layout"):
+        run(yolo, frames_data(), layout="yolo_seg")
+    (tmp_path / "semantic.json").write_text(json.dumps({"layout": "semantic-boundary"}))
+    with pytest.raises(DataError, match=r"semantic\.json names layout 'semantic-boundary'"):
+        run(model, frames_data())
+
+
 def test_shipped_model_loads_in_plain_onnxruntime_as_documented():
     from stratamap.plugins.segmenters.onnx_panoptic import SHIPPED
 

@@ -101,6 +101,14 @@ def load_sidecar(model: Path) -> dict[str, Any]:
     return {}
 
 
+# Outputs each layout reads, in order: (how many at least, what they are).
+LAYOUT_OUTPUTS = {
+    "semantic_boundary": (2, "2 (class logits (1, C, H, W), boundary logits (1, 1, H, W))"),
+    "maskrcnn": (4, "4 (boxes, labels, scores, masks)"),
+    "yolo_seg": (2, "2 (detections (1, 4 + classes + k, anchors), prototype masks (1, k, h, w))"),
+}
+
+
 class ONNXPanopticSegmenter(Segmenter):
     """Per-frame classes and instances from an ONNX network (Mask R-CNN, YOLO-seg, or semantic + boundary)."""
 
@@ -141,6 +149,13 @@ class ONNXPanopticSegmenter(Segmenter):
         depth_channel = cfg.depth_channel if cfg.depth_channel is not None else channels == 4
         outputs = [o.name for o in session.get_outputs()]
         layout = cfg.layout if cfg.layout != "auto" else side.get("layout") or self._guess_layout(outputs)
+        if layout not in LAYOUT_OUTPUTS:
+            raise DataError(f"onnx_panoptic: {path.with_suffix('.json').name} names layout {layout!r}; expected one of {sorted(LAYOUT_OUTPUTS)}")
+        if len(outputs) < LAYOUT_OUTPUTS[layout][0]:
+            raise DataError(
+                f"onnx_panoptic: {path.name} has outputs {outputs}, but the {layout!r} layout reads {LAYOUT_OUTPUTS[layout][1]}; "
+                "set layout: to the one the model was exported with"
+            )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else (data.map.vocabulary or None)
         if vocab is None:
             from stratamap.core.vocabulary import Vocabulary
@@ -161,21 +176,32 @@ class ONNXPanopticSegmenter(Segmenter):
                 raise DataError(f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} takes RGB-D input")
             tensor, undo, depth_in = self._prepare(rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel)
             result = session.run(None, {inp.name: tensor})
-            if layout == "semantic_boundary":
-                cls, ins, _ = adapters.semantic_boundary(
-                    result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
-                    depth=depth_in, merge_depth_gap=cfg.merge_depth_gap, min_region_score=cfg.min_region_score,
-                    merge_bridges=cfg.merge_bridges,
-                )
-            elif layout == "maskrcnn":
-                boxes, labels, scores, masks = result[:4]
-                cls, ins, _ = adapters.maskrcnn(boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold)
-            else:
-                cls, ins, _ = adapters.yolo_seg(result[0], result[1], (height, width), class_map, cfg.score_threshold, cfg.mask_threshold, cfg.iou_threshold)
+            try:
+                cls, ins = self._decode(adapters, layout, result, class_map, is_thing, depth_in, width, height, cfg)
+            except (ValueError, IndexError) as exc:  # outputs of the right number but the wrong shapes
+                raise DataError(f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} layout ({exc})") from exc
             cls, ins = undo(cls), undo(ins)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note("model", {"path": str(path), "layout": layout, "input": [width, height], "depth_channel": depth_channel})
         return {"frame_labels": out}
+
+    @staticmethod
+    def _decode(
+        adapters: Any, layout: str, result: list, class_map: np.ndarray, is_thing: np.ndarray, depth_in: Any, width: int, height: int, cfg: ONNXPanopticConfig
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(class image, instance image) at the network's resolution from one frame's outputs."""
+        if layout == "semantic_boundary":
+            cls, ins, _ = adapters.semantic_boundary(
+                result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
+                depth=depth_in, merge_depth_gap=cfg.merge_depth_gap, min_region_score=cfg.min_region_score,
+                merge_bridges=cfg.merge_bridges,
+            )
+        elif layout == "maskrcnn":
+            boxes, labels, scores, masks = result[:4]
+            cls, ins, _ = adapters.maskrcnn(boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold)
+        else:
+            cls, ins, _ = adapters.yolo_seg(result[0], result[1], (height, width), class_map, cfg.score_threshold, cfg.mask_threshold, cfg.iou_threshold)
+        return cls, ins
 
     @staticmethod
     def _guess_layout(outputs: list[str]) -> str:
