@@ -466,11 +466,12 @@ def merge_stacked(
         return out
     wanted = {vocabulary.id(name) for name in classes}
     ids, by_instance = members_by_instance(out)
+    majority = piece_majority(out, point_class)
     keys = cell_keys(np.c_[points[:, :2], np.zeros(len(points))], cell)
     pieces: dict[int, tuple[int, int, np.ndarray]] = {}  # id -> (class, points, footprint cells)
     for k in np.flatnonzero(ids > 0):
         members = by_instance[k]
-        cls = int(np.bincount(point_class[members]).argmax())
+        cls = int(majority[ids[k]])
         if cls in wanted:
             pieces[int(ids[k])] = (cls, len(members), np.unique(keys[members]))
     for small in sorted(pieces, key=lambda i: (pieces[i][1], i)):
@@ -517,8 +518,10 @@ def split_oversized(
     out = np.asarray(instance).copy()
     next_id = int(out.max(initial=0)) + 1
     ids, by_instance = members_by_instance(out)
-    for members in (by_instance[k] for k in np.flatnonzero(ids > 0)):
-        cls = int(np.bincount(point_class[members]).argmax())
+    majority = piece_majority(out, point_class)
+    for k in np.flatnonzero(ids > 0):
+        members = by_instance[k]
+        cls = int(majority[ids[k]])
         if not np.isfinite(limit[cls]):
             continue
         along, length = horizontal_length(points[members])

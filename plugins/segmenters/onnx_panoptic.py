@@ -129,8 +129,6 @@ class ONNXPanopticSegmenter(Segmenter):
             raise DataError(f"onnx_panoptic: {path} cannot be loaded by onnxruntime ({exc})") from exc
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        from stratamap.core import onnx_adapters as adapters
-
         cfg: ONNXPanopticConfig = self.config  # type: ignore[assignment]
         path = Path(cfg.model).expanduser() if cfg.model else SHIPPED
         if not path.is_file():
@@ -177,7 +175,7 @@ class ONNXPanopticSegmenter(Segmenter):
             tensor, undo, depth_in = self._prepare(rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel)
             result = session.run(None, {inp.name: tensor})
             try:
-                cls, ins = self._decode(adapters, layout, result, class_map, is_thing, depth_in, width, height, cfg)
+                cls, ins = self._decode(layout, result, class_map, is_thing, depth_in, width, height, cfg)
             except (ValueError, IndexError) as exc:  # outputs of the right number but the wrong shapes
                 raise DataError(f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} layout ({exc})") from exc
             cls, ins = undo(cls), undo(ins)
@@ -187,9 +185,11 @@ class ONNXPanopticSegmenter(Segmenter):
 
     @staticmethod
     def _decode(
-        adapters: Any, layout: str, result: list, class_map: np.ndarray, is_thing: np.ndarray, depth_in: Any, width: int, height: int, cfg: ONNXPanopticConfig
+        layout: str, result: list, class_map: np.ndarray, is_thing: np.ndarray, depth_in: Any, width: int, height: int, cfg: ONNXPanopticConfig
     ) -> tuple[np.ndarray, np.ndarray]:
         """(class image, instance image) at the network's resolution from one frame's outputs."""
+        from stratamap.core import onnx_adapters as adapters
+
         if layout == "semantic_boundary":
             cls, ins, _ = adapters.semantic_boundary(
                 result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
