@@ -17,7 +17,8 @@ import time
 
 import numpy as np
 
-from stratamap.core.metrics.completion import evaluate_completion
+from stratamap.core.evaluation.completion import evaluate_completion
+from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 from stratamap.plugins.completers.bbox import BBoxCompleter
@@ -34,10 +35,7 @@ def mapped_scene(seed: int, frames: int) -> PipelineData:
     spec = SceneSpec.model_validate({"type": "office", "seed": seed, "trajectory": {"type": "walk", "frames": frames}, "noise": {"depth": "kinect"}})
     world = SyntheticWorld(spec)
     data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
-    for stage in (OracleSegmenter(), TSDFMapper(), ContactGraphMapper()):
-        for layer, value in stage.run(data).items():
-            data.set(layer, value, stage.name)
-    return data
+    return run_stages([OracleSegmenter(), TSDFMapper(), ContactGraphMapper()], data)
 
 
 def main() -> None:

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stratamap.core.completion import register_library
-from stratamap.core.layers import ObjectInstances
-from stratamap.core.library import ModelLibrary, model_to_library
-from stratamap.core.metrics.completion import evaluate_completion
+from stratamap.plugins.completers._matching import register_library
+from stratamap.core.map.layers import ObjectInstances
+from stratamap.core.library.models import ModelLibrary, model_to_library
+from stratamap.core.evaluation.completion import evaluate_completion
 from stratamap.core.synthetic.models import FAMILIES, make_model
 from stratamap.plugins.completers.icp_match import ICPMatchCompleter
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run as a script or with -m

@@ -23,7 +23,7 @@ import open3d.core as o3c
 
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
-from stratamap.core.transforms import invert
+from stratamap.core.geometry.transforms import invert
 from stratamap.plugins.mappers.tsdf import TSDFMapper
 from stratamap.plugins.segmenters.oracle import OracleSegmenter
 

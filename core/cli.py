@@ -14,6 +14,7 @@ from rich.table import Table
 
 from stratamap.core.errors import ConfigError, StratamapError
 from stratamap.core.hookspecs import hookimpl
+from stratamap.core.paths import repo_root
 
 app = typer.Typer(
     name="stratamap",
@@ -29,11 +30,6 @@ SetOption = Annotated[
     list[str] | None,
     typer.Option("--set", "-s", help="Override a key by its path, value parsed as YAML: --set stages[0].params.voxel_size=0.02"),
 ]
-
-
-def repo_root() -> Path:
-    """The checkout that holds configs/ (the CLI also works from an installed wheel with explicit paths)."""
-    return Path(__file__).resolve().parent.parent
 
 
 class RichProgress:
@@ -145,7 +141,7 @@ def bench(
     address: Annotated[str | None, typer.Option("--address", help="Ray cluster address (default: start a local Ray instance).")] = None,
 ) -> None:
     """Run every (scene, variant) pair of a benchmark; resumable; tables and figures from the records."""
-    from stratamap.core.bench import run_bench
+    from stratamap.core.evaluation.bench import run_bench
 
     if executor not in ("local", "ray"):
         _fail(ConfigError([("--executor", f"expected 'local' or 'ray', got {executor!r}")]))
@@ -247,7 +243,7 @@ def models_build(
     families: Annotated[str | None, typer.Option(help="Comma-separated families (default: all).")] = None,
 ) -> None:
     """Write a library of procedural models (models.json + a mesh per part)."""
-    from stratamap.core.library import build_library
+    from stratamap.core.library.models import build_library
 
     progress, update = _progress_callback("building models")
     try:
@@ -262,7 +258,7 @@ def models_build(
 @models_app.command("info")
 def models_info(path: Annotated[Path, typer.Argument(help="A library folder (stratamap, PartNet-Mobility, or meshes + classes.csv).")]) -> None:
     """Summarize a model library: models per class and family, joints, load problems."""
-    from stratamap.core.library import ModelLibrary
+    from stratamap.core.library.models import ModelLibrary
 
     try:
         lib = ModelLibrary.load(path)

@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from stratamap.core.documents import format_path, read_mapping, validation_problems
 from stratamap.core.errors import ConfigError
 from stratamap.core.registry import PluginInfo, Registry, default_registry
 from stratamap.core.stages import KINDS, Stage, StageConfig
@@ -111,16 +112,6 @@ def parse_path(path: str) -> list[str | int]:
     return parts
 
 
-def format_path(parts: tuple[Any, ...] | list[Any]) -> str:
-    out = ""
-    for p in parts:
-        if isinstance(p, int):
-            out += f"[{p}]"
-        else:
-            out += ("." if out else "") + str(p)
-    return out
-
-
 def apply_override(doc: dict[str, Any], assignment: str) -> None:
     """Apply ``path=value`` (value parsed as YAML) to a loaded pipeline document in place."""
     if "=" not in assignment:
@@ -161,17 +152,7 @@ def apply_override(doc: dict[str, Any], assignment: str) -> None:
 
 
 def load_document(path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError([("", f"pipeline file not found: {path}")])
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError([("", f"not valid YAML: {exc}")], source=str(path)) from exc
-    if doc is None:
-        doc = {}
-    if not isinstance(doc, dict):
-        raise ConfigError([("", f"a pipeline file must be a mapping, got {type(doc).__name__}")], source=str(path))
+    doc = read_mapping(path, "pipeline file")
     for assignment in overrides or []:
         apply_override(doc, assignment)
     return doc
@@ -179,19 +160,6 @@ def load_document(path: str | Path, overrides: list[str] | None = None) -> dict[
 
 # ------------------------------------------------------------------------------------------
 # Validation
-
-
-def _pydantic_problems(exc: ValidationError, prefix: tuple[Any, ...] = ()) -> list[tuple[str, str]]:
-    problems = []
-    for err in exc.errors():
-        loc = tuple(prefix) + tuple(err["loc"])
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "extra field (not a parameter of this plugin)" if "params" in prefix else "extra field"
-        elif err["type"] == "missing":
-            msg = "required field missing"
-        problems.append((format_path(loc), msg))
-    return problems
 
 
 def _resolve_plugin(
@@ -225,7 +193,7 @@ def validate(doc: dict[str, Any], registry: Registry | None = None, origin: str 
     try:
         spec = PipelineSpec.model_validate(doc)
     except ValidationError as exc:
-        raise ConfigError(_pydantic_problems(exc), source=origin) from None
+        raise ConfigError(validation_problems(exc), source=origin) from None
 
     problems: list[tuple[str, str]] = []
     resolved: list[ResolvedStage] = []
@@ -240,7 +208,7 @@ def validate(doc: dict[str, Any], registry: Registry | None = None, origin: str 
         try:
             config = info.cls.Config.model_validate(stage_spec.params)
         except ValidationError as exc:
-            problems += _pydantic_problems(exc, prefix=(*parse_path(path), "params"))
+            problems += validation_problems(exc, prefix=(*parse_path(path), "params"))
             continue
         resolved.append(ResolvedStage(path, stage_spec, info, config))
     if problems:

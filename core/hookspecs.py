@@ -47,6 +47,11 @@ def stratamap_register_exporters() -> list[type]:
 
 
 @hookspec
+def stratamap_evaluate(data: Any, details: bool) -> dict[str, dict] | None:
+    """Return metric families ``{family: {metric: value}}`` for a run's data (``details``: keep per-item records)."""
+
+
+@hookspec
 def stratamap_pipeline_start(pipeline: Any) -> None:
     """Called once before the source reads."""
 

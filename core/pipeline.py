@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import platform
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -36,6 +37,44 @@ class StageRecord:
     outputs: list[str] = field(default_factory=list)
 
 
+def apply_outputs(stage: Stage, result: dict[str, Any] | list[Path], data: PipelineData, where: str = "") -> list[str]:
+    """Check a stage's returned layers against what it declares and put them on ``data``; return
+    the layers set (or, for an exporter, the files it wrote)."""
+    if not isinstance(result, dict):
+        return [str(p) for p in result]
+    where = where or f"{stage.kind}.{stage.name}"
+    outputs: list[str] = []
+    for layer, value in result.items():
+        if layer not in stage.provides:
+            raise RuntimeError(f"{where} ({stage.name}) returned layer {layer!r} that it does not declare in provides")
+        expected = LAYERS[layer]
+        if value is not None and not isinstance(value, expected):
+            raise TypeError(f"{where} ({stage.name}) returned {type(value).__name__} for layer {layer!r}; expected {expected.__name__}")
+        if value is not None:
+            data.set(layer, value, producer=stage.name)
+            outputs.append(layer)
+    return outputs
+
+
+def run_stages(stages: Iterable[Stage], data: PipelineData | None = None, out_dir: Path | None = None) -> PipelineData:
+    """Run stage instances in order on ``data`` (a new blackboard by default), each one's layers
+    checked and set as a pipeline does, but with no files, hooks or report: for notebooks, tests
+    and benchmarks that build a map step by step."""
+    data = data if data is not None else PipelineData()
+    for stage in stages:
+        apply_outputs(stage, stage.run(data, out_dir), data)
+    return data
+
+
+def evaluate(hook: Any, data: PipelineData, details: bool = False) -> dict[str, Any]:
+    """Every metric family the registered ``stratamap_evaluate`` implementations give for ``data``
+    (the built-in families first; a later family of the same name replaces an earlier one)."""
+    metrics: dict[str, Any] = {}
+    for families in reversed(hook.stratamap_evaluate(data=data, details=details)):
+        metrics.update(families or {})
+    return metrics
+
+
 class Pipeline:
     """A validated pipeline bound to a registry (whose plugin manager carries the event hooks)."""
 
@@ -61,24 +100,7 @@ class Pipeline:
             export_dir = self.out_dir / self.validated.spec.output.export_dir
         result = stage.run(data, export_dir)
         seconds = time.perf_counter() - t0
-        outputs: list[str] = []
-        if isinstance(result, dict):
-            for layer, value in result.items():
-                if layer not in stage.provides:
-                    raise RuntimeError(
-                        f"{resolved.path} ({stage.name}) returned layer {layer!r} that it does not declare in provides"
-                    )
-                expected = LAYERS[layer]
-                if value is not None and not isinstance(value, expected):
-                    raise TypeError(
-                        f"{resolved.path} ({stage.name}) returned {type(value).__name__} for layer "
-                        f"{layer!r}; expected {expected.__name__}"
-                    )
-                if value is not None:
-                    data.set(layer, value, producer=stage.name)
-                    outputs.append(layer)
-        else:
-            outputs = [str(p) for p in result]
+        outputs = apply_outputs(stage, result, data, resolved.path)
         self.records.append(StageRecord(resolved.path, stage.name, stage.kind, seconds, outputs))
         self.hook.stratamap_stage_end(pipeline=self, stage=stage, index=index, seconds=seconds)
 
@@ -112,11 +134,9 @@ class Pipeline:
         return report
 
     def _report(self, data: PipelineData, total_seconds: float) -> dict[str, Any]:
-        from stratamap.core.metrics import evaluate
-
         metrics: dict[str, Any] = {}
-        if self.validated.spec.output.metrics and data.ground_truth is not None:
-            metrics = evaluate(data)
+        if self.validated.spec.output.metrics:
+            metrics = evaluate(self.hook, data)
         return {
             "pipeline": self.validated.origin,
             "versions": package_versions(),

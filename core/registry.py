@@ -1,14 +1,16 @@
 """Plugin discovery: entry points, pluggy hooks, and the stage registry.
 
-Every plugin -- built-in or third-party -- is a module declared under one entry-point group per
-kind (``stratamap.sources``, ``stratamap.segmenters``, ``stratamap.mappers``,
-``stratamap.completers``, ``stratamap.exporters``) that implements the matching
-``stratamap_register_<kind>`` hook. An entry point may also name a stage class directly.
+Every plugin is a module that implements the ``stratamap_register_<kind>`` hook of its kind (and,
+optionally, ``stratamap_evaluate`` to add metric families). Built-in plugins are listed once, in
+``stratamap.plugins.BUILTIN_PLUGINS``, and registered in code; third-party plugins are modules
+declared under one entry-point group per kind (``stratamap.sources``, ``stratamap.segmenters``,
+``stratamap.mappers``, ``stratamap.completers``, ``stratamap.exporters``). An entry point may
+also name a stage class directly.
 
 Environment variables:
 
 ``STRATAMAP_DISABLE_PLUGIN_AUTOLOAD=1``
-    load only stratamap's own entry points, skipping every third-party distribution.
+    load only stratamap's own plugins, skipping every third-party entry point.
 ``STRATAMAP_PLUGINS=mod_a,path/to/mod_b.py``
     also load these unpackaged plugin modules (importable names or file paths).
 
@@ -40,49 +42,17 @@ DISTRIBUTION = "stratamap"
 AUTOLOAD_ENV = "STRATAMAP_DISABLE_PLUGIN_AUTOLOAD"
 EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
 
-#: The built-in plugin modules, by kind; pyproject.toml declares exactly these as entry points
-#: (tests/test_packaging.py keeps the two in step).
-BUILTIN_PLUGINS: dict[str, tuple[str, ...]] = {
-    "sources": (
-        "stratamap.plugins.sources.synthetic",
-        "stratamap.plugins.sources.tum",
-        "stratamap.plugins.sources.pointcloud",
-        "stratamap.plugins.sources.rosbag",
-        "stratamap.plugins.sources.redwood",
-        "stratamap.plugins.sources.scannet",
-        "stratamap.plugins.sources.urdf_scan",
-    ),
-    "segmenters": (
-        "stratamap.plugins.segmenters.oracle",
-        "stratamap.plugins.segmenters.clusters",
-        "stratamap.plugins.segmenters.onnx_panoptic",
-        "stratamap.plugins.segmenters.plane_crf",
-    ),
-    "mappers": (
-        "stratamap.plugins.mappers.tsdf",
-        "stratamap.plugins.mappers.points",
-        "stratamap.plugins.mappers.semantic_tsdf",
-        "stratamap.plugins.mappers.instance_clusters",
-        "stratamap.plugins.mappers.occupancy",
-        "stratamap.plugins.mappers.contact_graph",
-        "stratamap.plugins.mappers.physical_check",
-    ),
-    "completers": (
-        "stratamap.plugins.completers.bbox",
-        "stratamap.plugins.completers.icp_match",
-        "stratamap.plugins.completers.plane_box_match",
-    ),
-    "exporters": (
-        "stratamap.plugins.exporters.urdf",
-        "stratamap.plugins.exporters.nav2_map",
-        "stratamap.plugins.exporters.ply",
-        "stratamap.plugins.exporters.costmap",
-        "stratamap.plugins.exporters.scene_graph",
-        "stratamap.plugins.exporters.mjcf",
-        "stratamap.plugins.exporters.sdf",
-        "stratamap.plugins.exporters.glb",
-    ),
-}
+#: The package whose ``BUILTIN_PLUGINS`` tuple lists stratamap's own plugin modules. They are
+#: registered in code, through the same hooks third parties implement (as pytest and datasette do);
+#: entry points are for third-party plugins only.
+BUILTIN_PACKAGE = "stratamap.plugins"
+#: The framework's own hook implementations outside plugins: the built-in metric families.
+CORE_HOOK_MODULES: tuple[str, ...] = ("stratamap.core.evaluation.metrics",)
+
+
+def builtin_modules() -> tuple[str, ...]:
+    """The built-in plugin modules, from the one list that names them."""
+    return tuple(importlib.import_module(BUILTIN_PACKAGE).BUILTIN_PLUGINS)
 
 
 def group_name(kind: str) -> str:
@@ -196,9 +166,11 @@ def build_registry(
     eps: Iterable[EntryPoint] | None = None,
     extra_modules: Iterable[str] | None = None,
     autoload: bool | None = None,
+    builtins: bool = True,
 ) -> Registry:
     """Discover plugins and build the registry.
 
+    ``builtins``: register stratamap's own plugins and metric families first;
     ``eps`` replaces the installed entry points (tests pass fake ``EntryPoint`` objects);
     ``extra_modules`` defaults to ``$STRATAMAP_PLUGINS``; ``autoload`` defaults to the negation of
     ``$STRATAMAP_DISABLE_PLUGIN_AUTOLOAD``.
@@ -214,6 +186,11 @@ def build_registry(
     registry = Registry(plugin_manager=pm)
     origins: dict[str, tuple[str, str]] = {}  # plugin name in pm -> (distribution, module)
     seen_eps: set[tuple[str, str]] = set()
+
+    if builtins:
+        for module_name in (*CORE_HOOK_MODULES, *builtin_modules()):
+            # A built-in that fails to import is a bug in stratamap, not a plugin to skip.
+            _register_object(pm, importlib.import_module(module_name), DISTRIBUTION, origins, registry, module_name)
 
     for ep in eps:
         dist = _distribution_of(ep)
@@ -311,13 +288,3 @@ def default_registry(refresh: bool = False) -> Registry:
     if _DEFAULT is None or refresh:
         _DEFAULT = build_registry()
     return _DEFAULT
-
-
-def builtin_entry_points() -> list[EntryPoint]:
-    """Entry points of the built-in plugins as pyproject.toml declares them (for tests and
-    source checkouts run without installation)."""
-    return [
-        EntryPoint(name=mod.rsplit(".", 1)[1], value=mod, group=group_name(kind))
-        for kind, mods in BUILTIN_PLUGINS.items()
-        for mod in mods
-    ]

@@ -31,8 +31,8 @@ from typing import Any, ClassVar, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.layers import (
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.map.layers import (
     MAP_LAYERS,
     ContactGraph,
     Geometry,
@@ -41,7 +41,7 @@ from stratamap.core.layers import (
     OccupancyMaps,
     Semantics,
 )
-from stratamap.core.sensors import FrameLabels, SensorStream
+from stratamap.core.map.sensors import FrameLabels, SensorStream
 
 KINDS = ("sources", "segmenters", "mappers", "completers", "exporters")
 

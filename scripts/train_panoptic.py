@@ -2,7 +2,7 @@
 
 The network sees RGB-D (160 x 120) and predicts, per pixel, the map vocabulary's class and
 whether the pixel lies on an instance boundary (instances are then the connected regions of a
-thing class between boundaries: see ``stratamap.core.onnx_adapters.semantic_boundary``).
+thing class between boundaries: see ``stratamap.plugins.segmenters.onnx_panoptic.adapters.semantic_boundary``).
 Frames are rendered at 640 x 480 (the cameras of the scene specs) and shrunk by the
 ``onnx_panoptic`` plugin's own preprocessing, so the network trains on what it sees at run time.
 Training data: 32 scenes of every type (and the demo's ``room`` with boxes, books and cups) with
@@ -144,9 +144,9 @@ def build_model(classes: int):
 
 def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
     """mIoU and PQ of the network's labels on ``data`` (every frame), by the map's own metric."""
-    from stratamap.core.metrics.panoptic import frame_quality
-    from stratamap.core.onnx_adapters import semantic_boundary
-    from stratamap.core.sensors import FrameSegmentation
+    from stratamap.core.evaluation.panoptic import frame_quality
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
+    from stratamap.core.map.sensors import FrameSegmentation
 
     identity = np.arange(len(vocab.names))
     is_thing = np.array(vocab.is_thing)
@@ -183,7 +183,7 @@ def main() -> None:
     if args.evaluate_only:
         import onnxruntime as ort
 
-        from stratamap.core.vocabulary import Vocabulary
+        from stratamap.core.map.vocabulary import Vocabulary
 
         meta_path = args.out / "panoptic_small.json"
         meta = json.loads(meta_path.read_text())
@@ -196,7 +196,7 @@ def main() -> None:
     import torch
     from torch import nn
 
-    from stratamap.core.vocabulary import Vocabulary
+    from stratamap.core.map.vocabulary import Vocabulary
 
     torch.manual_seed(0)
     np.random.seed(0)

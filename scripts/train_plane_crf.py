@@ -1,8 +1,8 @@
 """Train the two CRFs of the ``plane_crf`` segmenter on virtual scans of procedural kitchens.
 
 Kitchens with seeds 100.. are generated (:mod:`stratamap.core.synthetic.kitchens`), scanned from
-their viewpoints (:mod:`stratamap.core.kitchen_scan`, the same path the real IAI kitchen takes),
-decomposed into planar regions and fronts (:mod:`stratamap.core.furniture`); each region and
+their viewpoints (:mod:`stratamap.core.simulation.virtual_scan`, the same path the real IAI kitchen takes),
+decomposed into planar regions and fronts (:mod:`stratamap.plugins.segmenters.plane_crf.fronts`); each region and
 front takes the majority ground-truth label of its points. Level 1 learns from the regions;
 level 2 from the fronts found on the true furniture faces. Both CRFs are fitted by maximum
 pseudo-likelihood; held-out kitchens (seeds 0..9) are scored with Table IV's metrics. Seeded and
@@ -24,9 +24,9 @@ import numpy as np
 
 
 def scan_kitchen(seed: int, resolution_deg: float = 0.4):
-    from stratamap.core import kitchen_scan as ks
+    from stratamap.core.simulation import virtual_scan as ks
     from stratamap.core.synthetic.kitchens import generate_kitchen
-    from stratamap.core.urdf_io import read_urdf
+    from stratamap.core.io.urdf import read_urdf
 
     layout = generate_kitchen(seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -41,7 +41,7 @@ def scan_kitchen(seed: int, resolution_deg: float = 0.4):
 
 def training_graphs(seed: int, params):
     """(level-1 graph, level-2 graph) of one kitchen, each (X, E, relations, labels)."""
-    from stratamap.core import furniture as fu
+    from stratamap.plugins.segmenters.plane_crf import fronts as fu
 
     _, scan, labels, views = scan_kitchen(seed)
     res = fu.find_regions(scan.points, views, params)
@@ -59,8 +59,8 @@ def training_graphs(seed: int, params):
 
 def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
     """Table IV on the kitchens of ``seeds``: macro F1 averaged over kitchens, hinge accuracy over all doors."""
-    from stratamap.core import furniture as fu
-    from stratamap.core.metrics.classification import kitchen_tables
+    from stratamap.plugins.segmenters.plane_crf import fronts as fu
+    from stratamap.core.evaluation.classification import kitchen_tables
 
     pooled: dict = {"doors": 0, "correct": 0}
     for seed in seeds:
@@ -88,9 +88,9 @@ def main() -> None:
     parser.add_argument("--edge-l2", type=float, default=1.0, help="L2 prior on the edge weights.")
     args = parser.parse_args()
 
-    from stratamap.core import furniture as fu
-    from stratamap.core.kitchen_scan import LEVEL1, LEVEL2
-    from stratamap.core.planes import CRF
+    from stratamap.plugins.segmenters.plane_crf import fronts as fu
+    from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL2
+    from stratamap.plugins.segmenters.plane_crf.crf import CRF
 
     params = fu.FurnitureParams(voxel_size=0.02)
     t0 = time.perf_counter()

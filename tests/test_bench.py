@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from stratamap.core.bench import load_bench, run_bench
-from stratamap.core.bench_report import lower_is_better, records_equal
+from stratamap.core.evaluation.bench import load_bench, run_bench
+from stratamap.core.evaluation.bench_report import lower_is_better, records_equal
 from stratamap.core.errors import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -124,7 +124,7 @@ def test_ray_executor_gives_the_local_records(local_run, tmp_path):
 
 @pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "configs" / "bench").glob("*.yaml")))
 def test_shipped_benchmarks_validate_every_run(name):
-    from stratamap.core.bench import expand_scenes, variant_document
+    from stratamap.core.evaluation.bench import expand_scenes, variant_document
     from stratamap.core.config import validate
 
     spec, path = load_bench(REPO / "configs" / "bench" / name)

@@ -10,11 +10,12 @@ import open3d.core as o3c
 import pytest
 import trimesh
 
-from stratamap.core.completion import register_library
-from stratamap.core.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
-from stratamap.core.library import ModelLibrary, model_to_library
-from stratamap.core.metrics.completion import evaluate_completion, shape_distances
-from stratamap.core.model_index import ModelIndex
+from stratamap.plugins.completers._matching import register_library
+from stratamap.core.map.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
+from stratamap.core.library.models import ModelLibrary, model_to_library
+from stratamap.core.evaluation.completion import evaluate_completion, shape_distances
+from stratamap.core.library.index import ModelIndex
+from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 from stratamap.core.synthetic.models import make_model
@@ -31,15 +32,12 @@ def mapped():
     spec = SceneSpec.model_validate({"type": "office", "seed": 11, "camera": {"width": 320, "height": 240}, "trajectory": {"frames": 60}})
     world = SyntheticWorld(spec)
     data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
-    for stage in (OracleSegmenter(), TSDFMapper(), ContactGraphMapper()):
-        for layer, value in stage.run(data).items():
-            data.set(layer, value, stage.name)
-    return data
+    return run_stages([OracleSegmenter(), TSDFMapper(), ContactGraphMapper()], data)
 
 
 def completed_counter(library_name: str):
     """A kitchen counter (doors and drawers) observed whole and completed from a one-model library."""
-    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.core.geometry.boxes import gravity_aligned_box
 
     counter = make_model("kitchen_counter", 0, 1)
     name = register_library(library_name, ModelLibrary([model_to_library(counter)]))
@@ -111,7 +109,7 @@ def test_articulation_carries_over():
     pts = trimesh.sample.sample_surface(cabinet.mesh(), 3000, seed=0)[0]
     pts = pts[(pts[:, 1] < 0) | (pts[:, 0] < -0.2)]  # the front and one side are seen
     pts = pts + world_pose[:3, 3]
-    from stratamap.core.geometry import gravity_aligned_box
+    from stratamap.core.geometry.boxes import gravity_aligned_box
 
     inst = ObjectInstance(1, "cabinet", pts, gravity_aligned_box(pts))
     data = PipelineData()

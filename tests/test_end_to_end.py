@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from stratamap.core.config import load_pipeline
-from stratamap.core.layers import LayeredMap
-from stratamap.core.nav2 import read_map
+from stratamap.core.map.layers import LayeredMap
+from stratamap.core.io.nav2 import read_map
 from stratamap.core.pipeline import Pipeline
 from stratamap.core.registry import build_registry, builtin_entry_points
 

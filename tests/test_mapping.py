@@ -13,14 +13,14 @@ import yaml
 
 from stratamap.core.config import load_pipeline
 from stratamap.core.errors import ConfigError
-from stratamap.core.layers import Geometry, LayeredMap, Semantics
-from stratamap.core.metrics.panoptic import panoptic_quality
-from stratamap.core.metrics.trajectory import ate, rpe, umeyama
+from stratamap.core.map.layers import Geometry, LayeredMap, Semantics
+from stratamap.core.evaluation.panoptic import panoptic_quality
+from stratamap.core.evaluation.trajectory import ate, rpe, umeyama
 from stratamap.core.pipeline import Pipeline
 from stratamap.core.stages import PipelineData
-from stratamap.core.transforms import make_pose
-from stratamap.core.vocabulary import Vocabulary
-from stratamap.core.sensors import CameraIntrinsics
+from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.plugins.mappers.instance_clusters import InstanceClustersMapper
 from stratamap.plugins.mappers.tsdf import vote_stride
 
@@ -216,7 +216,7 @@ def test_tum_pipeline_reports_panoptic_metrics(tmp_path):
 def test_multimap_paths_avoid_what_laser_paths_hit(tmp_path):
     """A* for a 0.4 m robot: on the laser-only map some paths cross chairs' and tables' 3D
     footprints; on the multimap none does (first paper, section V-C)."""
-    from stratamap.core.navigation import evaluate_navigation
+    from stratamap.core.evaluation.navigation import evaluate_navigation
 
     report = office_pipeline(tmp_path, "none", [{"plugin": "tsdf"}, {"plugin": "occupancy"}])
     nav = report["metrics"]["navigation"]
@@ -240,7 +240,7 @@ def test_panoptic_fusion_keeps_instances_of_different_classes_apart():
     of another links neither (eq. 5 counts instance votes per class)."""
     from collections import Counter
 
-    from stratamap.core.panoptic import PanopticParams, PanopticState
+    from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 
     vocab = Vocabulary.default()
     chair, table = vocab.id("chair"), vocab.id("table")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stratamap.core.mask_instances import (
+from stratamap.plugins.mappers.tsdf.mask_instances import (
     MaskInstanceParams,
     MaskObservations,
     agglomerate,
@@ -19,7 +19,7 @@ from stratamap.core.mask_instances import (
     split_oversized,
     voxel_keys,
 )
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.map.vocabulary import Vocabulary
 
 VOXEL = 0.02
 VOCAB = Vocabulary.default()

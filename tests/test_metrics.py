@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stratamap.core.layers import ObjectInstance, OrientedBox, Semantics
-from stratamap.core.metrics.detection import average_precision, box_map
-from stratamap.core.metrics.panoptic import frame_quality, instance_map
-from stratamap.core.sensors import FrameSegmentation
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.map.layers import ObjectInstance, OrientedBox, Semantics
+from stratamap.core.evaluation.detection import average_precision, box_map
+from stratamap.core.evaluation.panoptic import frame_quality, instance_map
+from stratamap.core.map.sensors import FrameSegmentation
+from stratamap.core.map.vocabulary import Vocabulary
 
 
 class GT:

@@ -8,8 +8,8 @@ import yaml
 from PIL import Image
 
 from stratamap.core.errors import DataError
-from stratamap.core.layers import OccupancyGrid
-from stratamap.core.nav2 import read_map, write_map
+from stratamap.core.map.layers import OccupancyGrid
+from stratamap.core.io.nav2 import read_map, write_map
 
 from .conftest import shared_data
 
@@ -80,7 +80,7 @@ def test_real_map_with_missing_image_names_it():
 
 
 def test_costmap_values_follow_nav2_inflation():
-    from stratamap.plugins.exporters.costmap import costmap_values
+    from stratamap.core.io.nav2 import costmap_values
 
     data = np.zeros((41, 41), np.int8)
     data[20, 20] = 100

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from stratamap.core.errors import MapFormatError
-from stratamap.core.layers import (
+from stratamap.core.map.layers import (
     Completion,
     ContactGraph,
     Geometry,
@@ -25,7 +25,7 @@ from stratamap.core.layers import (
     Semantics,
 )
 from stratamap.core.testing import fingerprint
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.map.vocabulary import Vocabulary
 
 
 def full_map(seed: int = 0) -> LayeredMap:
@@ -105,7 +105,7 @@ def test_crash_mid_save_keeps_the_previous_map(tmp_path, monkeypatch):
     full_map(0).save(target)
     before = fingerprint(LayeredMap.load(target).geometry)
 
-    import stratamap.core.persistence as persistence
+    import stratamap.core.map.format as persistence
 
     real = persistence._save_npz
     calls = {"n": 0}

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from stratamap.core.layers import Completion, ContactGraph, ObjectInstance, ObjectInstances, OrientedBox
-from stratamap.core.physics import convex_shell, penetration_depths, penetration_volume, resolve_scene, world_mesh
+from stratamap.core.map.layers import Completion, ContactGraph, ObjectInstance, ObjectInstances, OrientedBox
+from stratamap.core.simulation.physics import convex_shell, penetration_depths, penetration_volume, resolve_scene, world_mesh
 
 
 def box_object(iid: int, cls: str, size, at) -> ObjectInstance:
@@ -91,10 +91,10 @@ def sampled(mesh: trimesh.Trimesh, offset, n: int = 3000) -> np.ndarray:
 
 
 def test_contact_graph_planes_hidden_tabletop_wall_support_and_refined_boxes():
-    from stratamap.core.geometry import gravity_aligned_box
-    from stratamap.core.layers import Geometry, Semantics
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.map.layers import Geometry, Semantics
     from stratamap.core.stages import PipelineData
-    from stratamap.core.vocabulary import Vocabulary
+    from stratamap.core.map.vocabulary import Vocabulary
     from stratamap.plugins.mappers.contact_graph import ContactGraphMapper
 
     table_mesh = trimesh.creation.box(extents=(1.2, 0.8, 0.04))

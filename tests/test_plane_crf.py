@@ -10,12 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stratamap.core import furniture as fu
-from stratamap.core import kitchen_scan as ks
-from stratamap.core.metrics.classification import kitchen_tables, per_label
-from stratamap.core.planes import CRF, Fixture, boundary_points, fit_circle, fit_line, multilod_planes, region_grow
+from stratamap.plugins.segmenters.plane_crf import fronts as fu
+from stratamap.core.simulation import virtual_scan as ks
+from stratamap.core.evaluation.classification import kitchen_tables, per_label
+from stratamap.plugins.segmenters.plane_crf.crf import CRF
+from stratamap.plugins.segmenters.plane_crf.fixtures import Fixture, fit_circle, fit_line
+from stratamap.plugins.segmenters.plane_crf.planes import boundary_points, multilod_planes, region_grow
 from stratamap.core.synthetic.kitchens import generate_kitchen
-from stratamap.core.urdf_io import read_urdf
+from stratamap.core.io.urdf import read_urdf
 
 REPO = Path(__file__).resolve().parent.parent
 APARTMENT = REPO.parent / "shared" / "data" / "iai_apartment" / "urdf" / "apartment.urdf"
@@ -200,7 +202,7 @@ def test_plane_crf_on_a_held_out_synthetic_kitchen(tmp_path):
     drawers = [i for i in data.map.instances if i.class_name == "drawer"]
     assert drawers and all(i.attributes["joint"] == "prismatic" for i in drawers)
     assert data.map.semantics.plane_ids is not None and (data.map.semantics.plane_ids >= 0).mean() > 0.5
-    from stratamap.core.layers import LayeredMap
+    from stratamap.core.map.layers import LayeredMap
 
     again = LayeredMap.load(tmp_path / "map")  # plane ids survive the map on disk
     assert np.array_equal(again.semantics.plane_ids, data.map.semantics.plane_ids)

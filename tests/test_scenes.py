@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from stratamap.core.config import load_pipeline
-from stratamap.core.nav2 import read_map
+from stratamap.core.io.nav2 import read_map
 from stratamap.core.pipeline import Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
@@ -75,7 +75,7 @@ def test_urdf_is_a_tree_that_pybullet_loads_with_its_joints(scene_run):
 
 def test_mujoco_scene_rests_under_gravity(scene_run):
     mujoco = pytest.importorskip("mujoco")
-    from stratamap.core.physics import settle
+    from stratamap.core.simulation.physics import settle
 
     _, out, _ = scene_run
     path = out / "export" / "scene.xml"

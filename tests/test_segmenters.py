@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stratamap.core.sensors import RGBDFrame, SensorStream
+from stratamap.core.map.sensors import RGBDFrame, SensorStream
+from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.map.vocabulary import Vocabulary
 
 from .conftest import shared_data
 
@@ -171,9 +172,9 @@ def test_shipped_model_loads_in_plain_onnxruntime_as_documented():
 def test_clusters_separates_objects_on_a_table():
     import trimesh
 
-    from stratamap.core.groundtruth import GroundTruth
-    from stratamap.core.layers import Geometry
-    from stratamap.core.metrics import evaluate
+    from stratamap.core.map.groundtruth import GroundTruth
+    from stratamap.core.map.layers import Geometry
+    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 
     vocab = Vocabulary.default()
@@ -211,9 +212,9 @@ def test_clusters_cuts_a_box_standing_flush_on_another():
     plane, and the cut separates them. Without cuts they stay one."""
     import trimesh
 
-    from stratamap.core.groundtruth import GroundTruth
-    from stratamap.core.layers import Geometry
-    from stratamap.core.metrics import evaluate
+    from stratamap.core.map.groundtruth import GroundTruth
+    from stratamap.core.map.layers import Geometry
+    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 
     vocab = Vocabulary.default()
@@ -249,7 +250,7 @@ def test_clusters_cuts_a_box_standing_flush_on_another():
 
 def test_clusters_on_real_tabletop_scans_reaches_f1_08():
     """mOSD learn split (the test split is kept for reported evaluation)."""
-    from stratamap.core.metrics import evaluate
+    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.plugins.mappers.points import PointsMapper
     from stratamap.plugins.segmenters.clusters import ClustersSegmenter
     from stratamap.plugins.sources.pointcloud import PointCloudSource
@@ -257,17 +258,15 @@ def test_clusters_on_real_tabletop_scans_reaches_f1_08():
     folder = shared_data("mosd", "learn")
     f1 = []
     for path in sorted(folder.glob("*.pcd")):
-        data = PipelineData()
-        for stage in (PointCloudSource(path=str(path), label_scheme="mosd", up_axis="-y", up_tolerance_deg=60), PointsMapper(normals_radius=0.0), ClustersSegmenter()):
-            for layer, value in stage.run(data).items():
-                data.set(layer, value, stage.name)
+        source = PointCloudSource(path=str(path), label_scheme="mosd", up_axis="-y", up_tolerance_deg=60)
+        data = run_stages([source, PointsMapper(normals_radius=0.0), ClustersSegmenter()])
         f1.append(evaluate(data)["instances"]["f1"])
     assert len(f1) >= 5 and np.mean(f1) >= 0.8, f1
 
 
 def test_semantic_boundary_speckle_filter_removes_stray_classes():
     """A 3-pixel blob of another class inside a region takes the region's class when filtered."""
-    from stratamap.core.onnx_adapters import semantic_boundary
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
 
     logits = np.zeros((1, 3, 20, 20), np.float32)
     logits[0, 1] = 5.0
@@ -282,7 +281,7 @@ def test_semantic_boundary_speckle_filter_removes_stray_classes():
 def test_semantic_boundary_merges_instances_split_at_a_depth_continuous_seam():
     """A spurious boundary across one object (same depth on both sides) is healed; a boundary at
     a depth step (one object in front of another) keeps two instances."""
-    from stratamap.core.onnx_adapters import semantic_boundary
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
 
     logits = np.zeros((1, 2, 20, 20), np.float32)
     logits[0, 1, 4:16, 2:18] = 10.0  # one thing region
@@ -303,7 +302,7 @@ def test_semantic_boundary_merges_instances_split_at_a_depth_continuous_seam():
 def test_depth_continuous_merge_counts_seams_between_classes():
     """As documented: every depth-continuous seam counts, so two instances of one class that meet
     only through an instance of another class get one id."""
-    from stratamap.core.onnx_adapters import merge_depth_continuous
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import merge_depth_continuous
 
     ids = np.zeros((6, 9), np.int32)
     ids[1:5, 0:3], ids[1:5, 3:6], ids[1:5, 6:9] = 1, 2, 3  # chair | table | chair, side by side
@@ -318,7 +317,7 @@ def test_depth_continuous_merge_bridges_only_through_smaller_instances():
     """bridges='smaller': two cups standing on one table (continuous seams, the table far larger)
     stay two cups, where 'any' makes them one; a post smaller than both parts of a chair (seat
     above, base below) still joins them."""
-    from stratamap.core.onnx_adapters import merge_depth_continuous
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import merge_depth_continuous
 
     TABLE, CUP, CHAIR, POST = 1, 2, 3, 4
     ids = np.zeros((12, 20), np.int32)
@@ -346,7 +345,7 @@ def test_depth_continuous_merge_bridges_only_through_smaller_instances():
 def test_semantic_boundary_leaves_unsure_regions_unknown():
     """A region whose mean top probability is under min_region_score becomes class 0 (unknown);
     confident regions keep their class."""
-    from stratamap.core.onnx_adapters import semantic_boundary
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
 
     logits = np.zeros((1, 3, 20, 20), np.float32)
     logits[0, 1] = 8.0

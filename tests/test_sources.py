@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from stratamap.core.errors import DataError
-from stratamap.core.rosbag_io import write_lidar_bag, write_rgbd_bag
+from stratamap.core.io.rosbag import write_lidar_bag, write_rgbd_bag
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 from stratamap.core.synthetic.writer import write_sequence
@@ -109,7 +109,7 @@ def test_tum_without_poses_runs_odometry_and_reports_ate(tmp_path):
 
 
 def test_nan_and_zero_depth_become_no_measurement(tmp_path):
-    from stratamap.core.rgbd_io import read_depth
+    from stratamap.core.io.rgbd import read_depth
 
     arr = np.array([[np.nan, 0.0], [-1.0, 1.5]], np.float32)
     Image.fromarray(arr, mode="F").save(tmp_path / "d.tiff")

@@ -15,16 +15,16 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from stratamap.core.cli import app
-from stratamap.core.layers import ContactGraph
-from stratamap.core.nav2 import read_map
-from stratamap.core.sensors import CameraIntrinsics
+from stratamap.core.map.layers import ContactGraph
+from stratamap.core.io.nav2 import read_map
+from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.core.synthetic import SCENE_TYPES, SceneSpec, SyntheticWorld, generate_scene
 from stratamap.core.synthetic.models import FAMILIES, make_model
 from stratamap.core.synthetic.render import SceneRenderer, apply_kinect_noise
 from stratamap.core.synthetic.scene import room_layout
 from stratamap.core.synthetic.writer import write_sequence
 from stratamap.core.testing import fingerprint
-from stratamap.core.transforms import look_at
+from stratamap.core.geometry.transforms import look_at
 
 REPO = Path(__file__).resolve().parent.parent
 runner = CliRunner()
@@ -86,7 +86,7 @@ def test_models_build_cli_contract(tmp_path):
     assert "revolute" in joints and "prismatic" in joints
     for m in doc["models"]:
         assert {"id", "class", "family", "params", "bounds", "feature_planes", "parts", "joints"} <= set(m)
-    from stratamap.core.library import ModelLibrary
+    from stratamap.core.library.models import ModelLibrary
 
     lib = ModelLibrary.load(out)
     assert len(lib) == 2 * len(FAMILIES) and not lib.problems
@@ -102,7 +102,7 @@ def test_user_mesh_folder_and_broken_files(tmp_path):
     trimesh.creation.icosphere().export(tmp_path / "ball.ply")
     (tmp_path / "broken.obj").write_text("this is not an obj\n")
     (tmp_path / "classes.csv").write_text("file,class\ncab.stl,cabinet\nball.ply,object\nbroken.obj,box\nmissing.glb,box\n")
-    from stratamap.core.library import ModelLibrary
+    from stratamap.core.library.models import ModelLibrary
 
     lib = ModelLibrary.load(tmp_path)
     assert sorted(m.id for m in lib) == ["ball", "cab"]
@@ -114,7 +114,7 @@ def test_partnet_mobility_folders_load():
     root = REPO.parent / "shared" / "data" / "partnet_mobility"
     if not root.exists():
         pytest.skip("real data not available")
-    from stratamap.core.library import ModelLibrary
+    from stratamap.core.library.models import ModelLibrary
 
     lib = ModelLibrary.load(root)
     assert {m.class_name for m in lib} == {"chair", "cabinet"}
@@ -221,7 +221,7 @@ def test_lidar_points_lie_on_the_scene():
     world = SyntheticWorld(tiny("corridor", lidar={"enabled": True, "rings": 8, "points_per_ring": 180}))
     scan = world.lidar_scans[0]
     assert len(scan.points) > 0.9 * 8 * 180
-    from stratamap.core.transforms import apply
+    from stratamap.core.geometry.transforms import apply
 
     pts = apply(scan.pose, scan.points)
     lx, ly, lz = world.scene.room_size
@@ -300,7 +300,7 @@ def test_real_apartment_urdf_loads_into_the_library():
     root = REPO.parent / "shared" / "data" / "iai_apartment" / "urdf" / "apartment.urdf"
     if not root.exists():
         pytest.skip("real data not available")
-    from stratamap.core.library import ModelLibrary
+    from stratamap.core.library.models import ModelLibrary
 
     lib = ModelLibrary.load(root)
     [model] = lib.models

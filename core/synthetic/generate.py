@@ -15,16 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.layers import OccupancyMaps
-from stratamap.core.sensors import FrameSegmentation, LaserScan, LidarScan, RGBDFrame, SensorStream
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.map.layers import OccupancyMaps
+from stratamap.core.map.sensors import FrameSegmentation, LaserScan, LidarScan, RGBDFrame, SensorStream
 from stratamap.core.synthetic.occupancy import VoxelOccupancy, scene_occupancy
 from stratamap.core.synthetic.render import SceneRenderer, apply_kinect_noise, laser_directions, lidar_directions
 from stratamap.core.synthetic.scene import Scene, generate_scene
 from stratamap.core.synthetic.spec import SceneSpec
 from stratamap.core.synthetic.trajectory import drift, make_trajectory
-from stratamap.core.transforms import make_pose, yaw_of
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.geometry.transforms import make_pose, yaw_of
+from stratamap.core.map.vocabulary import Vocabulary
 
 
 def robot_pose(camera_pose: np.ndarray) -> tuple[float, float, float]:

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from stratamap.core.layers import Joint
-from stratamap.core.transforms import make_pose
+from stratamap.core.map.layers import Joint
+from stratamap.core.geometry.transforms import make_pose
 
 ROOT_LINK = "body"
 

@@ -14,7 +14,7 @@ import open3d as o3d
 import open3d.core as o3c
 import trimesh
 
-from stratamap.core.layers import OccupancyGrid
+from stratamap.core.map.layers import OccupancyGrid
 from stratamap.core.synthetic.scene import Scene
 
 

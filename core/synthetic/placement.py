@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stratamap.core.synthetic.models import FAMILIES, Model, make_model
-from stratamap.core.transforms import apply, make_pose
+from stratamap.core.geometry.transforms import apply, make_pose
 
 #: class -> placement rule
 PLACEMENT = {

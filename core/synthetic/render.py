@@ -8,10 +8,10 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from stratamap.core.sensors import CameraIntrinsics
+from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.core.synthetic.scene import Scene
-from stratamap.core.transforms import invert
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.vocabulary import Vocabulary
 
 KINECT_FOCAL_BASELINE = 580.0 * 0.075  # pixels x metres
 

@@ -8,12 +8,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from stratamap.core.groundtruth import GroundTruthObject
-from stratamap.core.layers import ContactGraph
+from stratamap.core.map.groundtruth import GroundTruthObject
+from stratamap.core.map.layers import ContactGraph
 from stratamap.core.synthetic.models import Model, ModelPart
 from stratamap.core.synthetic.placement import place_objects
 from stratamap.core.synthetic.spec import SceneSpec
-from stratamap.core.transforms import make_pose
+from stratamap.core.geometry.transforms import make_pose
 
 WALL_THICKNESS = 0.1
 

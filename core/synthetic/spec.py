@@ -18,11 +18,10 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from stratamap.core.errors import ConfigError
-from stratamap.core.sensors import CameraIntrinsics
+from stratamap.core.documents import load_model
+from stratamap.core.map.sensors import CameraIntrinsics
 
 SCENE_TYPES = ("room", "office", "meeting_room", "kitchen", "lounge", "corridor")
 
@@ -162,18 +161,4 @@ class SceneSpec(_Spec):
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> SceneSpec:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError([("", f"scene spec not found: {path}")])
-        try:
-            doc = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError([("", f"not valid YAML: {exc}")], source=str(path)) from exc
-        try:
-            return cls.model_validate(doc)
-        except ValidationError as exc:
-            problems = []
-            for e in exc.errors():
-                msg = "extra field" if e["type"] == "extra_forbidden" else e["msg"]
-                problems.append((".".join(map(str, e["loc"])), msg))
-            raise ConfigError(problems, source=str(path)) from None
+        return load_model(cls, path, "scene spec")

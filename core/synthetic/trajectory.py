@@ -7,7 +7,7 @@ from scipy import ndimage
 
 from stratamap.core.synthetic.scene import Scene
 from stratamap.core.synthetic.spec import TrajectorySpec
-from stratamap.core.transforms import look_at
+from stratamap.core.geometry.transforms import look_at
 
 GRID = 0.05
 

@@ -36,9 +36,9 @@ import numpy as np
 from PIL import Image
 
 from stratamap.core.atomic import atomic_directory, write_json, write_text
-from stratamap.core.nav2 import write_map
+from stratamap.core.io.nav2 import write_map
 from stratamap.core.synthetic.generate import SyntheticWorld
-from stratamap.core.transforms import matrix_to_quat_xyzw, yaw_of
+from stratamap.core.geometry.transforms import matrix_to_quat_xyzw, yaw_of
 
 DEPTH_SCALE = 5000.0
 

@@ -23,9 +23,9 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, hookimpl
-from stratamap.core.completion import Match, MatcherConfig, MatchingCompleter
-from stratamap.core.layers import ObjectInstance
-from stratamap.core.model_index import IndexedModel, ModelIndex, shape_descriptor
+from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter
+from stratamap.core.map.layers import ObjectInstance
+from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 
 
 class ICPMatchConfig(MatcherConfig):

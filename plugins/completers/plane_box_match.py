@@ -33,10 +33,10 @@ from pydantic import Field
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from stratamap.core import PipelineData, hookimpl
-from stratamap.core.completion import Match, MatcherConfig, MatchingCompleter, load_index, object_base, posed_completion
-from stratamap.core.geometry import ransac_plane
-from stratamap.core.layers import ObjectInstance, OrientedBox
-from stratamap.core.model_index import IndexedModel, ModelIndex, shape_descriptor
+from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter, load_index, object_base, posed_completion
+from stratamap.core.geometry.points import ransac_plane
+from stratamap.core.map.layers import ObjectInstance, OrientedBox
+from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 
 
 def canonical_orientations() -> list[np.ndarray]:
@@ -262,7 +262,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
 
     def _support_check(self, options: dict[int, list[Candidate]], data: PipelineData, cfg: PlaneBoxConfig) -> None:
         """Eq. 2: a parent candidate must give each supported child at least b_th of its footprint."""
-        from stratamap.core.geometry import footprint_overlap
+        from stratamap.core.geometry.boxes import footprint_overlap
 
         graph = data.map.contact_graph
         insts = data.map.instances
@@ -282,7 +282,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
 
     def _min_conflict(self, options: dict[int, list[Candidate]], cfg: PlaneBoxConfig) -> dict[int, Candidate]:
         """Choose one candidate per object so that no two chosen models interpenetrate."""
-        from stratamap.core.geometry import box_iou_3d
+        from stratamap.core.geometry.boxes import box_iou_3d
 
         ids = sorted(i for i, c in options.items() if c)
         choice = {i: options[i][0] for i in ids}

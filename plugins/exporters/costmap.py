@@ -11,31 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-import yaml
-from PIL import Image
 from pydantic import Field
-from scipy import ndimage
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.atomic import atomic_path, write_text
-from stratamap.core.layers import OccupancyGrid
-
-FREE, INSCRIBED, LETHAL, UNKNOWN = 0, 253, 254, 255
-
-
-def costmap_values(grid: OccupancyGrid, inscribed_radius: float, inflation_radius: float, cost_scaling_factor: float) -> np.ndarray:
-    occupied = grid.data >= 65
-    unknown = grid.data < 0
-    dist = ndimage.distance_transform_edt(~occupied) * grid.resolution if occupied.any() else np.full(grid.data.shape, np.inf)
-    cost = np.zeros(grid.data.shape, np.float64)
-    ramp = (dist > inscribed_radius) & (dist <= inflation_radius)
-    cost[ramp] = 252.0 * np.exp(-cost_scaling_factor * (dist[ramp] - inscribed_radius))
-    out = np.rint(cost).astype(np.uint8)
-    out[dist <= inscribed_radius] = INSCRIBED
-    out[occupied] = LETHAL
-    out[unknown & ~occupied] = UNKNOWN
-    return out
+from stratamap.core.io.nav2 import costmap_values, write_costmap
 
 
 class CostmapConfig(StageConfig):
@@ -60,20 +39,7 @@ class CostmapExporter(Exporter):
             self.warn(f"no occupancy layer {cfg.layer!r} (have: {sorted(data.map.occupancy)}); costmap not written")
             return []
         values = costmap_values(grid, cfg.inscribed_radius, cfg.inflation_radius, cfg.cost_scaling_factor)
-        pgm = out_dir / f"{cfg.basename}.pgm"
-        with atomic_path(pgm) as tmp:
-            Image.fromarray(np.flipud(values), mode="L").save(tmp, format="PPM")
-        meta = {
-            "image": pgm.name,
-            "mode": "raw",
-            "resolution": float(grid.resolution),
-            "origin": [float(v) for v in grid.origin],
-            "negate": 0,
-            "occupied_thresh": 0.65,
-            "free_thresh": 0.196,
-        }
-        yml = out_dir / f"{cfg.basename}.yaml"
-        write_text(yml, yaml.safe_dump(meta, sort_keys=False, default_flow_style=None))
+        yml, pgm = write_costmap(values, grid, out_dir, cfg.basename)
         return [yml, pgm]
 
 

@@ -1,41 +1,21 @@
-"""Exporter ``mjcf``: the scene as a MuJoCo model (``scene.xml``), meshes beside it.
-
-Furniture on the floor is static (bodies without joints, welded to the world); objects of the
-``free_classes`` get a free joint and fall under gravity; articulated parts keep hinge and slide
-joints with their ranges. MuJoCo collides convex hulls, so every link mesh is split into its
-closed shells (a chair's legs, seat and back) and each shell is its own geom: one hull per chair
-would fill the space under a table and push the chair out.
-"""
+"""Exporter ``mjcf``: the scene as a MuJoCo model (``scene.xml``), meshes beside it
+(written by :mod:`stratamap.core.simulation.mjcf`)."""
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import numpy as np
 from pydantic import Field
-from scipy.spatial.transform import Rotation
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.atomic import atomic_path, write_text
-from stratamap.core.kinematics import ROOT_LINK, build_tree
-from stratamap.core.physics import mesh_parts
-
-
-def _fmt(values) -> str:
-    return " ".join(f"{float(v):.9g}" for v in values)
-
-
-def _quat_wxyz(pose: np.ndarray) -> str:
-    x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
-    return _fmt([w, x, y, z])
+from stratamap.core.simulation.mjcf import DEFAULT_FREE_CLASSES, write_mjcf
 
 
 class MJCFConfig(StageConfig):
     filename: str = Field(default="scene.xml", description="Name of the MJCF file in the export folder.")
     mesh_dir: str = Field(default="mjcf_meshes", description="Sub-folder for the collision and visual meshes.")
     free_classes: list[str] = Field(
-        default_factory=lambda: ["chair", "box", "book", "cup", "bottle", "laptop", "monitor", "plant"],
+        default_factory=lambda: list(DEFAULT_FREE_CLASSES),
         description="Classes that get a free joint (movable objects); others are fixed to the world.",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
@@ -53,64 +33,11 @@ class MJCFExporter(Exporter):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg: MJCFConfig = self.config  # type: ignore[assignment]
-        # Free objects are children of the world in MuJoCo (a free joint must sit on a top-level body).
-        tree = build_tree(data.map.instances, None, cfg.density)  # type: ignore[arg-type]
-        root = ET.Element("mujoco", model="stratamap_scene")
-        ET.SubElement(root, "compiler", angle="radian", meshdir=cfg.mesh_dir, autolimits="true")
-        ET.SubElement(root, "option", timestep=f"{cfg.timestep:g}", gravity="0 0 -9.81")
-        default = ET.SubElement(root, "default")
-        ET.SubElement(default, "geom", friction="0.8 0.01 0.001", solref="0.005 1", condim="3")
-        asset = ET.SubElement(root, "asset")
-        world = ET.SubElement(root, "worldbody")
-        ET.SubElement(world, "light", pos="0 0 3", dir="0 0 -1", directional="true")
-        ET.SubElement(world, "geom", name="floor", type="plane", size="50 50 0.1", rgba="0.6 0.6 0.6 1")
-        written: list[Path] = []
-        classes = {link.name: link.class_name for link in tree.links}
-        by_parent: dict[str, list] = {}
-        for j in tree.joints:
-            by_parent.setdefault(j.parent, []).append(j)
-        links = {link.name: link for link in tree.links}
-
-        def add_body(parent_el: ET.Element, joint) -> None:
-            link = links[joint.child]
-            body = ET.SubElement(parent_el, "body", name=link.name, pos=_fmt(joint.origin[:3, 3]), quat=_quat_wxyz(joint.origin))
-            if joint.parent == ROOT_LINK and classes.get(link.name) in cfg.free_classes:
-                ET.SubElement(body, "freejoint", name=f"{link.name}_free")
-            elif joint.type in ("revolute", "continuous"):
-                # Real hinges hold a lid or door where it was left: dry friction above gravity's torque.
-                arm = np.linalg.norm(np.cross(link.inertial.center, joint.axis / max(np.linalg.norm(joint.axis), 1e-9)))
-                hold = cfg.hinge_holding * link.inertial.mass * 9.81 * arm
-                attrs = {"name": joint.name, "type": "hinge", "axis": _fmt(joint.axis), "damping": "1", "frictionloss": f"{hold:.6g}"}
-                if joint.type == "revolute":
-                    attrs["range"] = _fmt([joint.lower, joint.upper])
-                ET.SubElement(body, "joint", **attrs)
-            elif joint.type == "prismatic":
-                ET.SubElement(body, "joint", name=joint.name, type="slide", axis=_fmt(joint.axis), range=_fmt([joint.lower, joint.upper]), damping="5")
-            i = link.inertial
-            evals, evecs = np.linalg.eigh(i.inertia)
-            if np.linalg.det(evecs) < 0:
-                evecs[:, 0] = -evecs[:, 0]
-            frame = np.eye(4)
-            frame[:3, :3] = evecs
-            ET.SubElement(body, "inertial", pos=_fmt(i.center), quat=_quat_wxyz(frame), mass=f"{i.mass:.6g}", diaginertia=_fmt(np.maximum(evals, 1e-8)))
-            for k, shell in enumerate(mesh_parts(link.mesh)):
-                mesh_name = f"{link.name}_{k}"
-                rel = f"{mesh_name}.stl"
-                path = out_dir / cfg.mesh_dir / rel
-                with atomic_path(path) as tmp:
-                    shell.export(tmp, file_type="stl")
-                written.append(path)
-                ET.SubElement(asset, "mesh", name=mesh_name, file=rel)
-                ET.SubElement(body, "geom", name=f"{mesh_name}_geom", type="mesh", mesh=mesh_name, density="0")
-            for child in by_parent.get(link.name, []):
-                add_body(body, child)
-
-        for joint in by_parent.get(ROOT_LINK, []):
-            add_body(world, joint)
-        ET.indent(root)
-        path = out_dir / cfg.filename
-        write_text(path, ET.tostring(root, encoding="unicode") + "\n")
-        return [path, *written]
+        assert data.map.instances is not None
+        return write_mjcf(
+            data.map.instances, out_dir, filename=cfg.filename, mesh_dir=cfg.mesh_dir, free_classes=cfg.free_classes,
+            density=cfg.density, hinge_holding=cfg.hinge_holding, timestep=cfg.timestep,
+        )
 
 
 @hookimpl

@@ -11,7 +11,7 @@ from pathlib import Path
 from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.nav2 import write_map
+from stratamap.core.io.nav2 import write_map
 
 
 class Nav2MapConfig(StageConfig):

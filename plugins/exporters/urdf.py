@@ -16,8 +16,8 @@ from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
-from stratamap.core.kinematics import ROOT_LINK, build_tree
-from stratamap.core.transforms import rpy_of
+from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
+from stratamap.core.geometry.transforms import rpy_of
 
 
 def _fmt(values) -> str:

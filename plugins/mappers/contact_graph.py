@@ -19,15 +19,15 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
-from stratamap.core.geometry import footprint_overlap
-from stratamap.core.layers import ContactGraph
+from stratamap.core.geometry.boxes import footprint_overlap
+from stratamap.core.map.layers import ContactGraph
 
 
 def support_ratio(child_box, surface_xy: np.ndarray) -> float:
     """Area (m^2) of the child's footprint covered by the convex hull of a parent's surface points."""
     from scipy.spatial import ConvexHull, QhullError
 
-    from stratamap.core.geometry import clip_polygon, polygon_area
+    from stratamap.core.geometry.boxes import clip_polygon, polygon_area
 
     try:
         hull = surface_xy[ConvexHull(surface_xy).vertices]
@@ -38,7 +38,7 @@ def support_ratio(child_box, surface_xy: np.ndarray) -> float:
 
 def surface_planes(points: np.ndarray, distance: float, max_planes: int, min_share: float, seed: int = 0) -> list[dict[str, Any]]:
     """Iterative RANSAC: the object's largest planes, each fitted after the previous inliers are removed."""
-    from stratamap.core.geometry import ransac_plane
+    from stratamap.core.geometry.points import ransac_plane
 
     rest = np.asarray(points, dtype=np.float64)
     planes: list[dict[str, Any]] = []

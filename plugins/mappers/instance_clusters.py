@@ -20,31 +20,9 @@ import open3d as o3d
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
-from stratamap.core.layers import Semantics
-from stratamap.plugins.mappers.tsdf import instances_from_semantics
-
-#: Extent (max distance from the centroid, metres) per class: outside it a cluster is not that object.
-DEFAULT_EXTENTS = {
-    "chair": (0.2, 0.9),
-    "table": (0.3, 1.6),
-    "desk": (0.4, 1.4),
-    "cabinet": (0.25, 1.3),
-    "shelf": (0.3, 1.4),
-    "counter": (0.4, 1.8),
-    "sofa": (0.5, 1.6),
-    "bench": (0.3, 1.2),
-    "fridge": (0.4, 1.2),
-    "microwave": (0.15, 0.5),
-    "oven": (0.3, 0.8),
-    "monitor": (0.15, 0.6),
-    "laptop": (0.1, 0.4),
-    "box": (0.05, 0.5),
-    "book": (0.05, 0.3),
-    "cup": (0.02, 0.15),
-    "bottle": (0.05, 0.3),
-    "plant": (0.1, 0.7),
-}
-
+from stratamap.core.map.layers import Semantics
+from stratamap.core.map.instances import instances_from_semantics
+from stratamap.core.map.priors import class_extents
 
 class InstanceClustersConfig(StageConfig):
     method: Literal["euclidean", "don"] = Field(default="euclidean", description="Euclidean clustering, or difference of normals before it.")
@@ -57,7 +35,7 @@ class InstanceClustersConfig(StageConfig):
     don_threshold: float = Field(default=0.25, gt=0.0, le=2.0, description="Points with |n_small - n_large| above this are boundaries (DoN).")
     shape_filter: bool = Field(default=True, description="Reject planar clusters and clusters outside the class's extent range.")
     planarity: float = Field(default=0.002, ge=0.0, description="Planar when the smallest/largest covariance eigenvalue ratio is below this.")
-    extents: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_EXTENTS), description="Per class (min, max) extent, metres.")
+    extents: dict[str, tuple[float, float]] = Field(default_factory=class_extents, description="Per class (min, max) extent, metres.")
 
 
 def planar(points: np.ndarray, ratio: float) -> bool:

@@ -21,8 +21,8 @@ from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.layers import OccupancyGrid, OccupancyMaps
-from stratamap.core.sensors import LaserScan
+from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
+from stratamap.core.map.sensors import LaserScan
 
 
 class OccupancyConfig(StageConfig):
@@ -171,7 +171,7 @@ class OccupancyMapper(Mapper):
 
     @staticmethod
     def _instances_band(data: PipelineData, cfg: OccupancyConfig, floor_z: float, cells: Any, shape: tuple[int, int]) -> np.ndarray:
-        from stratamap.core.kinematics import object_mesh
+        from stratamap.core.simulation.kinematics import object_mesh
 
         band = np.zeros(shape, bool)
         for inst in data.map.instances or []:

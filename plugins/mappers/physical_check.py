@@ -14,7 +14,7 @@ from typing import Any
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
-from stratamap.core.physics import resolve_scene
+from stratamap.core.simulation.physics import resolve_scene
 
 
 class PhysicalCheckConfig(StageConfig):

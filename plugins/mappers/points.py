@@ -10,8 +10,8 @@ from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.layers import Geometry
-from stratamap.core.transforms import apply
+from stratamap.core.map.layers import Geometry
+from stratamap.core.geometry.transforms import apply
 
 
 class PointsConfig(StageConfig):

@@ -12,18 +12,15 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 import open3d.core as o3c
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.layers import Geometry, Semantics
-from stratamap.core.transforms import apply, invert
-from stratamap.core.geometry import VOXEL_NEIGHBOURS
-from stratamap.plugins.mappers.tsdf import IntegrationConfig, canonical_mesh, label_stride, position_order
-
-
+from stratamap.core.map.layers import Semantics
+from stratamap.core.geometry.transforms import apply
+from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
+from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
 
 class SemanticTSDFConfig(IntegrationConfig):
     p_correct: float = Field(default=0.8, gt=0.0, lt=1.0, description="Probability that the segmenter's class is right (measurement model).")
@@ -47,31 +44,18 @@ class SemanticTSDFMapper(Mapper):
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         n_classes = len(vocab)
         device = o3c.Device("CPU:0")
-        vbg = o3d.t.geometry.VoxelBlockGrid(
-            attr_names=("tsdf", "weight", "color"),
-            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-            attr_channels=((1), (1), (3)),
-            voxel_size=cfg.voxel_size,
-            block_resolution=cfg.block_resolution,
-            block_count=cfg.block_count,
-            device=device,
-        )
+        volume = TSDFVolume(cfg, stream.intrinsics)
         probs = o3c.HashMap(200000, o3c.int32, (3,), o3c.float32, (n_classes,), device)
         # log p(z|c): the observed class gains log(p / q) over the others (q = (1 - p) / (K - 1)).
         gain = np.float32(np.log(cfg.p_correct * (n_classes - 1) / (1 - cfg.p_correct)))
         intr = stream.intrinsics
-        K = o3c.Tensor(intr.matrix, o3c.float64)
         for frame in self.progress(stream.frames, description="semantic TSDF"):
             if frame.pose is None:
                 raise DataError(f"semantic_tsdf: frame {frame.index} has no pose")
-            depth = np.where(np.isfinite(frame.depth) & (frame.depth >= cfg.depth_min), frame.depth, 0).astype(np.float32)
+            depth = volume.valid_depth(frame, "semantic_tsdf")
             if not depth.any():
                 continue
-            ext = o3c.Tensor(invert(frame.pose), o3c.float64)
-            d_img = o3d.t.geometry.Image(o3c.Tensor(depth))
-            c_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(frame.rgb, dtype=np.float32) / 255.0))
-            coords = vbg.compute_unique_block_coordinates(d_img, K, ext, 1.0, cfg.depth_max, cfg.truncation_voxels)
-            vbg.integrate(coords, d_img, c_img, K, K, ext, 1.0, cfg.depth_max, cfg.truncation_voxels)
+            volume.integrate(depth, frame.rgb, frame.pose)
             seg = labels.frames[frame.index]
             pts, pix = intr.backproject(np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width))
             cls = seg.class_ids.reshape(-1)[pix].astype(np.int64)
@@ -85,19 +69,8 @@ class SemanticTSDFMapper(Mapper):
             table = probs.value_tensor().numpy()
             np.add.at(table, (idx, cls[keep][found.numpy().reshape(-1)]), gain)
 
-        pcd = vbg.extract_point_cloud()
-        points = pcd.point.positions.numpy().astype(np.float64)
-        raw_colors = pcd.point.colors.numpy()
-        order = position_order(points, raw_colors)
-        points = points[order]
-        colors = np.clip(raw_colors[order], 0, 1)
-        mesh = None
-        if cfg.extract_mesh:
-            import trimesh
-
-            tm = vbg.extract_triangle_mesh()
-            v, f, c = canonical_mesh(tm.vertex.positions.numpy().astype(np.float64), tm.triangle.indices.numpy().astype(np.int64), (np.clip(tm.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8))
-            mesh = trimesh.Trimesh(v, f, vertex_colors=c, process=False)
+        geometry = volume.surface()
+        points = geometry.points
         table = probs.value_tensor().numpy()
         base = np.round(points / cfg.voxel_size).astype(np.int64)
         class_ids = np.zeros(len(points), np.int32)
@@ -112,7 +85,7 @@ class SemanticTSDFMapper(Mapper):
             best[rows.max(1) <= 0] = 0
             class_ids[todo[ok]] = best
         semantics = Semantics(class_ids, np.zeros(len(points), np.int32), vocab)
-        return {"geometry": Geometry(points=points, colors=colors, mesh=mesh, voxel_size=cfg.voxel_size), "semantics": semantics}
+        return {"geometry": geometry, "semantics": semantics}
 
 
 @hookimpl

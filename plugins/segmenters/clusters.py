@@ -28,9 +28,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.geometry import ransac_plane, voxel_downsample
-from stratamap.core.layers import Semantics
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.geometry.points import ransac_plane, voxel_downsample
+from stratamap.core.map.layers import Semantics
+from stratamap.core.map.vocabulary import Vocabulary
 
 
 class ClassRule(BaseModel):
@@ -253,7 +253,7 @@ class ClustersSegmenter(Segmenter):
     def segment(self, data: PipelineData) -> dict[str, Any]:
         from scipy.spatial import cKDTree
 
-        from stratamap.plugins.mappers.tsdf import instances_from_semantics
+        from stratamap.core.map.instances import instances_from_semantics
 
         cfg: ClustersConfig = self.config  # type: ignore[assignment]
         geometry = data.map.geometry

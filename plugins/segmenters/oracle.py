@@ -8,7 +8,7 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.sensors import FrameLabels
+from stratamap.core.map.sensors import FrameLabels
 
 
 class OracleConfig(StageConfig):

@@ -16,10 +16,10 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.gravity import estimate_alignment, transform_stream
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.sensors import SensorStream
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.map.sensors import SensorStream
+from stratamap.core.map.vocabulary import Vocabulary
 
 UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 

@@ -15,10 +15,10 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.rgbd_io import check_depth_scale, read_depth, read_rgb
-from stratamap.core.sensors import CameraIntrinsics, SensorStream
-from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_rgb, write_redwood
+from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
 
 PRIMESENSE = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm")
@@ -58,23 +58,7 @@ class RedwoodSource(SequenceSource):
     def example_params(cls) -> dict:
         import tempfile
 
-        from PIL import Image
-
-        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
-
-        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 128, "height": 96}, "trajectory": {"type": "orbit", "frames": 5}})
-        world = SyntheticWorld(spec)
-        root = Path(tempfile.mkdtemp(prefix="stratamap-redwood-"))
-        (root / "color").mkdir()
-        (root / "depth").mkdir()
-        log = []
-        for k, f in enumerate(world.stream().frames):
-            Image.fromarray(f.rgb).save(root / "color" / f"{k:06d}.jpg", quality=95)
-            Image.fromarray(np.round(f.depth * 1000).astype(np.uint16)).save(root / "depth" / f"{k:06d}.png")
-            log.append(f"{k} {k} {k + 1}\n" + "\n".join(" ".join(f"{v:.12g}" for v in row) for row in f.pose) + "\n")
-        (root / "trajectory.log").write_text("".join(log))
-        intr = world.intrinsics
-        (root / "camera.json").write_text(json.dumps({"width": intr.width, "height": intr.height, "intrinsic_matrix": intr.matrix.T.reshape(-1).tolist()}))
+        root = write_redwood(example_stream(128, 96, 5), Path(tempfile.mkdtemp(prefix="stratamap-redwood-")))
         return {"path": str(root)}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:

@@ -21,10 +21,10 @@ from scipy.spatial.transform import Rotation
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.rgbd_io import associate
-from stratamap.core.sensors import CameraIntrinsics, LidarScan, SensorStream
-from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.io.rgbd import associate
+from stratamap.core.map.sensors import CameraIntrinsics, LidarScan, SensorStream
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
 
 IMAGE = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
 INFO = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
@@ -145,13 +145,10 @@ class RosbagSource(SequenceSource):
     def example_params(cls) -> dict:
         import tempfile
 
-        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
-        from stratamap.core.rosbag_io import write_rgbd_bag
+        from stratamap.core.io.rosbag import write_rgbd_bag
 
-        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 96, "height": 72}, "trajectory": {"type": "orbit", "frames": 5}})
-        world = SyntheticWorld(spec)
         path = Path(tempfile.mkdtemp(prefix="stratamap-bag-")) / "bag"
-        write_rgbd_bag(path, world.stream(), ros_version=2)
+        write_rgbd_bag(path, example_stream(96, 72, 5), ros_version=2)
         return {"path": str(path), "world_frame": "map"}
 
     def _read_bag(self, path: Path) -> dict[str, Any]:
@@ -257,7 +254,7 @@ class RosbagSource(SequenceSource):
         if any(s.pose is None for s in scans):
             if cfg.odometry == "never":
                 raise DataError(f"{path}: LiDAR sweeps without tf poses and odometry is 'never'")
-            from stratamap.core.odometry import lidar_odometry
+            from stratamap.plugins.sources._odometry import lidar_odometry
 
             for s, pose in zip(scans, lidar_odometry([s.points for s in scans], [s.timestamp for s in scans]), strict=True):
                 s.pose = pose
@@ -270,8 +267,8 @@ class RosbagSource(SequenceSource):
         stream, frames, gt = self.load()
         if len(frames) == 0:  # LiDAR input: poses settled in load, gravity from the sweeps
             if cfg.gravity == "auto" and stream.lidar_scans:
-                from stratamap.core.gravity import estimate_alignment, transform_stream
-                from stratamap.core.transforms import apply
+                from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
+                from stratamap.core.geometry.transforms import apply
 
                 probe = SensorStream(name=stream.name, points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]]))
                 alignment = estimate_alignment(probe, up_hint=np.array([0.0, 0.0, 1.0]))

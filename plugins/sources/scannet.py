@@ -14,10 +14,10 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.rgbd_io import check_depth_scale, read_depth, read_image, read_rgb
-from stratamap.core.sensors import CameraIntrinsics, SensorStream
-from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_image, read_rgb, write_scannet
+from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
 
 
 class ScanNetConfig(SequenceConfig):
@@ -54,22 +54,8 @@ class ScanNetSource(SequenceSource):
     def example_params(cls) -> dict:
         import tempfile
 
-        from PIL import Image
-
-        from stratamap.core.synthetic import SceneSpec, SyntheticWorld
-
-        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 128, "height": 96}, "trajectory": {"type": "orbit", "frames": 5}})
-        world = SyntheticWorld(spec)
         root = Path(tempfile.mkdtemp(prefix="stratamap-scannet-"))
-        for sub in ("color", "depth", "pose", "intrinsic"):
-            (root / sub).mkdir()
-        for k, f in enumerate(world.stream().frames):
-            Image.fromarray(f.rgb).resize((256, 192)).save(root / "color" / f"{k}.jpg", quality=95)
-            Image.fromarray(np.round(f.depth * 1000).astype(np.uint16)).save(root / "depth" / f"{k}.png")
-            np.savetxt(root / "pose" / f"{k}.txt", f.pose)
-        K = np.eye(4)
-        K[:3, :3] = world.intrinsics.matrix
-        np.savetxt(root / "intrinsic" / "intrinsic_depth.txt", K)
+        write_scannet(example_stream(128, 96, 5), root, color_size=(256, 192))
         return {"path": str(root)}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:

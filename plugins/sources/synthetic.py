@@ -46,7 +46,7 @@ class SyntheticSource(Source):
         p = Path(path).expanduser()
         if p.is_absolute() or p.is_file():
             return p
-        from stratamap.core.cli import repo_root
+        from stratamap.core.paths import repo_root
 
         candidate = repo_root() / p
         return candidate if candidate.is_file() else p

@@ -17,9 +17,9 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.gt_io import load_ground_truth
-from stratamap.core.rgbd_io import (
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.io.groundtruth import load_ground_truth
+from stratamap.core.io.rgbd import (
     associate,
     check_depth_scale,
     interpolate_poses,
@@ -29,8 +29,8 @@ from stratamap.core.rgbd_io import (
     read_rgb,
     read_timestamped_list,
 )
-from stratamap.core.sensors import CameraIntrinsics, SensorStream
-from stratamap.core.sequence_source import PosedFrames, SequenceConfig, SequenceSource, select
+from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, select
 
 TUM_DEFAULT = {"width": 640, "height": 480, "fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "depth_scale": 5000.0}
 

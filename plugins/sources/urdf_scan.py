@@ -5,7 +5,7 @@ The scene is a URDF file (e.g. the real IAI apartment kitchen) or a procedural k
 (``synthetic_seed``). A room (floor, walls, ceiling) is added around it, panoramic scans are ray
 cast from ``viewpoints`` (a tilting laser on a robot), and every point is labelled: level 1
 (floor, table, ceiling, wall, furniture), level 2 (cupboard, drawer, appliance, panel), the front
-it belongs to, and each door's hinge side (see :mod:`stratamap.core.kitchen_scan`).
+it belongs to, and each door's hinge side (see :mod:`stratamap.core.simulation.virtual_scan`).
 
     source:
       plugin: urdf_scan
@@ -26,10 +26,10 @@ from pydantic import Field, model_validator
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.groundtruth import GroundTruth
-from stratamap.core.kitchen_scan import LEVEL1, LEVEL1_CLASS, LEVEL2, LEVEL2_CLASS
-from stratamap.core.sensors import SensorStream
-from stratamap.core.vocabulary import Vocabulary
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL1_CLASS, LEVEL2, LEVEL2_CLASS
+from stratamap.core.map.sensors import SensorStream
+from stratamap.core.map.vocabulary import Vocabulary
 
 
 
@@ -73,8 +73,8 @@ class UrdfScanSource(Source):
         return {"synthetic_seed": 0, "resolution_deg": 2.0}
 
     def read(self) -> dict[str, Any]:
-        from stratamap.core import kitchen_scan as ks
-        from stratamap.core.urdf_io import read_urdf
+        from stratamap.core.simulation import virtual_scan as ks
+        from stratamap.core.io.urdf import read_urdf
 
         cfg: UrdfScanConfig = self.config  # type: ignore[assignment]
         room = cfg.room

@@ -13,7 +13,7 @@ import trimesh
 from pydantic import Field
 
 from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
-from stratamap.core.layers import Completion
+from stratamap.core.map.layers import Completion
 
 
 class HullConfig(StageConfig):

@@ -1,0 +1,1 @@
+"""Evaluation against ground truth: one module per metric family, navigation safety, and the benchmark runner."""

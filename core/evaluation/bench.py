@@ -1,0 +1,430 @@
+"""Benchmarks: every (scene, variant) pair of a benchmark file, run, measured and tabulated.
+
+A benchmark file names scenes (synthetic specs with seeds, or any source with its parameters)
+and variants of one base pipeline (whole stage lists, or ``--set``-style overrides of the base).
+Per scene, the stages every pending variant shares from the start are run once and their result
+is reused by each variant (a completer comparison maps a scene once). Runs are jobs handed to an
+executor: local worker processes, or Ray tasks on a cluster. Every finished run is one JSON
+record written atomically under ``DIR/records/``, so an interrupted benchmark loses nothing and a
+re-run skips what is done; ``results.json``/``.csv``/``.md`` and the figures are rebuilt from the
+records at the end.
+
+    stratamap bench configs/bench/completion.yaml --out out/bench/completion --workers 2
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import resource
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field
+
+from stratamap.core.atomic import write_json
+from stratamap.core.documents import load_model
+from stratamap.core.errors import ConfigError
+
+# ----------------------------------------------------------------------------------- the file
+
+
+class SyntheticScenes(BaseModel):
+    """Synthetic scenes: one spec file, several seeds."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene_file: str = Field(description="Scene spec YAML (configs/scenes/*.yaml), relative to the benchmark file's repository or absolute.")
+    seeds: list[int] = Field(min_length=1, description="One scene per seed.")
+    frames: int | None = Field(default=None, ge=1, description="Override the trajectory's number of frames.")
+    camera: dict[str, Any] = Field(default_factory=dict, description="Override camera fields (e.g. width, height).")
+    scene: dict[str, Any] = Field(default_factory=dict, description="Override scene spec fields (e.g. room_size, objects).")
+
+
+class SceneEntry(BaseModel):
+    """Scenes to run: synthetic specs with seeds, or one source (a dataset) with its parameters."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str | None = Field(default=None, description="Scene name in the records (default: the spec file's stem plus the seed).")
+    synthetic: SyntheticScenes | None = Field(default=None, description="Synthetic scenes from a spec file and seeds.")
+    source: dict[str, Any] | None = Field(default=None, description="A source stage ({plugin, params}) reading a dataset.")
+    requires_path: str | None = Field(default=None, description="Skip this scene (with a note) when this path does not exist, e.g. ../shared/data/mosd/test.")
+    files: str | None = Field(default=None, description="With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in source.params.path.")
+    variants: list[str] | None = Field(default=None, description="Run only these variants on these scenes (default: all).")
+
+
+class Variant(BaseModel):
+    """One way of running the pipeline."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(description="Column name in the tables.")
+    stages: list[dict[str, Any]] | None = Field(default=None, description="The whole stage list (replaces the base pipeline's).")
+    set: list[str] = Field(default_factory=list, description="Overrides of the base pipeline, as `stratamap run --set`, e.g. 'stages[3].plugin=bbox'.")
+    drop: list[int] = Field(default_factory=list, description="Indices of base stages to leave out (after `set`).")
+
+
+class BenchSpec(BaseModel):
+    """A benchmark file."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(description="Benchmark name (titles of tables and figures).")
+    description: str = Field(default="", description="What this benchmark compares, for the report.")
+    scenes: list[SceneEntry] = Field(min_length=1, description="Scenes to run every variant on.")
+    pipeline: dict[str, Any] = Field(description="The base pipeline: `stages` (and optionally `output`); the source comes from each scene.")
+    variants: list[Variant] = Field(min_length=1, description="Variants of the base pipeline, one table column each.")
+    per_scene: list[str] = Field(default_factory=list, description="Metrics (family.key) to tabulate per scene as well, e.g. instances.f1.")
+    physics: bool = Field(default=True, description="Measure physical plausibility (overlap volume; settling in MuJoCo when installed).")
+    physics_seconds: float = Field(default=2.0, gt=0.0, description="Simulated seconds of settling.")
+
+
+def load_bench(path: str | Path) -> tuple[BenchSpec, Path]:
+    path = Path(path)
+    spec = load_model(BenchSpec, path, "benchmark file")
+    names = [v.name for v in spec.variants]
+    if len(set(names)) != len(names):
+        raise ConfigError([("variants", f"variant names must be unique, got {names}")], source=str(path))
+    return spec, path
+
+
+# ----------------------------------------------------------------------------------- jobs
+
+
+def _resolve(path: str, base: Path) -> str:
+    """Relative paths are looked up next to the benchmark file, then in the stratamap checkout."""
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        return str(p)
+    from stratamap.core.paths import repo_root
+
+    for root in (base, repo_root()):
+        if (root / p).exists():
+            return str((root / p).resolve())
+    return str(repo_root() / p)
+
+
+def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any]], list[str]]:
+    """Every scene as ``{name, source}``, and notes on the scenes skipped."""
+    scenes, skipped = [], []
+    base = bench_file.parent
+    for k, entry in enumerate(spec.scenes):
+        if entry.requires_path and not Path(_resolve(entry.requires_path, base)).exists():
+            skipped.append(f"scenes[{k}] ({entry.name or entry.requires_path}): {entry.requires_path} not found, skipped")
+            continue
+        if entry.synthetic is not None:
+            syn = entry.synthetic
+            scene_doc = yaml.safe_load(Path(_resolve(syn.scene_file, base)).read_text())
+            scene_doc.update(copy.deepcopy(syn.scene))
+            if syn.camera:
+                scene_doc["camera"] = {**scene_doc.get("camera", {}), **syn.camera}
+            stem = entry.name or Path(syn.scene_file).stem
+            for seed in syn.seeds:
+                params: dict[str, Any] = {"scene": scene_doc, "seed": seed}
+                if syn.frames is not None:
+                    params["frames"] = syn.frames
+                scenes.append({"name": f"{stem}-s{seed}", "source": {"plugin": "synthetic", "params": params}, "variants": entry.variants})
+        elif entry.source is not None:
+            if entry.files:
+                root = Path(_resolve(str(Path(entry.files).parent), base))
+                paths = sorted(root.glob(Path(entry.files).name))
+                if not paths:
+                    skipped.append(f"scenes[{k}]: no file matches {entry.files}, skipped")
+                for file in paths:
+                    source = copy.deepcopy(entry.source)
+                    source.setdefault("params", {})["path"] = str(file)
+                    scenes.append({"name": f"{entry.name + '-' if entry.name else ''}{file.stem}", "source": source, "variants": entry.variants})
+                continue
+            if not entry.name:
+                raise ConfigError([(f"scenes[{k}].name", "a scene with a `source` needs a name")], source=str(bench_file))
+            source = copy.deepcopy(entry.source)
+            params = source.get("params", {})
+            for key in ("path", "root", "folder", "file", "scene_file"):
+                if isinstance(params.get(key), str):
+                    params[key] = _resolve(params[key], base)
+            scenes.append({"name": entry.name, "source": source, "variants": entry.variants})
+        else:
+            raise ConfigError([(f"scenes[{k}]", "give `synthetic` or `source`")], source=str(bench_file))
+    return scenes, skipped
+
+
+def variant_document(spec: BenchSpec, variant: Variant, source: dict[str, Any]) -> dict[str, Any]:
+    from stratamap.core.config import apply_override
+
+    doc = copy.deepcopy(spec.pipeline)
+    if variant.stages is not None:
+        doc["stages"] = copy.deepcopy(variant.stages)
+    for assignment in variant.set:
+        apply_override(doc, assignment)
+    if variant.drop:
+        doc["stages"] = [s for i, s in enumerate(doc.get("stages", [])) if i not in set(variant.drop)]
+    doc["source"] = copy.deepcopy(source)
+    doc.setdefault("output", {})
+    doc["output"].update({"save_map": False, "report": False})
+    return doc
+
+
+def safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+
+
+def record_path(out: Path, scene: str, variant: str) -> Path:
+    return out / "records" / safe(scene) / f"{safe(variant)}.json"
+
+
+def peak_memory_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+# ----------------------------------------------------------------------------------- one scene
+
+
+def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
+    """Run the pending variants of one scene; shared leading stages once. Returns the records."""
+    from stratamap.core.config import validate
+    from stratamap.core.pipeline import Pipeline
+
+    scene, variants, bench, out = job["scene"], job["variants"], job["bench"], Path(job["out"])
+    spec = BenchSpec.model_validate(bench)
+    pipes = {}
+    for v in variants:
+        variant = next(x for x in spec.variants if x.name == v)
+        pipes[v] = Pipeline(validate(variant_document(spec, variant, scene["source"]), origin=f"{job['bench_file']}#{v}"))
+    # Shared prefix: the leading stages every pending variant runs with identical parameters.
+    def key(p: Pipeline, i: int) -> str:
+        s = p.validated.stages[i]
+        return json.dumps([s.info.kind, s.info.name, s.config.model_dump(mode="json")], sort_keys=True, default=str)
+
+    first = pipes[variants[0]]
+    shared = 0
+    while all(shared < len(p.validated.stages) for p in pipes.values()) and len({key(p, shared) for p in pipes.values()}) == 1:
+        shared += 1
+    # Exporters write files: never share them, every variant writes its own.
+    while shared > 0 and first.validated.stages[shared - 1].info.kind == "exporters":
+        shared -= 1
+    from stratamap.core.stages import PipelineData
+
+    first.out_dir = out / "runs" / safe(scene["name"]) / "_shared"
+    base = PipelineData()
+    first.records = []
+    first._run_stage(first.validated.source, -1, base)
+    for i in range(shared):
+        first._run_stage(first.validated.stages[i], i, base)
+    shared_records = list(first.records)
+    records = []
+    for v in variants:
+        pipe = pipes[v]
+        data = copy.copy(base)
+        data.map = copy.deepcopy(base.map)
+        data.notes = copy.deepcopy(base.notes)
+        data.warnings = list(base.warnings)
+        pipe.out_dir = out / "runs" / safe(scene["name"]) / safe(v)
+        pipe.records = []
+        for i in range(shared, len(pipe.validated.stages)):
+            pipe._run_stage(pipe.validated.stages[i], i, data)
+        if data.ground_truth is not None:
+            data.map.vocabulary = data.ground_truth.vocabulary
+        metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
+        stages = [{"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": True} for r in shared_records]
+        stages += [{"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": False} for r in pipe.records]
+        record = {
+            "scene": scene["name"],
+            "variant": v,
+            "plugins": [{"path": s.path, "plugin": s.info.name, "kind": s.info.kind, "params": s.config.model_dump(mode="json")} for s in [pipe.validated.source, *pipe.validated.stages]],
+            "seconds": {f"{s['name']}:{s['plugin']}": s["seconds"] for s in stages},
+            "seconds_total": round(sum(s["seconds"] for s in stages), 4),
+            "peak_memory_mb": round(peak_memory_mb(), 1),
+            "metrics": metrics,
+            "details": details,
+            "warnings": data.warnings,
+        }
+        write_json(record_path(out, scene["name"], v), record)
+        records.append(record)
+    return records
+
+
+def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Metrics by family (every ``stratamap_evaluate`` implementation of ``hook``), and the
+    per-object and per-path details the figures need."""
+    from stratamap.core.pipeline import evaluate
+
+    metrics = evaluate(hook, data, details=True)
+    details: dict[str, Any] = {}
+    if "completion" in metrics:
+        details["completion_objects"] = metrics["completion"].pop("per_object", [])
+        details["chairs"] = [o["chamfer_l1"] for o in details["completion_objects"] if o["class"] == "chair"]
+    if "navigation" in metrics:
+        details["navigation"] = metrics["navigation"].pop("records", [])
+        occ, gt = data.map.occupancy, data.ground_truth.occupancy
+        from stratamap.core.atomic import atomic_path
+
+        run_dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(run_dir / "navigation.npz") as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(
+                    fh,
+                    slam=occ["slam"].data, multimap=occ["multimap"].data, truth=gt["objects"].data,
+                    origin=np.asarray(occ["multimap"].origin, dtype=float), resolution=float(occ["multimap"].resolution),
+                    truth_origin=np.asarray(gt["objects"].origin, dtype=float), truth_resolution=float(gt["objects"].resolution),
+                )
+    if "panoptic" in metrics:
+        details["pq_by_class"] = {c: v["pq"] for c, v in metrics["panoptic"].get("by_class", {}).items()}
+    instances = data.map.instances
+    if spec.physics and instances is not None and len(instances):
+        from stratamap.core.simulation.physics import penetration_volume
+
+        phys: dict[str, Any] = {"penetration_volume_m3": penetration_volume(instances)}
+        try:
+            import mujoco  # noqa: F401
+        except ImportError:
+            mujoco = None
+        if mujoco is not None:
+            from stratamap.core.simulation.physics import settle
+            from stratamap.core.simulation.mjcf import write_mjcf
+
+            path = write_mjcf(instances, run_dir / "physics")[0]
+            settled = settle(path, spec.physics_seconds)
+            phys["max_displacement_m"] = settled["max_displacement_m"]
+            phys["free_bodies"] = settled["free_bodies"]
+        metrics["physics"] = phys
+    return json.loads(json.dumps(metrics, default=_plain)), json.loads(json.dumps(details, default=_plain))
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+# ----------------------------------------------------------------------------------- executors
+
+
+def _local_worker(job: dict[str, Any]) -> list[dict[str, Any]]:
+    return run_scene(job)
+
+
+def run_jobs_local(jobs: list[dict[str, Any]], workers: int, on_done) -> None:
+    """Jobs in worker processes (one fresh process per scene, so peak memory is per scene)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ctx = mp.get_context("spawn")  # Open3D and OpenMP threads do not survive fork
+    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, max_tasks_per_child=1) as pool:
+        futures = {pool.submit(_local_worker, job): job for job in jobs}
+        for fut in as_completed(futures):
+            on_done(futures[fut], fut.result())
+
+
+def run_jobs_ray(jobs: list[dict[str, Any]], address: str | None, on_done, num_cpus: int | None = None) -> None:
+    """The same jobs as Ray tasks: the benchmark spec goes into the object store once."""
+    try:
+        import ray
+    except ImportError as exc:  # pragma: no cover - depends on the optional extra
+        raise RuntimeError("the ray executor needs Ray: pip install 'stratamap[ray]'") from exc
+    started = False
+    if not ray.is_initialized():
+        kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": num_cpus}
+        ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+        started = True
+    try:
+        bench_ref = ray.put(jobs[0]["bench"]) if jobs else None
+
+        @ray.remote(num_cpus=1)
+        def task(job: dict[str, Any], bench: dict[str, Any]) -> list[dict[str, Any]]:
+            return run_scene({**job, "bench": bench})
+
+        pending = {task.remote({k: v for k, v in job.items() if k != "bench"}, bench_ref): job for job in jobs}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                on_done(pending.pop(ref), ray.get(ref))
+    finally:
+        if started:
+            ray.shutdown()
+
+
+# ----------------------------------------------------------------------------------- driver
+
+
+def run_bench(
+    bench_file: str | Path,
+    out: str | Path,
+    workers: int = 1,
+    executor: Literal["local", "ray"] = "local",
+    address: str | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run what is missing, then rebuild ``results.*`` and figures from every record."""
+    spec, path = load_bench(bench_file)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    scenes, skipped = expand_scenes(spec, path)
+    bench_doc = spec.model_dump(mode="json")
+    jobs = []
+    total = done_before = 0
+    for scene in scenes:
+        wanted = [v.name for v in spec.variants if scene.get("variants") is None or v.name in scene["variants"]]
+        pending = [v for v in wanted if not record_path(out, scene["name"], v).is_file()]
+        total += len(wanted)
+        done_before += len(wanted) - len(pending)
+        if pending:
+            jobs.append({"scene": scene, "variants": pending, "bench": bench_doc, "out": str(out), "bench_file": str(path)})
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), disable=not progress) as bar:
+        task = bar.add_task(f"bench {spec.name}", total=total, completed=done_before)
+
+        def on_done(job: dict[str, Any], records: list[dict[str, Any]]) -> None:
+            bar.update(task, advance=len(records), description=f"bench {spec.name}: {job['scene']['name']}")
+
+        if jobs:
+            if executor == "ray":
+                run_jobs_ray(jobs, address, on_done, num_cpus=workers)
+            else:
+                run_jobs_local(jobs, workers, on_done)
+    records = collect_records(out, scenes, spec)
+    results = {"name": spec.name, "versions": versions(), "skipped": skipped, "records": records}
+    write_json(out / "results.json", results)
+    from stratamap.core.evaluation.bench_report import write_reports
+
+    written = write_reports(results, spec, out)
+    return {"records": len(records), "ran": sum(len(j["variants"]) for j in jobs), "skipped": skipped, "files": [str(p) for p in written]}
+
+
+def collect_records(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
+    records = []
+    for scene in scenes:
+        for v in spec.variants:
+            if scene.get("variants") is not None and v.name not in scene["variants"]:
+                continue
+            p = record_path(out, scene["name"], v.name)
+            if p.is_file():
+                try:
+                    records.append(json.loads(p.read_text()))
+                except json.JSONDecodeError:  # only possible if written by hand: atomic writes never leave halves
+                    p.unlink()
+    return records
+
+
+def versions() -> dict[str, str]:
+    from stratamap.core.pipeline import package_versions
+
+    out = package_versions()
+    for pkg in ("mujoco", "ray", "onnxruntime"):
+        try:
+            from importlib.metadata import version
+
+            out[pkg] = version(pkg)
+        except Exception:
+            pass
+    out["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+    return out
+

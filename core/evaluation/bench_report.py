@@ -1,0 +1,268 @@
+"""Tables and figures of a benchmark, rebuilt from its records (see :mod:`stratamap.core.evaluation.bench`).
+
+``results.csv``: one row per run, metrics flattened to ``family.key`` columns. ``results.md``: a
+table per metric family, variants as columns, mean ± std over scenes, the best value in bold.
+Figures (PNG, matplotlib): Chamfer distance by visibility per completer, PQ by class, the
+navigation figure, and seconds per object against library size when the variants vary it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stratamap.core.atomic import atomic_path, write_text
+
+#: Families in table order; keys not listed still appear (sorted) after these.
+FAMILIES = ["detection", "completion", "panoptic", "instances", "graph", "classification", "physics", "navigation", "trajectory", "cost"]
+LOWER_IS_BETTER = ("chamfer", "error", "ged", "wrong_support", "missing", "extra", "displacement", "penetration", "colliding", "seconds", "memory", "ate", "rpe")
+SKIP = ("count", "frames", "objects", "true_positives", "predicted", "ground_truth", "free_bodies", "robot_radius")
+
+
+def flatten(metrics: dict[str, Any], prefix: str = "") -> dict[str, float]:
+    out: dict[str, float] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            if key == "by_class" and not name.startswith("completion"):
+                continue
+            out.update(flatten(value, name + "."))
+        elif isinstance(value, bool):
+            out[name] = float(value)
+        elif isinstance(value, (int, float)) and value is not None and np.isfinite(value):
+            out[name] = float(value)
+    return out
+
+
+def record_row(rec: dict[str, Any]) -> dict[str, float]:
+    row = flatten(rec.get("metrics", {}))
+    row["cost.seconds_total"] = float(rec.get("seconds_total", 0.0))
+    row["cost.peak_memory_mb"] = float(rec.get("peak_memory_mb", 0.0))
+    return row
+
+
+def lower_is_better(key: str) -> bool:
+    return any(tag in key.split(".")[-1] or tag in key for tag in LOWER_IS_BETTER) and "accuracy" not in key and "fscore" not in key
+
+
+def write_reports(results: dict[str, Any], spec: Any, out: Path) -> list[Path]:
+    records = results["records"]
+    variants = [v.name for v in spec.variants]
+    rows = [record_row(r) for r in records]
+    written = [write_csv(records, rows, out / "results.csv"), write_markdown(results, spec, rows, variants, out / "results.md")]
+    written += write_figures(records, variants, out)
+    return written
+
+
+def write_csv(records: list[dict[str, Any]], rows: list[dict[str, float]], path: Path) -> Path:
+    columns = sorted({k for row in rows for k in row})
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["scene", "variant", *columns])
+    for rec, row in zip(records, rows, strict=True):
+        writer.writerow([rec["scene"], rec["variant"], *[("" if k not in row else f"{row[k]:.6g}") for k in columns]])
+    return write_text(path, buf.getvalue())
+
+
+def table_values(records, rows, variants) -> dict[str, dict[str, list[float]]]:
+    """key -> variant -> values over scenes."""
+    values: dict[str, dict[str, list[float]]] = {}
+    for rec, row in zip(records, rows, strict=True):
+        for key, val in row.items():
+            if key.split(".")[-1] in SKIP or ".segments." in key:
+                continue
+            values.setdefault(key, {v: [] for v in variants}).setdefault(rec["variant"], []).append(val)
+    return values
+
+
+def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str], path: Path) -> Path:
+    records = results["records"]
+    values = table_values(records, rows, variants)
+    scenes = sorted({r["scene"] for r in records})
+    lines = [f"# Benchmark: {spec.name}", ""]
+    if spec.description:
+        lines += [spec.description.strip(), ""]
+    lines += [f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold (for each row, lower or higher is better as the metric says).", ""]
+    if results.get("skipped"):
+        lines += ["Skipped: " + "; ".join(results["skipped"]), ""]
+    families = sorted({k.split(".")[0] for k in values}, key=lambda f: (FAMILIES.index(f) if f in FAMILIES else len(FAMILIES), f))
+    for family in families:
+        keys = sorted(k for k in values if k.split(".")[0] == family)
+        lines += [f"## {family}", "", "| metric | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
+        for key in keys:
+            per = values[key]
+            means = {v: float(np.mean(per[v])) if per.get(v) else None for v in variants}
+            present = [m for m in means.values() if m is not None]
+            best = (min(present) if lower_is_better(key) else max(present)) if len(present) > 1 and not np.allclose(present, present[0]) else None
+            cells = []
+            for v in variants:
+                if means[v] is None:
+                    cells.append("–")
+                    continue
+                text = f"{means[v]:.4g} ± {float(np.std(per[v])):.2g}"
+                cells.append(f"**{text}**" if best is not None and np.isclose(means[v], best) else text)
+            lines.append(f"| {key[len(family) + 1:]} | " + " | ".join(cells) + " |")
+        lines.append("")
+    for key in spec.per_scene:
+        lines += [f"## {key} per scene", "", "| scene | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
+        for scene in scenes:
+            cells = []
+            for v in variants:
+                rec = next((r for r, row in zip(records, rows, strict=True) if r["scene"] == scene and r["variant"] == v), None)
+                value = record_row(rec).get(key) if rec is not None else None
+                cells.append("–" if value is None else f"{value:.3f}")
+            if any(c != "–" for c in cells):
+                lines.append(f"| {scene} | " + " | ".join(cells) + " |")
+        means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
+        lines += ["| **mean** | " + " | ".join("–" if m is None else f"**{m:.3f}**" for m in means) + " |", ""]
+    for rec in records:  # plane and furniture labels in the layout of the kitchen paper's Table IV
+        if "classification" in rec.get("metrics", {}):
+            from stratamap.core.evaluation.classification import format_table
+
+            lines += [f"## Table IV: {rec['scene']} ({rec['variant']})", "", format_table(rec["metrics"]["classification"]), ""]
+    figures = sorted(p.name for p in path.parent.glob("*.png"))
+    if figures:
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]
+    return write_text(path, "\n".join(lines))
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written: list[Path] = []
+    # Chamfer-L1 by visibility, one line per completer variant.
+    objects = {v: [o for r in records if r["variant"] == v for o in r.get("details", {}).get("completion_objects", [])] for v in variants}
+    if any(objects.values()):
+        bins = np.linspace(0, 1, 6)
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for v, objs in objects.items():
+            if not objs:
+                continue
+            vis = np.array([o["visibility"] for o in objs])
+            cd = np.array([o["chamfer_l1"] for o in objs])
+            idx = np.clip(np.digitize(vis, bins) - 1, 0, len(bins) - 2)
+            centers = [(bins[i] + bins[i + 1]) / 2 for i in range(len(bins) - 1) if (idx == i).any()]
+            medians = [float(np.median(cd[idx == i])) for i in range(len(bins) - 1) if (idx == i).any()]
+            ax.plot(centers, medians, marker="o", label=v)
+        ax.set_xlabel("visibility (share of the true surface observed)")
+        ax.set_ylabel("Chamfer-L1 to the true shape (m, median)")
+        ax.set_title("Completion error by visibility")
+        ax.grid(alpha=0.3)
+        ax.legend()
+        written.append(_save(fig, out / "chamfer_by_visibility.png"))
+    # PQ by class.
+    pq = {v: [r["details"]["pq_by_class"] for r in records if r["variant"] == v and r.get("details", {}).get("pq_by_class")] for v in variants}
+    classes = sorted({c for rows in pq.values() for row in rows for c in row})
+    if classes:
+        fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes)), 4))
+        width = 0.8 / max(1, sum(1 for rows in pq.values() if rows))
+        k = 0
+        for v, rows in pq.items():
+            if not rows:
+                continue
+            means = [float(np.mean([row[c] for row in rows if c in row])) if any(c in row for row in rows) else 0.0 for c in classes]
+            ax.bar(np.arange(len(classes)) + k * width, means, width, label=v)
+            k += 1
+        ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=45, ha="right")
+        ax.set_ylabel("PQ")
+        ax.set_title("Panoptic quality by class")
+        ax.legend()
+        written.append(_save(fig, out / "pq_by_class.png"))
+    nav = navigation_figure(records, out)
+    if nav is not None:
+        written.append(nav)
+    scaling = scaling_figure(records, out)
+    if scaling is not None:
+        written.append(scaling)
+    return written
+
+
+def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
+    """Paths planned on the laser-only map and on the multimap over the true obstacles, collisions marked."""
+    import matplotlib.pyplot as plt
+
+    from stratamap.core.evaluation.bench import safe
+
+    rec = next((r for r in records if r.get("details", {}).get("navigation")), None)
+    if rec is None:
+        return None
+    npz = out / "runs" / safe(rec["scene"]) / safe(rec["variant"]) / "navigation.npz"
+    if not npz.is_file():
+        return None
+    grids = np.load(npz)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    for ax, (title, key, hit) in zip(axes, (("laser-only map", "laser_only", "laser_collides"), ("multimap", "multimap", "multimap_collides")), strict=True):
+        grid = grids["slam" if key == "laser_only" else "multimap"]
+        ox, oy = grids["origin"][:2]
+        res = float(grids["resolution"])
+        extent = (ox, ox + grid.shape[1] * res, oy, oy + grid.shape[0] * res)
+        ax.imshow(np.where(grid == 100, 0.0, np.where(grid == 0, 1.0, 0.6)), cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
+        truth = grids["truth"]
+        tox, toy = grids["truth_origin"][:2]
+        tres = float(grids["truth_resolution"])
+        ax.contour(
+            np.arange(truth.shape[1]) * tres + tox + tres / 2, np.arange(truth.shape[0]) * tres + toy + tres / 2, (truth == 100).astype(float),
+            levels=[0.5], colors="tab:orange", linewidths=0.8,
+        )
+        n_hit = 0
+        for path in rec["details"]["navigation"]:
+            xy = np.asarray(path[key])
+            collided = bool(path[hit])
+            n_hit += collided
+            ax.plot(xy[:, 0], xy[:, 1], color="tab:red" if collided else "tab:blue", linewidth=1.4 if collided else 0.9)
+        ax.set_title(f"{title}: {n_hit} of {len(rec['details']['navigation'])} paths hit 3D obstacles")
+        ax.set_aspect("equal")
+    fig.suptitle(f"A* for a robot of radius {rec['metrics']['navigation'].get('robot_radius', 0.4)} m ({rec['scene']}); orange: true obstacles in [0.1 m, robot height]")
+    return _save(fig, out / "navigation.png")
+
+
+def scaling_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
+    """Seconds per object of the completer against library size, when the variants vary it."""
+    import matplotlib.pyplot as plt
+
+    points: dict[str, list[tuple[float, float]]] = {}
+    for r in records:
+        for p in r.get("plugins", []):
+            if p["kind"] == "completers" and "library_per_family" in p["params"]:
+                n = r["metrics"].get("completion", {}).get("objects") or 0
+                sec = sum(v for k, v in r["seconds"].items() if k.endswith(":" + p["plugin"]))
+                if n:
+                    points.setdefault(p["plugin"], []).append((float(p["params"]["library_per_family"]), sec / n))
+    if not points or all(len({x for x, _ in v}) < 2 for v in points.values()):
+        return None
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, pts in points.items():
+        xs = sorted({x for x, _ in pts})
+        ax.plot(xs, [np.mean([s for x, s in pts if x == xv]) for xv in xs], marker="o", label=name)
+    ax.set_xscale("log")
+    ax.set_xlabel("library models per family")
+    ax.set_ylabel("seconds per object")
+    ax.set_title("Completion cost against library size")
+    ax.legend()
+    return _save(fig, out / "seconds_vs_library.png")
+
+
+def records_equal(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> bool:
+    """Same runs with the same metrics (timings and memory aside)."""
+
+    def key(rs):
+        return sorted((r["scene"], r["variant"], json.dumps(r["metrics"], sort_keys=True)) for r in rs)
+
+    return key(a) == key(b)

@@ -1,0 +1,1 @@
+"""Model libraries (the CAD database completers match against) and their cached index."""

@@ -1,0 +1,468 @@
+"""Model libraries (the "CAD database"): the on-disk format, and loaders for users' own models.
+
+Native format (``stratamap models build`` writes it)::
+
+    DIR/models.json             {"format": "stratamap.library", "version": 1, "models": [...]}
+    DIR/meshes/<model id>/<part>.ply
+
+Each model record: ``id``, ``class``, ``family``, ``params`` (the sampled parameters),
+``bounds`` ([[xmin, ymin, zmin], [xmax, ymax, zmax]] in the canonical frame: +z up, front along
+-y, origin at the bottom center), ``feature_planes`` (rows ``[nx, ny, nz, d, area]`` of the
+largest horizontal and vertical planar surfaces, ``n.x + d = 0``), ``support_surfaces``,
+``parts`` (``name``, ``file``, ``link``, ``albedo``, ``semantic``) and ``joints`` (``name``,
+``type``, ``parent``, ``child``, ``origin`` 4x4 child-in-parent at q = 0, ``axis``, ``lower``,
+``upper``). Part meshes are stored in the model frame at joint positions 0.
+
+The same loader reads
+
+* a folder of OBJ/STL/GLB/PLY files with ``classes.csv`` (columns ``file,class`` and optionally
+  ``id``) or ``classes.json`` (``{"file": "class"}`` or a list of ``{"file", "class", "id"}``);
+* PartNet-Mobility folders (``mobility.urdf`` + ``textured_objs/`` + ``meta.json``), turned to
+  face -y; one such folder or a folder of them;
+* a single ``.urdf`` file (``package://`` URIs resolved through ``package.xml``), as one
+  articulated model; missing meshes fall back to collision geometry and are reported.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from stratamap.core.atomic import atomic_directory, write_json
+from stratamap.core.errors import DataError
+from stratamap.core.map.layers import Joint
+
+LIBRARY_FORMAT = "stratamap.library"
+LIBRARY_VERSION = 1
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
+
+#: PartNet-Mobility ``model_cat`` -> stratamap class.
+PARTNET_CLASSES = {
+    "Chair": "chair",
+    "StorageFurniture": "cabinet",
+    "Table": "table",
+    "Refrigerator": "fridge",
+    "Microwave": "microwave",
+    "Oven": "oven",
+    "Display": "monitor",
+    "Laptop": "laptop",
+    "Box": "box",
+    "Bottle": "bottle",
+    "Mug": "cup",
+    "Dishwasher": "cabinet",
+}
+
+Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+#: PartNet-Mobility URDFs are z-up in their base frame (the base joint turns the y-up meshes) and
+#: face -x; a quarter turn about z brings the front to -y, stratamap's canonical front.
+PARTNET_TO_CANONICAL = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+@dataclass
+class LibraryPart:
+    name: str
+    link: str = "body"
+    albedo: tuple[float, float, float] = (0.6, 0.6, 0.6)
+    semantic: str = ""
+    file: Path | None = None
+    mesh: trimesh.Trimesh | None = None  # loaded on first use when ``file`` is set
+
+    def load(self) -> trimesh.Trimesh:
+        if self.mesh is None:
+            if self.file is None:
+                raise DataError(f"part {self.name!r} has neither a mesh nor a file")
+            if not self.file.is_file():
+                raise DataError(f"{self.file}: mesh file of part {self.name!r} is missing")
+            try:
+                loaded = trimesh.load(self.file, force="mesh", process=False)
+            except Exception as exc:
+                raise DataError(f"{self.file}: cannot be read as a mesh ({exc})") from exc
+            if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+                raise DataError(f"{self.file}: contains no triangles")
+            self.mesh = loaded
+        return self.mesh
+
+
+@dataclass
+class LibraryModel:
+    id: str
+    class_name: str
+    family: str
+    params: dict[str, Any]
+    parts: list[LibraryPart]
+    joints: list[Joint] = field(default_factory=list)
+    bounds: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
+    feature_planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    support_surfaces: list[list[float]] = field(default_factory=list)
+    source: str = "stratamap"
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.bounds[1] - self.bounds[0]
+
+    def mesh(self) -> trimesh.Trimesh:
+        """The whole model in its canonical frame (parts concatenated)."""
+        return trimesh.util.concatenate([p.load() for p in self.parts])
+
+    def to_record(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "class": self.class_name,
+            "family": self.family,
+            "params": self.params,
+            "bounds": np.asarray(self.bounds).tolist(),
+            "feature_planes": np.round(np.asarray(self.feature_planes), 6).tolist(),
+            "support_surfaces": [list(map(float, s)) for s in self.support_surfaces],
+            "parts": [
+                {"name": p.name, "file": p.file.name if p.file else None, "link": p.link, "albedo": list(p.albedo), "semantic": p.semantic}
+                for p in self.parts
+            ],
+            "joints": [j.to_dict() for j in self.joints],
+            "source": self.source,
+        }
+
+
+@dataclass
+class ModelLibrary:
+    models: list[LibraryModel]
+    root: Path | None = None
+    problems: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __iter__(self):
+        return iter(self.models)
+
+    def get(self, model_id: str) -> LibraryModel:
+        for m in self.models:
+            if m.id == model_id:
+                return m
+        raise KeyError(f"no model {model_id!r} in the library")
+
+    def by_class(self, class_name: str) -> list[LibraryModel]:
+        return [m for m in self.models if m.class_name == class_name]
+
+    def classes(self) -> list[str]:
+        return sorted({m.class_name for m in self.models})
+
+    def families(self) -> list[str]:
+        return sorted({m.family for m in self.models})
+
+    def content_hash(self) -> str:
+        """A key that changes whenever a model record or a mesh file changes (for caches)."""
+        h = hashlib.sha256()
+        for m in self.models:
+            h.update(json.dumps(m.to_record(), sort_keys=True).encode())
+            for p in m.parts:
+                if p.file is not None and p.file.is_file():
+                    st = p.file.stat()
+                    h.update(f"{p.file.name}:{st.st_size}:{st.st_mtime_ns}".encode())
+        return h.hexdigest()[:16]
+
+    @classmethod
+    def load(cls, path: str | Path, up_axis: str = "z") -> ModelLibrary:
+        """Load a native library, a folder of meshes with a class table, or PartNet-Mobility folders."""
+        path = Path(path)
+        if not path.exists():
+            raise DataError(f"{path}: model library not found")
+        if path.is_file() and path.suffix.lower() == ".urdf":
+            model = model_from_urdf(path, path.stem, "object", "urdf")
+            lib = ModelLibrary([model], root=path.parent)
+            lib.problems.extend(f"{path}: {w}" for w in model.params.get("warnings", []))
+            return lib
+        if (path / "models.json").is_file():
+            return _load_native(path)
+        if (path / "mobility.urdf").is_file():
+            return _load_partnet_folders([path])
+        subdirs = sorted(p for p in path.iterdir() if p.is_dir() and (p / "mobility.urdf").is_file())
+        if subdirs:
+            return _load_partnet_folders(subdirs, root=path)
+        if (path / "classes.csv").is_file() or (path / "classes.json").is_file():
+            return _load_mesh_folder(path, up_axis)
+        raise DataError(
+            f"{path}: not a model library: expected models.json (stratamap), mobility.urdf folders "
+            "(PartNet-Mobility), or mesh files with classes.csv / classes.json"
+        )
+
+
+# ------------------------------------------------------------------------------------------
+# Derived descriptors
+
+
+def feature_planes(mesh: trimesh.Trimesh, min_area: float = 0.01, max_planes: int = 12) -> np.ndarray:
+    """Largest horizontal and vertical planar surfaces: rows ``[nx, ny, nz, d, area]``."""
+    if len(mesh.faces) == 0:
+        return np.zeros((0, 5))
+    normals = np.asarray(mesh.face_normals)
+    areas = np.asarray(mesh.area_faces)
+    centers = np.asarray(mesh.triangles_center)
+    horizontal = np.abs(normals[:, 2]) > 0.95
+    vertical = np.abs(normals[:, 2]) < 0.05
+    keep = (horizontal | vertical) & (areas > 0)
+    if not keep.any():
+        return np.zeros((0, 5))
+    n = normals[keep].copy()
+    n[horizontal[keep]] = np.sign(n[horizontal[keep], 2:3]) * np.array([0, 0, 1.0])
+    # Quantize the normal direction (5 degrees) and offset (1 cm) to group coplanar faces.
+    ang = np.round(np.degrees(np.arctan2(n[:, 1], n[:, 0])) / 5.0).astype(np.int64)
+    ang[np.abs(n[:, 2]) > 0.5] = 10_000 * np.sign(n[np.abs(n[:, 2]) > 0.5, 2]).astype(np.int64)
+    d = -np.einsum("ij,ij->i", n, centers[keep])
+    dq = np.round(d / 0.01).astype(np.int64)
+    keys = np.stack([ang, dq], 1)
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    a = areas[keep]
+    total = np.bincount(inv, weights=a)
+    nsum = np.stack([np.bincount(inv, weights=n[:, k] * a) for k in range(3)], 1)
+    dsum = np.bincount(inv, weights=d * a)
+    norm = np.linalg.norm(nsum, axis=1, keepdims=True)
+    valid = norm[:, 0] > 1e-12
+    nsum, dsum, total, norm = nsum[valid], dsum[valid], total[valid], norm[valid]
+    normal = nsum / norm
+    rows = np.c_[normal, dsum / total, total]
+    rows = rows[total >= min_area]
+    order = np.lexsort((rows[:, 3], -rows[:, 4]))
+    return rows[order][:max_planes]
+
+
+def _canonicalize(parts: list[LibraryPart], joints: list[Joint], root_link: str) -> np.ndarray:
+    """Translate parts so the origin is the bottom center; returns the bounds after the shift."""
+    meshes = [p.load() for p in parts]
+    lo = np.min([m.bounds[0] for m in meshes], 0)
+    hi = np.max([m.bounds[1] for m in meshes], 0)
+    shift = np.array([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
+    for m in meshes:
+        m.apply_translation(shift)
+    for j in joints:
+        if j.parent == root_link:
+            j.origin = j.origin.copy()
+            j.origin[:3, 3] += shift
+    return np.array([lo + shift, hi + shift])
+
+
+# ------------------------------------------------------------------------------------------
+# Native format
+
+
+def model_to_library(model: Any) -> LibraryModel:
+    """A procedural :class:`~stratamap.core.synthetic.models.Model` as a library entry (in memory)."""
+    mesh = model.mesh()
+    return LibraryModel(
+        id=model.id,
+        class_name=model.class_name,
+        family=model.family,
+        params=model.params,
+        parts=[LibraryPart(p.name, p.link, tuple(p.albedo), p.semantic, mesh=p.mesh) for p in model.parts],
+        joints=list(model.joints),
+        bounds=np.asarray(model.bounds),
+        feature_planes=feature_planes(mesh),
+        support_surfaces=[list(s) for s in model.support_surfaces],
+    )
+
+
+def write_library(models: Iterable[LibraryModel], out: str | Path, progress: Callable[[int], None] | None = None) -> Path:
+    """Write models in the native format; the folder is replaced atomically as a whole."""
+    out = Path(out)
+    with atomic_directory(out) as staging:
+        records = []
+        for k, m in enumerate(models):
+            folder = staging / "meshes" / m.id
+            folder.mkdir(parents=True, exist_ok=True)
+            for p in m.parts:
+                name = f"{p.name}.ply"
+                p.load().export(folder / name, file_type="ply", encoding="binary")
+                p.file = out / "meshes" / m.id / name
+            rec = m.to_record()
+            for prec in rec["parts"]:
+                prec["file"] = f"meshes/{m.id}/{prec['name']}.ply"
+            records.append(rec)
+            if progress is not None:
+                progress(k + 1)
+        write_json(staging / "models.json", {"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "models": records}, indent=1)
+    return out
+
+
+def build_library(
+    out: str | Path,
+    per_family: int,
+    seed: int = 0,
+    families: list[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ModelLibrary:
+    """Sample ``per_family`` models of every family and write them as a native library."""
+    from stratamap.core.synthetic.models import FAMILIES, make_model
+
+    names = families or list(FAMILIES)
+    unknown = sorted(set(names) - set(FAMILIES))
+    if unknown:
+        raise DataError(f"unknown model families {unknown}; families are {sorted(FAMILIES)}")
+    total = len(names) * per_family
+    models = (model_to_library(make_model(f, seed, i)) for f in names for i in range(per_family))
+    write_library(models, out, None if progress is None else (lambda k: progress(k, total)))
+    return ModelLibrary.load(out)
+
+
+def _load_native(path: Path) -> ModelLibrary:
+    index = path / "models.json"
+    try:
+        doc = json.loads(index.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{index}: corrupt JSON ({exc})") from exc
+    if doc.get("format") != LIBRARY_FORMAT or doc.get("version") != LIBRARY_VERSION:
+        raise DataError(f"{index}: format {doc.get('format')!r} v{doc.get('version')} is not {LIBRARY_FORMAT!r} v{LIBRARY_VERSION}")
+    lib = ModelLibrary([], root=path)
+    for k, rec in enumerate(doc.get("models", [])):
+        try:
+            parts = [
+                LibraryPart(p["name"], p.get("link", "body"), tuple(p.get("albedo", (0.6, 0.6, 0.6))), p.get("semantic", ""), file=path / p["file"])
+                for p in rec["parts"]
+            ]
+            lib.models.append(
+                LibraryModel(
+                    id=rec["id"],
+                    class_name=rec["class"],
+                    family=rec.get("family", ""),
+                    params=rec.get("params", {}),
+                    parts=parts,
+                    joints=[Joint.from_dict(j) for j in rec.get("joints", [])],
+                    bounds=np.array(rec["bounds"], float),
+                    feature_planes=np.array(rec.get("feature_planes", []), float).reshape(-1, 5),
+                    support_surfaces=rec.get("support_surfaces", []),
+                    source=rec.get("source", "stratamap"),
+                )
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            lib.problems.append(f"{index}: model #{k} ({rec.get('id', '?')}) is malformed: {exc!r}; skipped")
+    return lib
+
+
+# ------------------------------------------------------------------------------------------
+# A user's folder of meshes
+
+
+def _read_class_table(path: Path) -> list[dict[str, str]]:
+    if (path / "classes.csv").is_file():
+        with open(path / "classes.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        if rows and not {"file", "class"} <= set(rows[0]):
+            raise DataError(f"{path / 'classes.csv'}: needs columns 'file' and 'class', has {list(rows[0])}")
+        return rows
+    doc = json.loads((path / "classes.json").read_text())
+    if isinstance(doc, dict):
+        return [{"file": f, "class": c} for f, c in doc.items()]
+    return list(doc)
+
+
+def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
+    lib = ModelLibrary([], root=path)
+    for row in _read_class_table(path):
+        file = path / row["file"]
+        model_id = row.get("id") or Path(row["file"]).stem
+        if file.suffix.lower() not in MESH_SUFFIXES:
+            lib.problems.append(f"{file}: unsupported mesh format (use one of {', '.join(MESH_SUFFIXES)}); skipped")
+            continue
+        part = LibraryPart("mesh", file=file)
+        try:
+            mesh = part.load()
+            if up_axis == "y":
+                mesh.apply_transform(Y_UP_TO_Z_UP)
+            elif up_axis != "z":
+                raise DataError(f"up_axis must be 'z' or 'y', got {up_axis!r}")
+            bounds = _canonicalize([part], [], "body")
+        except DataError as exc:
+            lib.problems.append(f"{exc}; skipped")
+            continue
+        lib.models.append(
+            LibraryModel(model_id, row["class"], row.get("family", row["class"]), {}, [part], [], bounds, feature_planes(mesh), source=str(file))
+        )
+    return lib
+
+
+# ------------------------------------------------------------------------------------------
+# PartNet-Mobility
+
+
+def model_from_urdf(
+    urdf_path: Path,
+    model_id: str,
+    class_name: str,
+    family: str,
+    transform: np.ndarray | None = None,
+    semantics: dict[str, str] | None = None,
+    package_roots: dict[str, Path] | None = None,
+) -> LibraryModel:
+    """An articulated URDF as a library model: one part per visual mesh (in the root frame at
+    q = 0, then ``transform``), the URDF's joints, origin at the bottom center. Missing meshes
+    fall back to collision geometry; every problem is kept in ``params["warnings"]``."""
+    from stratamap.core.io.urdf import read_urdf
+
+    urdf = read_urdf(urdf_path, package_roots)
+    transform = np.eye(4) if transform is None else transform
+    root = urdf.root
+    poses = urdf.link_poses()
+    parts: list[LibraryPart] = []
+    rng = np.random.default_rng(int(hashlib.sha256(model_id.encode()).hexdigest()[:8], 16))
+    for link, visuals in urdf.links.items():
+        for k, vis in enumerate(visuals):
+            mesh = vis.mesh.copy()
+            mesh.apply_transform(transform @ poses[link])
+            parts.append(LibraryPart(f"{link}_{k}", "body" if link == root else link, tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)), (semantics or {}).get(link, ""), mesh=mesh))
+    if not parts:
+        raise DataError(f"{urdf_path}: no link has a usable mesh")
+    joints = []
+    for j in urdf.joints:
+        origin = transform @ j.origin if j.parent == root else j.origin
+        joints.append(Joint(j.name, j.type, "body" if j.parent == root else j.parent, "body" if j.child == root else j.child, origin, j.axis, j.lower, j.upper))
+    bounds = _canonicalize(parts, joints, "body")
+    mesh = trimesh.util.concatenate([p.load() for p in parts])
+    params: dict[str, Any] = {"urdf": str(urdf_path)}
+    if urdf.warnings:
+        params["warnings"] = list(urdf.warnings)
+    return LibraryModel(model_id, class_name, family, params, parts, joints, bounds, feature_planes(mesh), source=str(urdf_path))
+
+
+def load_partnet(folder: Path) -> LibraryModel:
+    """One PartNet-Mobility object as a library model in the canonical frame, with its joints."""
+    folder = Path(folder)
+    meta: dict[str, Any] = {}
+    if (folder / "meta.json").is_file():
+        meta = json.loads((folder / "meta.json").read_text())
+    category = meta.get("model_cat", "")
+    semantics = {}
+    if (folder / "semantics.txt").is_file():
+        for line in (folder / "semantics.txt").read_text().splitlines():
+            bits = line.split()
+            if len(bits) >= 3:
+                semantics[bits[0]] = bits[2]
+    model = model_from_urdf(
+        folder / "mobility.urdf",
+        f"partnet_{folder.name}",
+        PARTNET_CLASSES.get(category, category.lower() or "object"),
+        f"partnet_{category or 'unknown'}",
+        PARTNET_TO_CANONICAL,
+        semantics,
+    )
+    model.params.update({"partnet_id": folder.name, "category": category})
+    return model
+
+
+def _load_partnet_folders(folders: list[Path], root: Path | None = None) -> ModelLibrary:
+    lib = ModelLibrary([], root=root or (folders[0] if folders else None))
+    for folder in folders:
+        try:
+            model = load_partnet(folder)
+        except DataError as exc:
+            lib.problems.append(f"{exc}; skipped")
+            continue
+        lib.problems.extend(f"{folder}: {w}" for w in model.params.get("warnings", []))
+        lib.models.append(model)
+    return lib

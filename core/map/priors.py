@@ -1,0 +1,52 @@
+"""What a class's objects are like in indoor scenes: one table of sizes that stages use to tell
+an object from a fragment or from several objects. Values are metres, for the default vocabulary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ClassSize:
+    #: Smallest and largest distance from an object's centroid to its farthest point.
+    extent: tuple[float, float]
+    #: Longest horizontal side one object has, with a margin for the map's noise; None for classes
+    #: whose single objects come in any length (tables, shelves, counters, sofas).
+    max_length: float | None = None
+
+
+CLASS_SIZES: dict[str, ClassSize] = {
+    "chair": ClassSize((0.2, 0.9)),
+    "table": ClassSize((0.3, 1.6)),
+    "desk": ClassSize((0.4, 1.4)),
+    "cabinet": ClassSize((0.25, 1.3), max_length=1.3),  # one unit; wider runs of cabinets are several units
+    "shelf": ClassSize((0.3, 1.4)),
+    "counter": ClassSize((0.4, 1.8)),
+    "sofa": ClassSize((0.5, 1.6)),
+    "bench": ClassSize((0.3, 1.2)),
+    "fridge": ClassSize((0.4, 1.2)),
+    "microwave": ClassSize((0.15, 0.5), max_length=0.7),
+    "oven": ClassSize((0.3, 0.8)),
+    "monitor": ClassSize((0.15, 0.6), max_length=1.0),
+    "laptop": ClassSize((0.1, 0.4), max_length=0.45),
+    "box": ClassSize((0.05, 0.5)),
+    "book": ClassSize((0.05, 0.3), max_length=0.45),
+    "cup": ClassSize((0.02, 0.15), max_length=0.15),
+    "bottle": ClassSize((0.05, 0.3), max_length=0.15),
+    "plant": ClassSize((0.1, 0.7)),
+}
+
+#: Classes whose objects do not stand on one another: two of them one above the other are one
+#: object (a swivel chair's base and seat, a table's legs and top).
+NOT_STACKED: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
+
+
+def class_extents() -> dict[str, tuple[float, float]]:
+    """(min, max) extent per class."""
+    return {name: size.extent for name, size in CLASS_SIZES.items()}
+
+
+def class_max_lengths() -> dict[str, float]:
+    """Longest horizontal side per class, for the classes that have one."""
+    return {name: size.max_length for name, size in CLASS_SIZES.items() if size.max_length is not None}

@@ -1,0 +1,168 @@
+"""TSDF integration shared by the ``tsdf`` and ``semantic_tsdf`` mappers: an Open3D
+VoxelBlockGrid with colour (and any label attributes a mapper adds), fed one posed RGB-D frame at a
+time, and its surface extracted in an order that does not depend on Open3D's threads."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+import trimesh
+from pydantic import Field
+
+from stratamap.core import StageConfig
+from stratamap.core.errors import DataError
+from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.layers import Geometry
+from stratamap.core.map.sensors import CameraIntrinsics
+
+
+def label_stride(configured: int | None, width: int) -> int:
+    """Pixel stride of label fusion: about one sample per 2 cm voxel at 2-3 m whatever the resolution."""
+    return configured if configured is not None else max(1, round(width / 160))
+
+
+QUANTUM = 1e-5  # 10 micrometres: far below any voxel size, so keys are exact for TSDF surfaces
+
+
+def _grid_keys(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(int64 key per point on a 10 um grid, quantized coordinates, grid origin), or None when the
+    extent is too large to pack three coordinates into 63 bits."""
+    lo = points.min(0)
+    q = np.rint((points - lo) / QUANTUM).astype(np.int64)
+    span = q.max(0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2**62:
+        return None
+    return (q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2], q, lo
+
+
+def position_order(points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
+    """An order of points by position (x, then y, then z on a 10 um grid; then colour), so clouds
+    extracted in thread-dependent order compare equal."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    packed = _grid_keys(points)
+    keys = [points[:, 2], points[:, 1], points[:, 0]] if packed is None else [packed[0]]
+    if colors is not None:
+        keys = [np.ascontiguousarray(colors, dtype=np.float32).view(np.uint32)[:, k] for k in (2, 1, 0)] + keys
+    return np.lexsort(keys)
+
+
+def canonical_mesh(
+    vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The same mesh whatever order Open3D's threads produced it in: vertices merged where they
+    coincide (marching cubes emits duplicates at block borders) and sorted by position on a 10 um
+    grid, duplicate colours averaged (integer sums: order-free), faces sorted."""
+    if len(vertices) == 0:
+        return vertices, faces, vertex_colors
+    packed = _grid_keys(vertices)
+    if packed is None:
+        unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    else:
+        keys, q, lo = packed
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        unique = lo + q[first] * QUANTUM
+    inverse = inverse.reshape(-1)
+    colors = None
+    if vertex_colors is not None:
+        acc = np.zeros((len(unique), vertex_colors.shape[1]), np.int64)
+        np.add.at(acc, inverse, vertex_colors.astype(np.int64))
+        count = np.bincount(inverse, minlength=len(unique))[:, None]
+        colors = ((2 * acc + count) // (2 * count)).astype(vertex_colors.dtype)
+    faces = inverse[faces]
+    n = np.int64(max(len(unique), 1))
+    if len(faces) and float(n) ** 3 < 2**62:
+        faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2], kind="stable")]
+    elif len(faces):
+        faces = faces[np.lexsort(faces.T[::-1])]
+    return unique, faces, colors
+
+
+class IntegrationConfig(StageConfig):
+    """TSDF integration settings shared by the ``tsdf`` and ``semantic_tsdf`` mappers."""
+
+    voxel_size: float = Field(default=0.02, gt=0.001, le=0.5, description="Voxel edge length, metres.")
+    truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels (Open3D's trunc_voxel_multiplier).")
+    depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres (noise grows with range).")
+    depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
+    block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map (8: little memory spent on free space).")
+    block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (the hash map grows as needed).")
+    label_stride: int | None = Field(
+        default=None,
+        ge=1,
+        le=16,
+        description=(
+            "Every n-th pixel (in x and y) takes part in label fusion. Default: width / 160 (4 at 640 px); for the tsdf mapper's "
+            "'masks' extraction, the widest stride that still samples every voxel at depth_max, voxel_size * fx / depth_max "
+            "(2 for 2 cm voxels and a Kinect-like camera at 5 m)."
+        ),
+    )
+    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer.")
+
+
+class TSDFVolume:
+    """A TSDF with colour in an Open3D VoxelBlockGrid, plus ``extra`` voxel attributes
+    (name, dtype, channels) that a mapper fuses labels into."""
+
+    def __init__(self, cfg: IntegrationConfig, intrinsics: CameraIntrinsics, extra: Sequence[tuple[str, Any, int]] = ()):
+        self.cfg = cfg
+        self.intrinsics = intrinsics
+        names, dtypes, channels = ["tsdf", "weight", "color"], [o3c.float32, o3c.float32, o3c.float32], [1, 1, 3]
+        for name, dtype, n in extra:
+            names.append(name)
+            dtypes.append(dtype)
+            channels.append(n)
+        self.grid = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=tuple(names),
+            attr_dtypes=tuple(dtypes),
+            attr_channels=tuple(channels),
+            voxel_size=cfg.voxel_size,
+            block_resolution=cfg.block_resolution,
+            block_count=cfg.block_count,
+            device=o3c.Device("CPU:0"),
+        )
+        self._K = o3c.Tensor(intrinsics.matrix, o3c.float64)
+
+    def valid_depth(self, frame: Any, mapper: str) -> np.ndarray:
+        """The frame's depth with non-finite and too-near pixels zeroed (float32)."""
+        intr = self.intrinsics
+        depth = np.asarray(frame.depth, dtype=np.float32)
+        if depth.shape != (intr.height, intr.width):
+            raise DataError(
+                f"{mapper}: frame {frame.index} depth is {depth.shape[1]}x{depth.shape[0]}, intrinsics say {intr.width}x{intr.height}"
+            )
+        return np.where(np.isfinite(depth) & (depth >= self.cfg.depth_min), depth, 0.0).astype(np.float32)
+
+    def integrate(self, depth: np.ndarray, rgb: np.ndarray, pose: np.ndarray) -> None:
+        """Fuse one frame (depth from :meth:`valid_depth`, camera-to-world ``pose``)."""
+        cfg = self.cfg
+        extrinsic = o3c.Tensor(invert(pose), o3c.float64)
+        depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
+        color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb, dtype=np.float32) / 255.0))
+        coords = self.grid.compute_unique_block_coordinates(depth_img, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels)
+        self.grid.integrate(coords, depth_img, color_img, self._K, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels)
+
+    def surface(self) -> Geometry:
+        """Surface points (sorted by position, so runs are reproducible) and, if configured, the mesh."""
+        # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
+        pcd = self.grid.extract_point_cloud()
+        points = pcd.point.positions.numpy().astype(np.float64)
+        raw_colors = pcd.point.colors.numpy() if "colors" in pcd.point else None
+        order = position_order(points, raw_colors)
+        points = points[order]
+        colors = None if raw_colors is None else np.clip(raw_colors[order], 0, 1)
+        mesh = None
+        if self.cfg.extract_mesh:
+            tmesh = self.grid.extract_triangle_mesh()
+            verts = tmesh.vertex.positions.numpy().astype(np.float64)
+            faces = tmesh.triangle.indices.numpy().astype(np.int64)
+            vcol = None
+            if "colors" in tmesh.vertex:
+                vcol = (np.clip(tmesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
+            verts, faces, vcol = canonical_mesh(verts, faces, vcol)
+            mesh = trimesh.Trimesh(verts, faces, vertex_colors=vcol, process=False)
+        return Geometry(points=points, colors=colors, mesh=mesh, voxel_size=self.cfg.voxel_size)

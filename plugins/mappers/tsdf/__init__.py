@@ -1,0 +1,264 @@
+"""Mapper ``tsdf``: Open3D VoxelBlockGrid TSDF fusion with panoptic label fusion.
+
+Geometry: colored surface points and a triangle mesh extracted from the TSDF.
+Semantics and instances (when a segmenter ran): panoptic fusion as in the functional-scenes paper
+(see :mod:`stratamap.plugins.mappers.tsdf.panoptic_fusion`): per-frame segments associated to global segment labels by
+3D overlap, counts Phi(l, c, p), label merging by shared-voxel ratio, instance merging, and
+extraction of panoptic entities. Segment labels live in the TSDF's own voxel blocks, so label
+fusion adds little to integration (``benchmarks/mapping_throughput.py`` measures how little).
+With ``instances: masks`` the map's instances come instead from per-voxel class votes and 3D
+pieces re-joined by the frames' masks (:mod:`stratamap.plugins.mappers.tsdf.mask_instances`), for learned segmenters.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+import open3d.core as o3c
+from pydantic import Field, PositiveFloat, PositiveInt
+
+from stratamap.core import Mapper, PipelineData, hookimpl
+from stratamap.core.errors import ConfigError, DataError
+from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
+from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
+from stratamap.core.map.instances import instances_from_semantics
+from stratamap.core.map.layers import Semantics
+from stratamap.plugins.mappers.tsdf.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_MIN_POINTS_BY_CLASS, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
+from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
+from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.geometry.transforms import apply
+
+
+def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size: float, depth_max: float) -> int:
+    """Pixel stride of the per-voxel class votes ('masks'): the widest at which neighbouring samples
+    still fall at most a voxel apart at depth_max, so that every voxel a frame sees in range gets
+    that frame's vote. Denser sampling adds no weight: a voxel votes once per frame."""
+    if configured is not None:
+        return configured
+    return max(1, int(voxel_size * min(intrinsics.fx, intrinsics.fy) / depth_max + 1e-9))
+
+
+class TSDFConfig(IntegrationConfig):
+    associate_ratio: float = Field(default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label.")
+    merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
+    merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
+    instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
+    fragment_touch: float = Field(default=1.5, ge=0.0, description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
+    min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
+    instances: Literal["labels", "masks"] = Field(
+        default="labels",
+        description=(
+            "How map instances are extracted. 'labels' (the papers'): each label's class and instance (Voxblox++ eq. 6) plus fragment "
+            "merging. 'masks' (for learned segmenters): each point's class by its voxel's per-frame class votes; the label instances "
+            "cut into connected pieces and re-joined where the frames' 2D masks keep covering them together (one frame's mask over "
+            "two chairs does not fuse them)."
+        ),
+    )
+    piece_min_points: int = Field(default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most.")
+    piece_min_points_by_class: dict[str, PositiveInt] = Field(
+        default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS),
+        description=(
+            "'masks': per class, the points a piece needs to stand alone instead of piece_min_points: a whole cup is about a hundred "
+            "points, and the part most frames call 'cup' would otherwise join the table it stands on."
+        ),
+    )
+    piece_merge_ratio: float = Field(
+        default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
+    )
+    piece_near_gap: float = Field(
+        default=0.2, ge=0, description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit."
+    )
+    piece_far_ratio: float = Field(
+        default=0.9, gt=0, le=1, description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never)."
+    )
+    piece_min_class_share: float = Field(
+        default=0.1, ge=0, lt=1,
+        description="'masks': instances under this share of the typical size of their class's instances (piece_fragment_reference) are dropped as misfires; 0: keep all.",
+    )
+    piece_fragment_reference: Literal["median", "point_median"] = Field(
+        default="point_median",
+        description=(
+            "'masks': the size piece_min_class_share is a share of: the class's median instance, or the instance its median point is "
+            "in (the size-weighted median: four misfire 'chairs' beside two real ones do not pull it down to a misfire's size)."
+        ),
+    )
+    piece_cross_ratio: float = Field(
+        default=0.8, ge=0, le=1,
+        description=(
+            "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw them in one mask "
+            "more than this share of the time, taking their points' majority class; 0: never."
+        ),
+    )
+    piece_cross_share: float = Field(
+        default=0.1, ge=0, le=1,
+        description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
+    )
+    piece_stacked_classes: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_STACKED_CLASSES),
+        description=(
+            "'masks': classes whose objects never stand on one another: two instances of one of them, one above the other, are one "
+            "object whose thin joining parts the TSDF lost (a swivel chair's base and seat, a table's legs and top); []: off."
+        ),
+    )
+    piece_stack_overlap: float = Field(
+        default=0.5, gt=0, le=1, description="'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the larger one."
+    )
+    piece_max_length: dict[str, PositiveFloat] = Field(
+        default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
+        description=(
+            "'masks': per class, the longest horizontal side (m) one object has; a longer instance is several touching objects "
+            "(two cups one segment in every frame) and is cut by k-means along its length. Classes left out are never cut; {}: off."
+        ),
+    )
+    piece_split_balance: float = Field(
+        default=0.35, ge=0, le=1,
+        description="'masks': an over-long instance is cut only if every part holds this share of the largest part's points (a monitor that took a scrap of something far beyond it stays whole).",
+    )
+
+
+class TSDFMapper(Mapper):
+    """TSDF fusion of RGB-D frames (Open3D VoxelBlockGrid) with panoptic label fusion."""
+
+    name = "tsdf"
+    Config = TSDFConfig
+    requires = frozenset({"frames"})
+    optional = frozenset({"frame_labels", "ground_truth"})
+    provides = frozenset({"geometry", "semantics", "instances"})
+
+    def map(self, data: PipelineData) -> dict[str, Any]:
+        cfg: TSDFConfig = self.config  # type: ignore[assignment]
+        stream = data.stream
+        assert stream is not None
+        if stream.intrinsics is None:
+            raise DataError(f"tsdf: the stream {stream.name!r} has no camera intrinsics")
+        labels = data.frame_labels
+        if labels is not None and len(labels) != len(stream.frames):
+            raise DataError(f"tsdf: {len(labels)} label images for {len(stream.frames)} frames")
+        volume = TSDFVolume(cfg, stream.intrinsics, extra=[("label", o3c.int32, 1), ("conf", o3c.int32, 1)] if labels is not None else [])
+        vbg = volume.grid
+        vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
+        if cfg.instances == "masks":  # before integration, not after minutes of it
+            named = {"piece_max_length.{}": cfg.piece_max_length, "piece_min_points_by_class.{}": cfg.piece_min_points_by_class,
+                     "piece_stacked_classes: {!r}": cfg.piece_stacked_classes}
+            problems = [(f"tsdf.{key.format(name)}", f"not a class of the map's vocabulary {list(vocab.names)}")
+                        for key, names in named.items() for name in sorted(set(names) - set(vocab.names))]
+            if problems:
+                raise ConfigError(problems)
+        state = PanopticState(
+            PanopticParams(cfg.associate_ratio, cfg.merge_ratio, cfg.merge_votes, cfg.instance_merge_ratio),
+            vocab,
+            voxels_per_block=cfg.block_resolution**3,
+        )
+        observations = MaskObservations()
+        intr = stream.intrinsics
+        integrated = 0
+        for frame in self.progress(stream.frames, description="TSDF integration"):
+            if frame.pose is None:
+                raise DataError(f"tsdf: frame {frame.index} of {stream.name!r} has no pose; enable odometry or provide poses")
+            depth = volume.valid_depth(frame, "tsdf")
+            if not np.any(depth > 0):
+                self.warn(f"frame {frame.index} has no valid depth; skipped")
+                continue
+            volume.integrate(depth, frame.rgb, frame.pose)
+            integrated += 1
+            if labels is not None:
+                self._fuse_labels(vbg, state, observations, depth, labels.frames[frame.index], intr, frame.pose, cfg)
+        if integrated == 0:
+            raise DataError(f"tsdf: no frame of {stream.name!r} had valid depth and a pose")
+
+        geometry = volume.surface()
+        points, colors = geometry.points, geometry.colors
+        self.note("frames_integrated", integrated)
+        out: dict[str, Any] = {"geometry": geometry}
+        if labels is None:
+            return out
+
+        merged = state.merge_instances()
+        classes, instances = state.label_table()
+        point_labels = self._point_labels(vbg, points, cfg)
+        point_class, point_instance = classes[point_labels], instances[point_labels]
+        fragments: dict[int, int] = {}
+        if cfg.instances == "masks":
+            point_class, point_instance = mask_instances(
+                points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
+                    min_points=cfg.piece_min_points, min_points_by_class=cfg.piece_min_points_by_class, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
+                    far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
+                    fragment_reference=cfg.piece_fragment_reference,
+                    cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
+                    stacked_classes=tuple(cfg.piece_stacked_classes), stack_overlap=cfg.piece_stack_overlap,
+                    max_length=cfg.piece_max_length, split_balance=cfg.piece_split_balance,
+                ),
+            )
+        elif cfg.fragment_touch > 0:
+            fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size)
+        # Instances too small to keep leave no fragments behind in the semantics layer either.
+        ids, sizes = np.unique(point_instance[point_instance > 0], return_counts=True)
+        small = ids[sizes < cfg.min_instance_points]
+        if len(small):
+            drop = np.isin(point_instance, small)
+            point_class[drop], point_instance[drop] = 0, 0
+        semantics = Semantics(point_class, point_instance, vocab)
+        self.note(
+            "panoptic",
+            {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged), "fragments_merged": len(fragments), "small_instances_dropped": len(small)},
+        )
+        out["semantics"] = semantics
+        out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points)
+        return out
+
+    @staticmethod
+    def _flat_indices(vbg: Any, voxels: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flat indices into the voxel attributes of integer voxel coordinates (and which exist)."""
+        block = np.floor_divide(voxels, res)
+        local = voxels - block * res
+        buf, found = vbg.hashmap().find(o3c.Tensor(block.astype(np.int32)))
+        buf = buf.numpy().astype(np.int64).reshape(-1)
+        found = found.numpy().reshape(-1)
+        flat = buf * res**3 + (local[:, 2] * res + local[:, 1]) * res + local[:, 0]
+        return flat, found
+
+    def _fuse_labels(
+        self, vbg: Any, state: PanopticState, observations: MaskObservations, depth: np.ndarray, seg: Any, intr: Any, pose: np.ndarray, cfg: TSDFConfig
+    ) -> None:
+        d = np.where(depth <= cfg.depth_max, depth, 0)
+        if cfg.instances == "masks":
+            stride = vote_stride(cfg.label_stride, intr, cfg.voxel_size, cfg.depth_max)
+        else:
+            stride = label_stride(cfg.label_stride, intr.width)
+        pts, pix = intr.backproject(d, stride=stride)
+        if len(pts) == 0:
+            return
+        cls = seg.class_ids.reshape(-1)[pix]
+        inst = seg.instance_ids.reshape(-1)[pix]
+        keep = cls > 0
+        world = apply(pose, pts[keep])
+        voxels = np.round(world / cfg.voxel_size).astype(np.int64)
+        flat, found = self._flat_indices(vbg, voxels, cfg.block_resolution)
+        flat, cls, inst, voxels = flat[found], cls[keep][found], inst[keep][found], voxels[found]
+        flat, first = np.unique(flat, return_index=True)  # one observation per voxel per frame
+        if cfg.instances == "masks":
+            observations.add(voxels[first], cls[first], inst[first])
+        label_view = vbg.attribute("label").numpy().reshape(-1)
+        conf_view = vbg.attribute("conf").numpy().reshape(-1)
+        active = vbg.hashmap().active_buf_indices().numpy().astype(np.int64)
+        state.fuse_frame(label_view, conf_view, flat, cls[first], inst[first], active)
+
+    def _point_labels(self, vbg: Any, points: np.ndarray, cfg: TSDFConfig) -> np.ndarray:
+        """The segment label of each map point: its voxel's, or the nearest labelled neighbour's."""
+        label_view = vbg.attribute("label").numpy().reshape(-1)
+        base = np.round(points / cfg.voxel_size).astype(np.int64)
+        out = np.zeros(len(points), np.int64)
+        for offset in VOXEL_NEIGHBOURS:
+            todo = out == 0
+            if not todo.any():
+                break
+            flat, found = self._flat_indices(vbg, base[todo] + offset, cfg.block_resolution)
+            lab = np.where(found, label_view[np.where(found, flat, 0)], 0)
+            out[np.flatnonzero(todo)] = lab
+        return out
+
+
+@hookimpl
+def stratamap_register_mappers():
+    return [TSDFMapper]

@@ -1,0 +1,179 @@
+"""Find the floor and the up axis of an input, and the transform that makes it z-up with the floor at z = 0.
+
+Stages assume a gravity-aligned world. Sources call :func:`align_stream` on load: it samples
+points from a few frames (or the static cloud), finds planes by iterative RANSAC (inliers
+removed after each plane), keeps large planes roughly perpendicular
+to an *up hint* (for cameras: the mean of their -y optical axes, since handheld and robot
+cameras are held roughly level), takes the lowest of them as the floor, refines it by least
+squares on its inliers, and rotates its normal onto +z with the floor at z = 0. RANSAC is seeded
+numpy (:func:`stratamap.core.geometry.boxes.ransac_plane`), so alignment is the same on every run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+
+from stratamap.core.errors import DataError
+from stratamap.core.geometry.points import ransac_plane
+from stratamap.core.map.sensors import SensorStream
+from stratamap.core.geometry.transforms import apply
+
+
+@dataclass
+class GravityAlignment:
+    transform: np.ndarray  # old world -> new (z-up, floor at 0) world
+    realigned: bool
+    rotation_deg: float
+    floor_offset_m: float
+    floor_inliers: int = 0
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "realigned": self.realigned,
+            "rotation_deg": round(self.rotation_deg, 3),
+            "floor_offset_m": round(self.floor_offset_m, 4),
+            "floor_inliers": self.floor_inliers,
+            "transform": np.round(self.transform, 9).tolist(),
+            **self.details,
+        }
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if np.linalg.norm(v) < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        axis = np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx * (1 / (1 + c))
+
+
+def sample_points(stream: SensorStream, max_frames: int = 8, stride: int = 4) -> np.ndarray:
+    if stream.points is not None and len(stream.points):
+        return np.asarray(stream.points)
+    if stream.intrinsics is None or len(stream.frames) == 0:
+        return np.zeros((0, 3))
+    picks = np.unique(np.linspace(0, len(stream.frames) - 1, min(max_frames, len(stream.frames))).astype(int))
+    pts = []
+    for k in picks:
+        f = stream.frames[int(k)]
+        if f.pose is None:
+            continue
+        cam, _ = stream.intrinsics.backproject(np.where(f.depth < 6.0, f.depth, 0), stride=stride)
+        pts.append(apply(f.pose, cam))
+    return np.vstack(pts) if pts else np.zeros((0, 3))
+
+
+def camera_up_hint(stream: SensorStream) -> np.ndarray | None:
+    ups = [-f.pose[:3, 1] for f in _some_frames(stream) if f.pose is not None]
+    if not ups:
+        return None
+    up = np.mean(ups, axis=0)
+    return up / np.linalg.norm(up)
+
+
+def _some_frames(stream: SensorStream, n: int = 16):
+    if len(stream.frames) == 0:
+        return []
+    picks = np.unique(np.linspace(0, len(stream.frames) - 1, min(n, len(stream.frames))).astype(int))
+    return [stream.frames[int(k)] for k in picks]
+
+
+def find_floor(
+    points: np.ndarray,
+    up_hint: np.ndarray,
+    voxel: float = 0.03,
+    distance: float = 0.02,
+    max_planes: int = 8,
+    max_angle_deg: float = 35.0,
+    min_share: float = 0.03,
+    seed: int = 0,
+) -> tuple[np.ndarray, float, int] | None:
+    """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None."""
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    sampled = np.asarray(pcd.voxel_down_sample(voxel).points)
+    sampled = sampled[np.lexsort(sampled.T[::-1])]  # a fixed order, whatever the downsampler's
+    total = len(sampled)
+    if total < 100:
+        return None
+    rest = sampled
+    candidates = []
+    for k in range(max_planes):
+        if len(rest) < max(50, min_share * total):
+            break
+        n, d, inliers = ransac_plane(rest, distance, iterations=400, seed=seed + k)
+        if np.dot(n, up_hint) < 0:
+            n, d = -n, -d
+        inlier_pts = rest[inliers]
+        rest = np.delete(rest, inliers, axis=0)
+        angle = np.degrees(np.arccos(np.clip(np.dot(n, up_hint), -1, 1)))
+        if len(inliers) >= min_share * total and angle <= max_angle_deg:
+            candidates.append((n, d, inlier_pts))
+    if not candidates:
+        return None
+    all_pts = sampled
+    # The floor is the lowest candidate along the up direction with (almost) everything above it.
+    best = None
+    for n, d, pts in candidates:
+        height = float(-d)
+        below = float(np.mean(all_pts @ n + d < -0.05))
+        if below > 0.1:
+            continue
+        if best is None or height < best[0]:
+            best = (height, n, pts)
+    if best is None:
+        return None
+    _, n, pts = best
+    # Least-squares refinement on the inliers.
+    centroid = pts.mean(0)
+    _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
+    normal = vt[2] if np.dot(vt[2], n) > 0 else -vt[2]
+    return normal, float(-np.dot(normal, centroid)), len(pts)
+
+
+def estimate_alignment(stream: SensorStream, up_hint: np.ndarray | None = None, max_angle_deg: float = 35.0) -> GravityAlignment:
+    pts = sample_points(stream)
+    if len(pts) < 100:
+        raise DataError(f"{stream.name}: too few valid depth points to find the floor ({len(pts)})")
+    hint = up_hint if up_hint is not None else camera_up_hint(stream)
+    if hint is None:
+        hint = np.array([0.0, 0.0, 1.0])
+    floor = find_floor(pts, hint, max_angle_deg=max_angle_deg)
+    if floor is None:
+        raise DataError(
+            f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint {np.round(hint, 2).tolist()}); "
+            "if the input is already z-up set `gravity: off`"
+        )
+    normal, d, inliers = floor
+    rot = rotation_between(normal, np.array([0.0, 0.0, 1.0]))
+    transform = np.eye(4)
+    transform[:3, :3] = rot
+    transform[2, 3] = d  # after rotation the floor is z = -d
+    angle = float(np.degrees(np.arccos(np.clip(normal[2], -1, 1))))
+    realigned = angle > 0.5 or abs(d) > 0.005
+    if not realigned:
+        transform = np.eye(4)
+    return GravityAlignment(
+        transform, realigned, angle, float(-d), inliers, {"up_hint": np.round(hint, 4).tolist(), "floor_normal_input": np.round(normal, 6).tolist()}
+    )
+
+
+def transform_stream(stream: SensorStream, transform: np.ndarray) -> None:
+    """Apply a world transform to every pose (and static points) of a stream, in place."""
+    for scan in [*stream.laser_scans, *stream.lidar_scans]:
+        if scan.pose is not None:
+            scan.pose = transform @ scan.pose
+    if stream.points is not None:
+        stream.points = apply(transform, np.asarray(stream.points))
+    stream.metadata["world_transform"] = (transform @ np.asarray(stream.metadata.get("world_transform", np.eye(4)))).tolist()

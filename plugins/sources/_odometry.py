@@ -1,0 +1,79 @@
+"""Odometry for inputs without poses.
+
+* RGB-D: Open3D's dense RGB-D SLAM model, tracking each frame against a ray cast of the TSDF
+  built so far (frame to model), as KinectFusion does.
+* LiDAR and point-cloud sequences: KISS-ICP.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+from stratamap.core.errors import DataError
+from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame
+
+
+def rgbd_frame_to_model(
+    frames: Sequence[RGBDFrame],
+    intrinsics: CameraIntrinsics,
+    voxel_size: float = 0.01,
+    depth_max: float = 4.0,
+    depth_min: float = 0.2,
+    trunc_multiplier: float = 8.0,
+    progress: Callable[[int], None] | None = None,
+) -> list[np.ndarray]:
+    """Camera-to-world poses (the first camera is the world) by frame-to-model tracking."""
+    device = o3c.Device("CPU:0")
+    K = o3c.Tensor(intrinsics.matrix, o3c.float64)
+    model = o3d.t.pipelines.slam.Model(voxel_size, 16, 40000, o3c.Tensor(np.eye(4)), device)
+    h, w = intrinsics.height, intrinsics.width
+    input_frame = o3d.t.pipelines.slam.Frame(h, w, K, device)
+    raycast_frame = o3d.t.pipelines.slam.Frame(h, w, K, device)
+    pose = np.eye(4)
+    poses = []
+    scale = 1000.0
+    for i, frame in enumerate(frames):
+        depth = np.clip(np.round(np.nan_to_num(frame.depth) * scale), 0, 65535).astype(np.uint16)
+        if not np.any(depth):
+            raise DataError(f"odometry: frame {frame.index} has no valid depth; cannot track it")
+        input_frame.set_data_from_image("depth", o3d.t.geometry.Image(o3c.Tensor(depth)))
+        input_frame.set_data_from_image("color", o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(frame.rgb))))
+        if i > 0:
+            try:
+                result = model.track_frame_to_model(input_frame, raycast_frame, scale, depth_max, 0.07)
+                pose = pose @ result.transformation.numpy()
+            except RuntimeError as exc:  # Open3D raises when the system is degenerate
+                raise DataError(f"odometry: tracking lost at frame {frame.index} ({exc})") from exc
+        poses.append(pose.copy())
+        model.update_frame_pose(i, o3c.Tensor(pose))
+        model.integrate(input_frame, scale, depth_max, trunc_multiplier)
+        model.synthesize_model_frame(raycast_frame, scale, depth_min, depth_max, trunc_multiplier, False)
+        if progress is not None:
+            progress(i + 1)
+    return poses
+
+
+def lidar_odometry(scans: Sequence[np.ndarray], timestamps: Sequence[float] | None = None, max_range: float = 30.0) -> list[np.ndarray]:
+    """Sensor-to-world poses (the first scan is the world) with KISS-ICP."""
+    try:
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.kiss_icp import KissICP
+    except ImportError as exc:  # pragma: no cover - kiss-icp is a dependency
+        raise DataError("LiDAR odometry needs kiss-icp (pip install kiss-icp)") from exc
+    config = KISSConfig()
+    config.data.max_range = max_range
+    config.data.min_range = 0.3
+    config.data.deskew = False
+    config.mapping.voxel_size = max_range / 100.0 if max_range > 10 else 0.1
+    odom = KissICP(config=config)
+    poses = []
+    for k, pts in enumerate(scans):
+        pts = np.asarray(pts, dtype=np.float64)
+        stamps = np.zeros(len(pts)) if timestamps is None else np.full(len(pts), float(timestamps[k]))
+        odom.register_frame(pts, stamps)
+        poses.append(np.asarray(odom.last_pose).copy())
+    return poses

@@ -1,0 +1,147 @@
+"""What every file-based sequence source shares: frame selection, odometry when poses are missing,
+gravity alignment, and keeping ground truth in the same world frame as the sensor data."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field
+
+from stratamap.core.errors import DataError
+from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
+from stratamap.core.map.groundtruth import GroundTruth
+from stratamap.core.evaluation.trajectory import ate, rpe
+from stratamap.core.map.sensors import RGBDFrame, SensorStream
+from stratamap.core.stages import Source, StageConfig
+
+
+class SequenceConfig(StageConfig):
+    path: str = Field(description="Folder of the sequence.")
+    max_frames: int | None = Field(default=None, ge=1, description="Read at most this many frames (after `stride`).")
+    stride: int = Field(default=1, ge=1, description="Read every n-th frame.")
+    gravity: Literal["auto", "off"] = Field(
+        default="auto", description="auto: find the floor, and re-align the world to z-up with the floor at z = 0 if needed; off: trust the input."
+    )
+    odometry: Literal["auto", "always", "never"] = Field(
+        default="auto", description="auto: estimate poses when the input has none; always: estimate them even if given (given poses become ground truth)."
+    )
+
+
+class PosedFrames(Sequence):
+    """Frames read on access; their poses come from a list the source may update (odometry, gravity)."""
+
+    def __init__(self, timestamps: list[float], read: Callable[[int], tuple[np.ndarray, np.ndarray]], poses: list[np.ndarray | None], cache: int = 3):
+        self.timestamps, self._read, self.poses = timestamps, read, poses
+        self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._cache_size = cache
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        if k not in self._cache:
+            self._cache[k] = self._read(k)
+            if len(self._cache) > self._cache_size:
+                self._cache.popitem(last=False)
+        rgb, depth = self._cache[k]
+        pose = self.poses[k]
+        return RGBDFrame(k, self.timestamps[k], rgb, depth, None if pose is None else pose.copy())
+
+    def __deepcopy__(self, memo: dict) -> list:
+        import copy
+
+        return [copy.deepcopy(f, memo) for f in self]
+
+
+def select(indices: list[int], stride: int, max_frames: int | None) -> list[int]:
+    picked = indices[::stride]
+    return picked[:max_frames] if max_frames else picked
+
+
+class SequenceSource(Source):
+    """Base of RGB-D sequence sources. Subclasses implement :meth:`load`."""
+
+    Config = SequenceConfig
+    provides = frozenset({"frames", "ground_truth"})
+
+    def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        raise NotImplementedError
+
+    def read(self) -> dict[str, Any]:
+        return self.finish(*self.load())
+
+    def finish(self, stream: SensorStream, frames: PosedFrames, gt: GroundTruth | None) -> dict[str, Any]:
+        """Odometry where poses are missing, gravity alignment, and the layers to return."""
+        cfg: SequenceConfig = self.config  # type: ignore[assignment]
+        if len(frames) == 0:
+            raise DataError(f"{cfg.path}: no frames to read")
+        given = [None if p is None else p.copy() for p in frames.poses]
+        missing = sum(p is None for p in given)
+        if cfg.odometry == "always" or (cfg.odometry == "auto" and missing):
+            self._odometry(stream, frames, given, gt)
+        elif missing:
+            raise DataError(f"{cfg.path}: {missing} of {len(given)} frames have no pose and odometry is 'never'")
+        if cfg.gravity == "auto":
+            self._align(stream, frames, gt)
+        out: dict[str, Any] = {"frames": stream}
+        if gt is not None:
+            out["ground_truth"] = gt
+        return out
+
+    def _odometry(self, stream: SensorStream, frames: PosedFrames, given: list[np.ndarray | None], gt: GroundTruth | None) -> None:
+        from stratamap.plugins.sources._odometry import rgbd_frame_to_model
+
+        assert stream.intrinsics is not None
+        raw = PosedFrames(frames.timestamps, frames._read, [None] * len(frames))
+        estimated = rgbd_frame_to_model(list(self.progress(raw, description="RGB-D odometry")), stream.intrinsics)
+        report: dict[str, Any] = {"method": "open3d frame-to-model RGB-D odometry", "frames": len(estimated)}
+        reference = given if all(p is not None for p in given) else None
+        if reference is None and gt is not None and "true_poses" in gt.layout:
+            reference = [np.asarray(p) for p in gt.layout["true_poses"]]
+        if reference is not None and len(reference) == len(estimated):
+            # Express the estimate in the reference world: the first poses coincide.
+            anchor = reference[0] @ np.linalg.inv(estimated[0])
+            estimated = [anchor @ p for p in estimated]
+            report.update(ate(estimated, reference))
+            report.update(rpe(estimated, reference))
+        frames.poses[:] = estimated
+        stream.metadata["odometry"] = report
+        self.note("odometry", report)
+
+    def _align(self, stream: SensorStream, frames: PosedFrames, gt: GroundTruth | None) -> None:
+        alignment = estimate_alignment(stream)
+        self.note("gravity_alignment", alignment.report())
+        stream.metadata["gravity_alignment"] = alignment.report()
+        if not alignment.realigned:
+            return
+        t = alignment.transform
+        frames.poses[:] = [None if p is None else t @ p for p in frames.poses]
+        frames._cache.clear()
+        transform_stream(stream, t)
+        if gt is not None:
+            for obj in gt.objects:
+                obj.pose = t @ obj.pose
+            gt.layout["world_transform"] = (t @ np.asarray(gt.layout.get("world_transform", np.eye(4)))).tolist()
+            if "true_poses" in gt.layout:
+                gt.layout["true_poses"] = [(t @ np.asarray(p)).tolist() for p in gt.layout["true_poses"]]
+        self.warn(
+            f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg, floor moved by {alignment.floor_offset_m:+.3f} m to z = 0"
+        )
+
+
+def example_stream(width: int, height: int, frames: int) -> SensorStream:
+    """A tiny synthetic room seen from an orbit: what the conformance kit feeds file-based sources
+    (each writes it in its own format)."""
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+
+    spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": width, "height": height}, "trajectory": {"type": "orbit", "frames": frames}})
+    return SyntheticWorld(spec).stream()
