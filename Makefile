@@ -1,6 +1,10 @@
 # Two commands do everything on a fresh Debian machine with Python 3.11:
 #   make demo   -- set up .venv, install stratamap, run configs/demo.yaml into out/demo/
-#   make test   -- set up .venv, install stratamap with test extras, run the test suite
+#   make test   -- set up .venv, install stratamap with test extras, run the whole test suite (CI)
+# and, while working on stratamap:
+#   make test-fast -- the suite without the tests marked slow (whole-pipeline runs): under 2 minutes
+#   make lint      -- ruff lint and format checks (the suite runs them too)
+#   make format    -- apply ruff's fixes and formatting
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -8,13 +12,24 @@ PIP := $(PY) -m pip
 STAMP := $(VENV)/.stratamap-installed
 OUT ?= out/demo
 
-.PHONY: demo test install system-deps bench clean
+.PHONY: demo test test-fast lint format install system-deps clean
 
 demo: $(STAMP)
 	$(VENV)/bin/stratamap demo --out $(OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: $(STAMP)
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
 
 install: $(STAMP)
 

@@ -28,11 +28,18 @@ from stratamap.plugins.mappers.contact_graph import ContactGraphMapper
 from stratamap.plugins.mappers.tsdf import TSDFMapper
 from stratamap.plugins.segmenters.oracle import OracleSegmenter
 
-COMPLETERS = {"none": None, "bbox": BBoxCompleter, "icp_match": ICPMatchCompleter, "plane_box_match": PlaneBoxMatchCompleter}
+COMPLETERS = {
+    "none": None,
+    "bbox": BBoxCompleter,
+    "icp_match": ICPMatchCompleter,
+    "plane_box_match": PlaneBoxMatchCompleter,
+}
 
 
 def mapped_scene(seed: int, frames: int) -> PipelineData:
-    spec = SceneSpec.model_validate({"type": "office", "seed": seed, "trajectory": {"type": "walk", "frames": frames}, "noise": {"depth": "kinect"}})
+    spec = SceneSpec.model_validate(
+        {"type": "office", "seed": seed, "trajectory": {"type": "walk", "frames": frames}, "noise": {"depth": "kinect"}}
+    )
     world = SyntheticWorld(spec)
     data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
     return run_stages([OracleSegmenter(), TSDFMapper(), ContactGraphMapper()], data)
@@ -72,12 +79,17 @@ def main() -> None:
             "scan2cad_accuracy": float(np.mean(s2c)) if s2c else None,
             "seconds_per_object": float(np.mean(seconds[name])),
         }
-    print(f"{'completer':16s} {'CD-L1 all':>10s} {'CD-L1 chair':>12s} {'F@2cm':>7s} {'F@5cm':>7s} {'yaw deg':>8s} {'s/obj':>7s}")
+    print(
+        f"{'completer':16s} {'CD-L1 all':>10s} {'CD-L1 chair':>12s} {'F@2cm':>7s} {'F@5cm':>7s} {'yaw deg':>8s} {'s/obj':>7s}"
+    )
     for name, s in summary.items():
+
         def fmt(v, spec):
             return "-" if v is None else format(v, spec)
 
-        print(f"{name:16s} {fmt(s['chamfer_l1'], '10.4f')} {fmt(s['chamfer_l1_chairs'], '12.4f')} {fmt(s['fscore_2cm'], '7.3f')} {fmt(s['fscore_5cm'], '7.3f')} {fmt(s['yaw_error_deg'], '8.2f')} {fmt(s['seconds_per_object'], '7.3f')}")
+        print(
+            f"{name:16s} {fmt(s['chamfer_l1'], '10.4f')} {fmt(s['chamfer_l1_chairs'], '12.4f')} {fmt(s['fscore_2cm'], '7.3f')} {fmt(s['fscore_5cm'], '7.3f')} {fmt(s['yaw_error_deg'], '8.2f')} {fmt(s['seconds_per_object'], '7.3f')}"
+        )
     print(json.dumps({"scenes": args.scenes, "completers": summary}))
 
 

@@ -34,20 +34,47 @@ def main() -> None:
             config.write_text(
                 yaml.safe_dump(
                     {
-                        "source": {"plugin": "synthetic", "params": {"scene_file": str(REPO / "configs" / "scenes" / f"{kind}.yaml"), "frames": args.frames}},
-                        "stages": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.02}}, {"plugin": "contact_graph"}],
+                        "source": {
+                            "plugin": "synthetic",
+                            "params": {
+                                "scene_file": str(REPO / "configs" / "scenes" / f"{kind}.yaml"),
+                                "frames": args.frames,
+                            },
+                        },
+                        "stages": [
+                            {"plugin": "oracle"},
+                            {"plugin": "tsdf", "params": {"voxel_size": 0.02}},
+                            {"plugin": "contact_graph"},
+                        ],
                         "output": {"save_map": False},
                     }
                 )
             )
             rows = []
             for seed in range(args.seeds):
-                report = Pipeline(load_pipeline(config, [f"source.params.seed={seed}"])).run(Path(tmp) / f"{kind}{seed}")
+                report = Pipeline(load_pipeline(config, [f"source.params.seed={seed}"])).run(
+                    Path(tmp) / f"{kind}{seed}"
+                )
                 graph = report["metrics"]["graph"]
                 rows.append({"seed": seed, **graph})
-                print(f"{kind:8s} seed {seed}: ged {graph['ged']} (wrong support {graph['wrong_support']}, missing {graph['missing']}, extra {graph['extra']})", flush=True)
-            result[kind] = {"ged": [r["ged"] for r in rows], "seeds_with_ged_0": sum(r["ged"] == 0 for r in rows), "runs": rows}
-    print(json.dumps({"benchmark": "contact_graph_seeds", "frames": args.frames, **{k: {kk: v[kk] for kk in ("ged", "seeds_with_ged_0")} for k, v in result.items()}}))
+                print(
+                    f"{kind:8s} seed {seed}: ged {graph['ged']} (wrong support {graph['wrong_support']}, missing {graph['missing']}, extra {graph['extra']})",
+                    flush=True,
+                )
+            result[kind] = {
+                "ged": [r["ged"] for r in rows],
+                "seeds_with_ged_0": sum(r["ged"] == 0 for r in rows),
+                "runs": rows,
+            }
+    print(
+        json.dumps(
+            {
+                "benchmark": "contact_graph_seeds",
+                "frames": args.frames,
+                **{k: {kk: v[kk] for kk in ("ged", "seeds_with_ged_0")} for k, v in result.items()},
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -21,14 +21,16 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from stratamap.core.geometry.transforms import invert
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
-from stratamap.core.geometry.transforms import invert
 from stratamap.plugins.mappers.tsdf import TSDFMapper
 from stratamap.plugins.segmenters.oracle import OracleSegmenter
 
 
-def bare_open3d(frames, intrinsics, voxel: float, depth_max: float, trunc: float, block_resolution: int, block_count: int) -> int:
+def bare_open3d(
+    frames, intrinsics, voxel: float, depth_max: float, trunc: float, block_resolution: int, block_count: int
+) -> int:
     vbg = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
@@ -57,7 +59,14 @@ def main() -> None:
     parser.add_argument("--voxel", type=float, default=0.02)
     args = parser.parse_args()
 
-    spec = SceneSpec.model_validate({"type": "office", "seed": 0, "trajectory": {"type": "walk", "frames": args.frames}, "noise": {"depth": "kinect"}})
+    spec = SceneSpec.model_validate(
+        {
+            "type": "office",
+            "seed": 0,
+            "trajectory": {"type": "walk", "frames": args.frames},
+            "noise": {"depth": "kinect"},
+        }
+    )
     world = SyntheticWorld(spec)
     stream = world.stream()
     stream.frames = list(stream.frames)  # render once, outside the timings
@@ -70,16 +79,37 @@ def main() -> None:
     t_bare, t_full = [], []
     for _ in range(args.repeats):  # alternate so both see the same machine load
         t0 = time.perf_counter()
-        bare_open3d(stream.frames, stream.intrinsics, args.voxel, cfg.depth_max, cfg.truncation_voxels, cfg.block_resolution, cfg.block_count)
+        bare_open3d(
+            stream.frames,
+            stream.intrinsics,
+            args.voxel,
+            cfg.depth_max,
+            cfg.truncation_voxels,
+            cfg.block_resolution,
+            cfg.block_count,
+        )
         t_bare.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         out = mapper.run(data)
         t_full.append(time.perf_counter() - t0)
     fps_bare = args.frames / min(t_bare)
     fps_full = args.frames / min(t_full)
-    print(f"bare Open3D integration: {fps_bare:.2f} frames/s; stratamap tsdf with panoptic fusion: {fps_full:.2f} frames/s")
+    print(
+        f"bare Open3D integration: {fps_bare:.2f} frames/s; stratamap tsdf with panoptic fusion: {fps_full:.2f} frames/s"
+    )
     print(f"(objects mapped: {len(out['instances'])}, map points: {len(out['geometry'])})")
-    print(json.dumps({"fps_open3d": round(fps_bare, 3), "fps_stratamap": round(fps_full, 3), "ratio": round(fps_full / fps_bare, 3), "frames": args.frames, "voxel_size": args.voxel, "resolution": [640, 480]}))
+    print(
+        json.dumps(
+            {
+                "fps_open3d": round(fps_bare, 3),
+                "fps_stratamap": round(fps_full, 3),
+                "ratio": round(fps_full / fps_bare, 3),
+                "frames": args.frames,
+                "voxel_size": args.voxel,
+                "resolution": [640, 480],
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

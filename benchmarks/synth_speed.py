@@ -28,7 +28,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     spec = SceneSpec.from_yaml(args.scene)
-    spec = spec.model_copy(update={"seed": args.seed, "trajectory": spec.trajectory.model_copy(update={"frames": args.frames})})
+    spec = spec.model_copy(
+        update={"seed": args.seed, "trajectory": spec.trajectory.model_copy(update={"frames": args.frames})}
+    )
 
     t0 = time.perf_counter()
     world = SyntheticWorld(spec)

@@ -28,7 +28,9 @@ out_console = Console()
 
 SetOption = Annotated[
     list[str] | None,
-    typer.Option("--set", "-s", help="Override a key by its path, value parsed as YAML: --set stages[0].params.voxel_size=0.02"),
+    typer.Option(
+        "--set", "-s", help="Override a key by its path, value parsed as YAML: --set stages[0].params.voxel_size=0.02"
+    ),
 ]
 
 
@@ -135,10 +137,16 @@ def run(
 @app.command()
 def bench(
     config: Annotated[Path, typer.Argument(help="Benchmark YAML file (configs/bench/*.yaml).")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (records/, results.json/.csv/.md, figures).")],
-    workers: Annotated[int, typer.Option("--workers", "-j", help="Scenes run in parallel (worker processes or Ray CPUs).")] = 1,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Results folder (records/, results.json/.csv/.md, figures).")
+    ],
+    workers: Annotated[
+        int, typer.Option("--workers", "-j", help="Scenes run in parallel (worker processes or Ray CPUs).")
+    ] = 1,
     executor: Annotated[str, typer.Option("--executor", help="local (worker processes) or ray.")] = "local",
-    address: Annotated[str | None, typer.Option("--address", help="Ray cluster address (default: start a local Ray instance).")] = None,
+    address: Annotated[
+        str | None, typer.Option("--address", help="Ray cluster address (default: start a local Ray instance).")
+    ] = None,
 ) -> None:
     """Run every (scene, variant) pair of a benchmark; resumable; tables and figures from the records."""
     from stratamap.core.evaluation.bench import run_bench
@@ -226,7 +234,14 @@ app.add_typer(models_app, name="models")
 
 
 def _progress_callback(label: str):
-    progress = Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console, disable=not console.is_terminal)
+    progress = Progress(
+        TextColumn(f"[bold]{label}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=not console.is_terminal,
+    )
     task = progress.add_task(label, total=None)
 
     def update(done: int, total: int) -> None:
@@ -252,11 +267,17 @@ def models_build(
     except StratamapError as exc:
         _fail(exc)
     joints = sum(len(m.joints) for m in lib)
-    out_console.print(f"[green]wrote[/] {out}: {len(lib)} models, {len(lib.families())} families, {len(lib.classes())} classes, {joints} joints")
+    out_console.print(
+        f"[green]wrote[/] {out}: {len(lib)} models, {len(lib.families())} families, {len(lib.classes())} classes, {joints} joints"
+    )
 
 
 @models_app.command("info")
-def models_info(path: Annotated[Path, typer.Argument(help="A library folder (stratamap, PartNet-Mobility, or meshes + classes.csv).")]) -> None:
+def models_info(
+    path: Annotated[
+        Path, typer.Argument(help="A library folder (stratamap, PartNet-Mobility, or meshes + classes.csv).")
+    ],
+) -> None:
     """Summarize a model library: models per class and family, joints, load problems."""
     from stratamap.core.library.models import ModelLibrary
 

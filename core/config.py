@@ -52,7 +52,9 @@ class OutputSpec(BaseModel):
     dir: str | None = Field(default=None, description="Output folder; `--out` on the command line overrides it.")
     save_map: bool = Field(default=True, description="Save the layered map to OUT/map/ (manifest.json + layers).")
     export_dir: str = Field(default="export", description="Sub-folder of the output folder that exporters write into.")
-    report: bool = Field(default=True, description="Write OUT/report.json with stage timings, layer counts and metrics.")
+    report: bool = Field(
+        default=True, description="Write OUT/report.json with stage timings, layer counts and metrics."
+    )
     metrics: bool = Field(default=True, description="Evaluate the map against ground truth when the source has it.")
 
 

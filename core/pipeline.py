@@ -49,7 +49,9 @@ def apply_outputs(stage: Stage, result: dict[str, Any] | list[Path], data: Pipel
             raise RuntimeError(f"{where} ({stage.name}) returned layer {layer!r} that it does not declare in provides")
         expected = LAYERS[layer]
         if value is not None and not isinstance(value, expected):
-            raise TypeError(f"{where} ({stage.name}) returned {type(value).__name__} for layer {layer!r}; expected {expected.__name__}")
+            raise TypeError(
+                f"{where} ({stage.name}) returned {type(value).__name__} for layer {layer!r}; expected {expected.__name__}"
+            )
         if value is not None:
             data.set(layer, value, producer=stage.name)
             outputs.append(layer)
@@ -109,7 +111,10 @@ class Pipeline:
         spec = self.validated.spec
         out = out_dir or spec.output.dir
         if out is None:
-            raise ConfigError([("output.dir", "no output folder: pass --out DIR or set output.dir in the pipeline file")], self.validated.origin)
+            raise ConfigError(
+                [("output.dir", "no output folder: pass --out DIR or set output.dir in the pipeline file")],
+                self.validated.origin,
+            )
         self.out_dir = Path(out)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         data = self.data = PipelineData()
@@ -141,7 +146,13 @@ class Pipeline:
             "pipeline": self.validated.origin,
             "versions": package_versions(),
             "stages": [
-                {"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "outputs": r.outputs}
+                {
+                    "name": r.name,
+                    "plugin": r.plugin,
+                    "kind": r.kind,
+                    "seconds": round(r.seconds, 4),
+                    "outputs": r.outputs,
+                }
                 for r in self.records
             ],
             "seconds_total": round(total_seconds, 4),

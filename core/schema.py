@@ -64,7 +64,11 @@ def pipeline_schema(registry: Registry | None = None) -> dict[str, Any]:
         "type": "object",
         "properties": {
             "source": {"description": "The source stage that reads sensor data.", "oneOf": sources},
-            "stages": {"description": "Stages run in order after the source.", "type": "array", "items": {"oneOf": stages}},
+            "stages": {
+                "description": "Stages run in order after the source.",
+                "type": "array",
+                "items": {"oneOf": stages},
+            },
             "output": output,
         },
         "required": ["source"],

@@ -27,7 +27,7 @@ import inspect
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict
 
@@ -103,9 +103,15 @@ class PipelineData:
         return {name for name in LAYERS if self.has(name)}
 
 
-class Stage:
+ConfigT = TypeVar("ConfigT", bound=StageConfig)
+
+
+class Stage(Generic[ConfigT]):
     """Base class of all stages. Subclass one of :class:`Source`, :class:`Segmenter`,
-    :class:`Mapper`, :class:`Completer`, :class:`Exporter`."""
+    :class:`Mapper`, :class:`Completer`, :class:`Exporter`, parameterised by the config class
+    (``class MyMapper(Mapper[MyConfig])``) so that ``self.config`` is typed."""
+
+    config: ConfigT
 
     kind: ClassVar[str] = ""
     name: ClassVar[str] = ""
@@ -119,9 +125,10 @@ class Stage:
     def __init__(self, config: StageConfig | None = None, **params: Any):
         if config is not None and params:
             raise TypeError("pass either a Config instance or keyword parameters, not both")
-        self.config = config if config is not None else self.Config(**params)
-        if not isinstance(self.config, self.Config):
-            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(self.config).__name__}")
+        config = config if config is not None else self.Config(**params)
+        if not isinstance(config, self.Config):
+            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(config).__name__}")
+        self.config = config  # type: ignore[assignment]  # Config is ConfigT's class, which a ClassVar cannot say
         self._hook = None  # set by the pipeline: the pluggy hook relay for progress events
         self._data: PipelineData | None = None
 
@@ -169,7 +176,7 @@ class Stage:
         raise NotImplementedError
 
 
-class Source(Stage):
+class Source(Stage[ConfigT]):
     """Reads sensor data. Verb: ``read() -> {"frames": SensorStream, "ground_truth"?: GroundTruth}``."""
 
     kind = "sources"
@@ -183,7 +190,7 @@ class Source(Stage):
         return self.read()
 
 
-class Segmenter(Stage):
+class Segmenter(Stage[ConfigT]):
     """Labels frames or points. Verb: ``segment(data) -> {"frame_labels": FrameLabels}`` (or ``semantics``)."""
 
     kind = "segmenters"
@@ -198,7 +205,7 @@ class Segmenter(Stage):
         return self.segment(data)
 
 
-class Mapper(Stage):
+class Mapper(Stage[ConfigT]):
     """Builds map layers. Verb: ``map(data) -> {layer: value}``."""
 
     kind = "mappers"
@@ -211,7 +218,7 @@ class Mapper(Stage):
         return self.map(data)
 
 
-class Completer(Stage):
+class Completer(Stage[ConfigT]):
     """Completes partially observed objects. Verb: ``complete(data) -> {"instances": ..., "augmented"?: ...}``."""
 
     kind = "completers"
@@ -226,7 +233,7 @@ class Completer(Stage):
         return self.complete(data)
 
 
-class Exporter(Stage):
+class Exporter(Stage[ConfigT]):
     """Writes files robot software loads. Verb: ``export(data, out_dir) -> list[Path]``; writes atomically."""
 
     kind = "exporters"

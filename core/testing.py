@@ -95,9 +95,9 @@ def _feed(h: Any, value: Any, depth: int) -> None:
 @lru_cache(maxsize=1)
 def _reference_data() -> PipelineData:
     """A tiny synthetic scene run through the built-in stages: every layer filled."""
-    from stratamap.core.registry import build_registry, builtin_entry_points
+    from stratamap.core.registry import build_registry
 
-    registry = build_registry(eps=builtin_entry_points(), extra_modules=[], autoload=True)
+    registry = build_registry(eps=[], extra_modules=[], autoload=True)
     stages = [
         (
             "sources",
@@ -184,7 +184,9 @@ def check_declarations(stage_cls: type[Stage]) -> None:
     """name, kind, description and layer declarations are present and well-formed."""
     assert re.fullmatch(r"[a-z][a-z0-9_]*", stage_cls.name or ""), f"name {stage_cls.name!r} must be snake_case"
     assert stage_cls.kind in KINDS, f"kind {stage_cls.kind!r} must be one of {KINDS}"
-    assert issubclass(stage_cls, KIND_BASES[stage_cls.kind]), f"{stage_cls.__name__} must subclass {KIND_BASES[stage_cls.kind].__name__}"
+    assert issubclass(stage_cls, KIND_BASES[stage_cls.kind]), (
+        f"{stage_cls.__name__} must subclass {KIND_BASES[stage_cls.kind].__name__}"
+    )
     assert stage_cls.summary(), f"{stage_cls.__name__} needs a docstring or a description"
     for attr in ("requires", "optional", "provides"):
         declared = set(getattr(stage_cls, attr))

@@ -36,7 +36,9 @@ WIDTH, HEIGHT = 160, 120  # network input
 DEPTH_SCALE = 5.0  # depth (m) / 5 as the 4th input channel
 
 
-def render_frames(types: list[str], seeds: list[int], frames: int, render_size: tuple[int, int] = (640, 480)) -> dict[str, np.ndarray]:
+def render_frames(
+    types: list[str], seeds: list[int], frames: int, render_size: tuple[int, int] = (640, 480)
+) -> dict[str, np.ndarray]:
     """Frames rendered at the camera's ``render_size`` and shrunk to the network input by the
     plugin's own preprocessing (what the network sees at run time); labels sampled at pixel centres."""
     import yaml
@@ -55,7 +57,11 @@ def render_frames(types: list[str], seeds: list[int], frames: int, render_size: 
         if path.is_file():
             doc = yaml.safe_load(path.read_text())
         else:  # the demo's room: sensors as the office's, more boxes than its default two
-            doc = {**yaml.safe_load((repo / "configs" / "scenes" / "office.yaml").read_text()), "type": t, **EXTRA_TYPES[t]}
+            doc = {
+                **yaml.safe_load((repo / "configs" / "scenes" / "office.yaml").read_text()),
+                "type": t,
+                **EXTRA_TYPES[t],
+            }
         for seed in seeds:
             doc.update(seed=seed, camera={**doc.get("camera", {}), "width": w, "height": h})
             doc["trajectory"] = {**doc.get("trajectory", {}), "frames": frames}
@@ -93,7 +99,9 @@ def build_model(classes: int):
     from torch.nn import functional as F
 
     def conv(cin, cout, k=3, stride=1):
-        return nn.Sequential(nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+        return nn.Sequential(
+            nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)
+        )
 
     def block(cin, cout, stride=1):
         return nn.Sequential(conv(cin, cout, 3, stride), conv(cout, cout))
@@ -104,7 +112,9 @@ def build_model(classes: int):
     class Residual(nn.Module):
         def __init__(self, channels):
             super().__init__()
-            self.body = nn.Sequential(conv(channels, channels), nn.Conv2d(channels, channels, 3, 1, 1, bias=False), nn.BatchNorm2d(channels))
+            self.body = nn.Sequential(
+                conv(channels, channels), nn.Conv2d(channels, channels, 3, 1, 1, bias=False), nn.BatchNorm2d(channels)
+            )
 
         def forward(self, x):
             return F.relu(x + self.body(x))
@@ -145,8 +155,8 @@ def build_model(classes: int):
 def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
     """mIoU and PQ of the network's labels on ``data`` (every frame), by the map's own metric."""
     from stratamap.core.evaluation.panoptic import frame_quality
-    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
     from stratamap.core.map.sensors import FrameSegmentation
+    from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
 
     identity = np.arange(len(vocab.names))
     is_thing = np.array(vocab.is_thing)
@@ -160,7 +170,9 @@ def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
     return {
         "miou": q["miou"],
         "iou_by_class": q["iou_by_class"],
-        "pq": q["pq"], "pq_things": q["pq_things"], "pq_stuff": q["pq_stuff"],
+        "pq": q["pq"],
+        "pq_things": q["pq_things"],
+        "pq_stuff": q["pq_stuff"],
         "pq_by_class": {c: v["pq"] for c, v in q["by_class"].items()},
     }
 
@@ -173,12 +185,18 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=16)
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument(
-        "--class-weight-power", type=float, default=0.5,
+        "--class-weight-power",
+        type=float,
+        default=0.5,
         help="Class weights are (all pixels / class pixels) ** this: small things (cups, books) count more.",
     )
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=None, help="Keep rendered frames here (npz) between runs.")
-    parser.add_argument("--evaluate-only", action="store_true", help="Re-evaluate the exported model on the held-out scenes and update its JSON.")
+    parser.add_argument(
+        "--evaluate-only",
+        action="store_true",
+        help="Re-evaluate the exported model on the held-out scenes and update its JSON.",
+    )
     args = parser.parse_args()
     if args.evaluate_only:
         import onnxruntime as ort
@@ -188,7 +206,10 @@ def main() -> None:
         meta_path = args.out / "panoptic_small.json"
         meta = json.loads(meta_path.read_text())
         session = ort.InferenceSession(str(args.out / "panoptic_small.onnx"), providers=["CPUExecutionProvider"])
-        meta["held_out"] = {"scenes": "seeds 0-2 of every type, 12 frames each", **evaluate(session, render_frames(TYPES, [0, 1, 2], 12), Vocabulary.default())}
+        meta["held_out"] = {
+            "scenes": "seeds 0-2 of every type, 12 frames each",
+            **evaluate(session, render_frames(TYPES, [0, 1, 2], 12), Vocabulary.default()),
+        }
         meta_path.write_text(json.dumps(meta, indent=2) + "\n")
         print(json.dumps({k: meta["held_out"][k] for k in ("miou", "pq", "pq_things")}))
         return
@@ -223,7 +244,10 @@ def main() -> None:
     steps = args.epochs * ((len(x) + args.batch - 1) // args.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
     counts = np.bincount(data["cls"].ravel(), minlength=len(vocab.names)).astype(np.float64)
-    weights = torch.tensor(np.where(counts > 0, (counts.sum() / np.maximum(counts, 1)) ** args.class_weight_power, 0.0), dtype=torch.float32)
+    weights = torch.tensor(
+        np.where(counts > 0, (counts.sum() / np.maximum(counts, 1)) ** args.class_weight_power, 0.0),
+        dtype=torch.float32,
+    )
     ce = nn.CrossEntropyLoss(weight=weights / weights[weights > 0].mean())
     bce = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(4.0))
     gen = torch.Generator().manual_seed(0)
@@ -247,15 +271,22 @@ def main() -> None:
             opt.step()
             sched.step()
             total += float(loss.detach()) * len(idx)
-        print(f"epoch {epoch + 1}/{args.epochs}: loss {total / len(x):.4f} ({time.perf_counter() - t1:.0f} s)", flush=True)
+        print(
+            f"epoch {epoch + 1}/{args.epochs}: loss {total / len(x):.4f} ({time.perf_counter() - t1:.0f} s)", flush=True
+        )
     t_train = time.perf_counter() - t1
 
     model.eval()
     args.out.mkdir(parents=True, exist_ok=True)
     onnx_path = args.out / "panoptic_small.onnx"
     torch.onnx.export(
-        model, torch.zeros(1, 4, HEIGHT, WIDTH), str(onnx_path), input_names=["rgbd"], output_names=["class_logits", "boundary_logits"],
-        opset_version=17, dynamo=False,
+        model,
+        torch.zeros(1, 4, HEIGHT, WIDTH),
+        str(onnx_path),
+        input_names=["rgbd"],
+        output_names=["class_logits", "boundary_logits"],
+        opset_version=17,
+        dynamo=False,
     )
     import onnxruntime as ort
 
@@ -264,23 +295,50 @@ def main() -> None:
     meta = {
         "name": "stratamap panoptic_small",
         "trained_on": "synthetic renders only (stratamap's procedural scenes, Kinect-like depth noise); not real images",
-        "inputs": {"rgbd": {"shape": [1, 4, HEIGHT, WIDTH], "channels": ["r", "g", "b", "depth"], "rgb": "0..1 (value / 255)", "depth": f"metres / {DEPTH_SCALE}, 0 = no measurement"}},
+        "inputs": {
+            "rgbd": {
+                "shape": [1, 4, HEIGHT, WIDTH],
+                "channels": ["r", "g", "b", "depth"],
+                "rgb": "0..1 (value / 255)",
+                "depth": f"metres / {DEPTH_SCALE}, 0 = no measurement",
+            }
+        },
         "outputs": {
             "class_logits": {"shape": [1, len(vocab.names), HEIGHT, WIDTH], "classes": list(vocab.names)},
-            "boundary_logits": {"shape": [1, 1, HEIGHT, WIDTH], "meaning": "logit that the pixel lies on a boundary between instances"},
+            "boundary_logits": {
+                "shape": [1, 1, HEIGHT, WIDTH],
+                "meaning": "logit that the pixel lies on a boundary between instances",
+            },
         },
         "layout": "semantic_boundary",
         "classes": list(vocab.names),
         "depth_scale": DEPTH_SCALE,
         "training": {
-            "architecture": "context", "frames": int(len(x)), "scene_types": TYPES, "seeds": f"1000-{1000 + args.scenes_per_type - 1}", "epochs": args.epochs,
+            "architecture": "context",
+            "frames": int(len(x)),
+            "scene_types": TYPES,
+            "seeds": f"1000-{1000 + args.scenes_per_type - 1}",
+            "epochs": args.epochs,
             "class_weight_power": args.class_weight_power,
-            "seconds_data": round(t_data), "seconds_training": round(t_train), "threads": args.threads, "torch": torch.__version__,
+            "seconds_data": round(t_data),
+            "seconds_training": round(t_train),
+            "threads": args.threads,
+            "torch": torch.__version__,
         },
         "held_out": {"scenes": "seeds 0-2 of every type, 12 frames each", **scores},
     }
     (args.out / "panoptic_small.json").write_text(json.dumps(meta, indent=2) + "\n")
-    print(json.dumps({"miou": scores["miou"], "pq": scores["pq"], "pq_things": scores["pq_things"], "onnx_mb": onnx_path.stat().st_size / 1e6, "seconds": round(time.perf_counter() - t0)}))
+    print(
+        json.dumps(
+            {
+                "miou": scores["miou"],
+                "pq": scores["pq"],
+                "pq_things": scores["pq_things"],
+                "onnx_mb": onnx_path.stat().st_size / 1e6,
+                "seconds": round(time.perf_counter() - t0),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

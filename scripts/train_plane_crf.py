@@ -24,9 +24,9 @@ import numpy as np
 
 
 def scan_kitchen(seed: int, resolution_deg: float = 0.4):
+    from stratamap.core.io.urdf import read_urdf
     from stratamap.core.simulation import virtual_scan as ks
     from stratamap.core.synthetic.kitchens import generate_kitchen
-    from stratamap.core.io.urdf import read_urdf
 
     layout = generate_kitchen(seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -59,8 +59,8 @@ def training_graphs(seed: int, params):
 
 def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
     """Table IV on the kitchens of ``seeds``: macro F1 averaged over kitchens, hinge accuracy over all doors."""
-    from stratamap.plugins.segmenters.plane_crf import fronts as fu
     from stratamap.core.evaluation.classification import kitchen_tables
+    from stratamap.plugins.segmenters.plane_crf import fronts as fu
 
     pooled: dict = {"doors": 0, "correct": 0}
     for seed in seeds:
@@ -70,13 +70,17 @@ def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
         pred1, seg, pred2, front = fu.point_labels(res)
         hinge = {f.id: f.hinge for f in res.fronts}
         fronts = [{"name": f.name, "kind": f.kind, "joint_type": f.joint_type, "hinge": f.hinge} for f in scene.fronts]
-        t = kitchen_tables(pred1[c], seg[c], pred2[c], front[c], hinge, labels.level1, labels.level2, labels.front, fronts)
+        t = kitchen_tables(
+            pred1[c], seg[c], pred2[c], front[c], hinge, labels.level1, labels.level2, labels.front, fronts
+        )
         for group in ("horizontal", "vertical", "furniture"):
             pooled.setdefault(group, []).append(t[group]["macro_f1"])
         pooled["doors"] += t["hinge"]["doors"]
         pooled["correct"] += t["hinge"]["correct"]
     return {g: float(np.mean(pooled[g])) for g in ("horizontal", "vertical", "furniture")} | {
-        "hinge_accuracy": pooled["correct"] / max(pooled["doors"], 1), "doors": pooled["doors"]}
+        "hinge_accuracy": pooled["correct"] / max(pooled["doors"], 1),
+        "doors": pooled["doors"],
+    }
 
 
 def main() -> None:
@@ -88,8 +92,8 @@ def main() -> None:
     parser.add_argument("--edge-l2", type=float, default=1.0, help="L2 prior on the edge weights.")
     args = parser.parse_args()
 
-    from stratamap.plugins.segmenters.plane_crf import fronts as fu
     from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL2
+    from stratamap.plugins.segmenters.plane_crf import fronts as fu
     from stratamap.plugins.segmenters.plane_crf.crf import CRF
 
     params = fu.FurnitureParams(voxel_size=0.02)
@@ -99,7 +103,10 @@ def main() -> None:
         a, b = training_graphs(seed, params)
         g1.append(a)
         g2.append(b)
-        print(f"kitchen {k + 1}/{args.kitchens}: {len(a[3])} regions, {len(b[3])} fronts ({time.perf_counter() - t0:.0f} s)", flush=True)
+        print(
+            f"kitchen {k + 1}/{args.kitchens}: {len(a[3])} regions, {len(b[3])} fronts ({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
     crf1 = CRF(LEVEL1, fu.level1_feature_count(), len(fu.L1_RELATIONS)).fit(g1, args.l2, args.edge_l2)
     crf2 = CRF(LEVEL2, fu.level2_feature_count(), len(fu.L2_RELATIONS)).fit(g2, args.l2, args.edge_l2)
     t_train = time.perf_counter() - t0
@@ -107,10 +114,18 @@ def main() -> None:
     doc = {
         "name": "stratamap plane_crf",
         "trained_on": "virtual laser scans of procedural kitchens (stratamap.core.synthetic.kitchens), not real scans",
-        "level1": crf1.to_dict(), "level2": crf2.to_dict(),
+        "level1": crf1.to_dict(),
+        "level2": crf2.to_dict(),
         "params": dataclasses.asdict(params),
-        "training": {"kitchens": args.kitchens, "seeds": f"100-{99 + args.kitchens}", "regions": int(sum(len(g[3]) for g in g1)),
-                     "fronts": int(sum(len(g[3]) for g in g2)), "l2": args.l2, "edge_l2": args.edge_l2, "seconds": round(t_train)},
+        "training": {
+            "kitchens": args.kitchens,
+            "seeds": f"100-{99 + args.kitchens}",
+            "regions": int(sum(len(g[3]) for g in g1)),
+            "fronts": int(sum(len(g[3]) for g in g2)),
+            "l2": args.l2,
+            "edge_l2": args.edge_l2,
+            "seconds": round(t_train),
+        },
         "held_out": {"kitchens": f"seeds 0-{args.held_out - 1}", **scores},
     }
     args.out.mkdir(parents=True, exist_ok=True)

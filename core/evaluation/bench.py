@@ -38,11 +38,15 @@ class SyntheticScenes(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    scene_file: str = Field(description="Scene spec YAML (configs/scenes/*.yaml), relative to the benchmark file's repository or absolute.")
+    scene_file: str = Field(
+        description="Scene spec YAML (configs/scenes/*.yaml), relative to the benchmark file's repository or absolute."
+    )
     seeds: list[int] = Field(min_length=1, description="One scene per seed.")
     frames: int | None = Field(default=None, ge=1, description="Override the trajectory's number of frames.")
     camera: dict[str, Any] = Field(default_factory=dict, description="Override camera fields (e.g. width, height).")
-    scene: dict[str, Any] = Field(default_factory=dict, description="Override scene spec fields (e.g. room_size, objects).")
+    scene: dict[str, Any] = Field(
+        default_factory=dict, description="Override scene spec fields (e.g. room_size, objects)."
+    )
 
 
 class SceneEntry(BaseModel):
@@ -50,12 +54,24 @@ class SceneEntry(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str | None = Field(default=None, description="Scene name in the records (default: the spec file's stem plus the seed).")
+    name: str | None = Field(
+        default=None, description="Scene name in the records (default: the spec file's stem plus the seed)."
+    )
     synthetic: SyntheticScenes | None = Field(default=None, description="Synthetic scenes from a spec file and seeds.")
-    source: dict[str, Any] | None = Field(default=None, description="A source stage ({plugin, params}) reading a dataset.")
-    requires_path: str | None = Field(default=None, description="Skip this scene (with a note) when this path does not exist, e.g. ../shared/data/mosd/test.")
-    files: str | None = Field(default=None, description="With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in source.params.path.")
-    variants: list[str] | None = Field(default=None, description="Run only these variants on these scenes (default: all).")
+    source: dict[str, Any] | None = Field(
+        default=None, description="A source stage ({plugin, params}) reading a dataset."
+    )
+    requires_path: str | None = Field(
+        default=None,
+        description="Skip this scene (with a note) when this path does not exist, e.g. ../shared/data/mosd/test.",
+    )
+    files: str | None = Field(
+        default=None,
+        description="With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in source.params.path.",
+    )
+    variants: list[str] | None = Field(
+        default=None, description="Run only these variants on these scenes (default: all)."
+    )
 
 
 class Variant(BaseModel):
@@ -64,8 +80,13 @@ class Variant(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(description="Column name in the tables.")
-    stages: list[dict[str, Any]] | None = Field(default=None, description="The whole stage list (replaces the base pipeline's).")
-    set: list[str] = Field(default_factory=list, description="Overrides of the base pipeline, as `stratamap run --set`, e.g. 'stages[3].plugin=bbox'.")
+    stages: list[dict[str, Any]] | None = Field(
+        default=None, description="The whole stage list (replaces the base pipeline's)."
+    )
+    set: list[str] = Field(
+        default_factory=list,
+        description="Overrides of the base pipeline, as `stratamap run --set`, e.g. 'stages[3].plugin=bbox'.",
+    )
     drop: list[int] = Field(default_factory=list, description="Indices of base stages to leave out (after `set`).")
 
 
@@ -77,10 +98,16 @@ class BenchSpec(BaseModel):
     name: str = Field(description="Benchmark name (titles of tables and figures).")
     description: str = Field(default="", description="What this benchmark compares, for the report.")
     scenes: list[SceneEntry] = Field(min_length=1, description="Scenes to run every variant on.")
-    pipeline: dict[str, Any] = Field(description="The base pipeline: `stages` (and optionally `output`); the source comes from each scene.")
+    pipeline: dict[str, Any] = Field(
+        description="The base pipeline: `stages` (and optionally `output`); the source comes from each scene."
+    )
     variants: list[Variant] = Field(min_length=1, description="Variants of the base pipeline, one table column each.")
-    per_scene: list[str] = Field(default_factory=list, description="Metrics (family.key) to tabulate per scene as well, e.g. instances.f1.")
-    physics: bool = Field(default=True, description="Measure physical plausibility (overlap volume; settling in MuJoCo when installed).")
+    per_scene: list[str] = Field(
+        default_factory=list, description="Metrics (family.key) to tabulate per scene as well, e.g. instances.f1."
+    )
+    physics: bool = Field(
+        default=True, description="Measure physical plausibility (overlap volume; settling in MuJoCo when installed)."
+    )
     physics_seconds: float = Field(default=2.0, gt=0.0, description="Simulated seconds of settling.")
 
 
@@ -115,7 +142,9 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
     base = bench_file.parent
     for k, entry in enumerate(spec.scenes):
         if entry.requires_path and not Path(_resolve(entry.requires_path, base)).exists():
-            skipped.append(f"scenes[{k}] ({entry.name or entry.requires_path}): {entry.requires_path} not found, skipped")
+            skipped.append(
+                f"scenes[{k}] ({entry.name or entry.requires_path}): {entry.requires_path} not found, skipped"
+            )
             continue
         if entry.synthetic is not None:
             syn = entry.synthetic
@@ -128,7 +157,13 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
                 params: dict[str, Any] = {"scene": scene_doc, "seed": seed}
                 if syn.frames is not None:
                     params["frames"] = syn.frames
-                scenes.append({"name": f"{stem}-s{seed}", "source": {"plugin": "synthetic", "params": params}, "variants": entry.variants})
+                scenes.append(
+                    {
+                        "name": f"{stem}-s{seed}",
+                        "source": {"plugin": "synthetic", "params": params},
+                        "variants": entry.variants,
+                    }
+                )
         elif entry.source is not None:
             if entry.files:
                 root = Path(_resolve(str(Path(entry.files).parent), base))
@@ -138,10 +173,18 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
                 for file in paths:
                     source = copy.deepcopy(entry.source)
                     source.setdefault("params", {})["path"] = str(file)
-                    scenes.append({"name": f"{entry.name + '-' if entry.name else ''}{file.stem}", "source": source, "variants": entry.variants})
+                    scenes.append(
+                        {
+                            "name": f"{entry.name + '-' if entry.name else ''}{file.stem}",
+                            "source": source,
+                            "variants": entry.variants,
+                        }
+                    )
                 continue
             if not entry.name:
-                raise ConfigError([(f"scenes[{k}].name", "a scene with a `source` needs a name")], source=str(bench_file))
+                raise ConfigError(
+                    [(f"scenes[{k}].name", "a scene with a `source` needs a name")], source=str(bench_file)
+                )
             source = copy.deepcopy(entry.source)
             params = source.get("params", {})
             for key in ("path", "root", "folder", "file", "scene_file"):
@@ -194,7 +237,10 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
     pipes = {}
     for v in variants:
         variant = next(x for x in spec.variants if x.name == v)
-        pipes[v] = Pipeline(validate(variant_document(spec, variant, scene["source"]), origin=f"{job['bench_file']}#{v}"))
+        pipes[v] = Pipeline(
+            validate(variant_document(spec, variant, scene["source"]), origin=f"{job['bench_file']}#{v}")
+        )
+
     # Shared prefix: the leading stages every pending variant runs with identical parameters.
     def key(p: Pipeline, i: int) -> str:
         s = p.validated.stages[i]
@@ -202,7 +248,10 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
 
     first = pipes[variants[0]]
     shared = 0
-    while all(shared < len(p.validated.stages) for p in pipes.values()) and len({key(p, shared) for p in pipes.values()}) == 1:
+    while (
+        all(shared < len(p.validated.stages) for p in pipes.values())
+        and len({key(p, shared) for p in pipes.values()}) == 1
+    ):
         shared += 1
     # Exporters write files: never share them, every variant writes its own.
     while shared > 0 and first.validated.stages[shared - 1].info.kind == "exporters":
@@ -230,12 +279,21 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
         if data.ground_truth is not None:
             data.map.vocabulary = data.ground_truth.vocabulary
         metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
-        stages = [{"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": True} for r in shared_records]
-        stages += [{"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": False} for r in pipe.records]
+        stages = [
+            {"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": True}
+            for r in shared_records
+        ]
+        stages += [
+            {"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": False}
+            for r in pipe.records
+        ]
         record = {
             "scene": scene["name"],
             "variant": v,
-            "plugins": [{"path": s.path, "plugin": s.info.name, "kind": s.info.kind, "params": s.config.model_dump(mode="json")} for s in [pipe.validated.source, *pipe.validated.stages]],
+            "plugins": [
+                {"path": s.path, "plugin": s.info.name, "kind": s.info.kind, "params": s.config.model_dump(mode="json")}
+                for s in [pipe.validated.source, *pipe.validated.stages]
+            ],
             "seconds": {f"{s['name']}:{s['plugin']}": s["seconds"] for s in stages},
             "seconds_total": round(sum(s["seconds"] for s in stages), 4),
             "peak_memory_mb": round(peak_memory_mb(), 1),
@@ -268,9 +326,13 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
             with open(tmp, "wb") as fh:
                 np.savez_compressed(
                     fh,
-                    slam=occ["slam"].data, multimap=occ["multimap"].data, truth=gt["objects"].data,
-                    origin=np.asarray(occ["multimap"].origin, dtype=float), resolution=float(occ["multimap"].resolution),
-                    truth_origin=np.asarray(gt["objects"].origin, dtype=float), truth_resolution=float(gt["objects"].resolution),
+                    slam=occ["slam"].data,
+                    multimap=occ["multimap"].data,
+                    truth=gt["objects"].data,
+                    origin=np.asarray(occ["multimap"].origin, dtype=float),
+                    resolution=float(occ["multimap"].resolution),
+                    truth_origin=np.asarray(gt["objects"].origin, dtype=float),
+                    truth_resolution=float(gt["objects"].resolution),
                 )
     if "panoptic" in metrics:
         details["pq_by_class"] = {c: v["pq"] for c, v in metrics["panoptic"].get("by_class", {}).items()}
@@ -284,8 +346,8 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
         except ImportError:
             mujoco = None
         if mujoco is not None:
-            from stratamap.core.simulation.physics import settle
             from stratamap.core.simulation.mjcf import write_mjcf
+            from stratamap.core.simulation.physics import settle
 
             path = write_mjcf(instances, run_dir / "physics")[0]
             settled = settle(path, spec.physics_seconds)
@@ -375,11 +437,15 @@ def run_bench(
         total += len(wanted)
         done_before += len(wanted) - len(pending)
         if pending:
-            jobs.append({"scene": scene, "variants": pending, "bench": bench_doc, "out": str(out), "bench_file": str(path)})
+            jobs.append(
+                {"scene": scene, "variants": pending, "bench": bench_doc, "out": str(out), "bench_file": str(path)}
+            )
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), disable=not progress) as bar:
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), disable=not progress
+    ) as bar:
         task = bar.add_task(f"bench {spec.name}", total=total, completed=done_before)
 
         def on_done(job: dict[str, Any], records: list[dict[str, Any]]) -> None:
@@ -396,7 +462,12 @@ def run_bench(
     from stratamap.core.evaluation.bench_report import write_reports
 
     written = write_reports(results, spec, out)
-    return {"records": len(records), "ran": sum(len(j["variants"]) for j in jobs), "skipped": skipped, "files": [str(p) for p in written]}
+    return {
+        "records": len(records),
+        "ran": sum(len(j["variants"]) for j in jobs),
+        "skipped": skipped,
+        "files": [str(p) for p in written],
+    }
 
 
 def collect_records(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
@@ -427,4 +498,3 @@ def versions() -> dict[str, str]:
             pass
     out["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     return out
-

@@ -19,8 +19,33 @@ import numpy as np
 from stratamap.core.atomic import atomic_path, write_text
 
 #: Families in table order; keys not listed still appear (sorted) after these.
-FAMILIES = ["detection", "completion", "panoptic", "instances", "graph", "classification", "physics", "navigation", "trajectory", "cost"]
-LOWER_IS_BETTER = ("chamfer", "error", "ged", "wrong_support", "missing", "extra", "displacement", "penetration", "colliding", "seconds", "memory", "ate", "rpe")
+FAMILIES = [
+    "detection",
+    "completion",
+    "panoptic",
+    "instances",
+    "graph",
+    "classification",
+    "physics",
+    "navigation",
+    "trajectory",
+    "cost",
+]
+LOWER_IS_BETTER = (
+    "chamfer",
+    "error",
+    "ged",
+    "wrong_support",
+    "missing",
+    "extra",
+    "displacement",
+    "penetration",
+    "colliding",
+    "seconds",
+    "memory",
+    "ate",
+    "rpe",
+)
 SKIP = ("count", "frames", "objects", "true_positives", "predicted", "ground_truth", "free_bodies", "robot_radius")
 
 
@@ -47,14 +72,21 @@ def record_row(rec: dict[str, Any]) -> dict[str, float]:
 
 
 def lower_is_better(key: str) -> bool:
-    return any(tag in key.split(".")[-1] or tag in key for tag in LOWER_IS_BETTER) and "accuracy" not in key and "fscore" not in key
+    return (
+        any(tag in key.split(".")[-1] or tag in key for tag in LOWER_IS_BETTER)
+        and "accuracy" not in key
+        and "fscore" not in key
+    )
 
 
 def write_reports(results: dict[str, Any], spec: Any, out: Path) -> list[Path]:
     records = results["records"]
     variants = [v.name for v in spec.variants]
     rows = [record_row(r) for r in records]
-    written = [write_csv(records, rows, out / "results.csv"), write_markdown(results, spec, rows, variants, out / "results.md")]
+    written = [
+        write_csv(records, rows, out / "results.csv"),
+        write_markdown(results, spec, rows, variants, out / "results.md"),
+    ]
     written += write_figures(records, variants, out)
     return written
 
@@ -80,17 +112,24 @@ def table_values(records, rows, variants) -> dict[str, dict[str, list[float]]]:
     return values
 
 
-def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str], path: Path) -> Path:
+def write_markdown(
+    results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str], path: Path
+) -> Path:
     records = results["records"]
     values = table_values(records, rows, variants)
     scenes = sorted({r["scene"] for r in records})
     lines = [f"# Benchmark: {spec.name}", ""]
     if spec.description:
         lines += [spec.description.strip(), ""]
-    lines += [f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold (for each row, lower or higher is better as the metric says).", ""]
+    lines += [
+        f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold (for each row, lower or higher is better as the metric says).",
+        "",
+    ]
     if results.get("skipped"):
         lines += ["Skipped: " + "; ".join(results["skipped"]), ""]
-    families = sorted({k.split(".")[0] for k in values}, key=lambda f: (FAMILIES.index(f) if f in FAMILIES else len(FAMILIES), f))
+    families = sorted(
+        {k.split(".")[0] for k in values}, key=lambda f: (FAMILIES.index(f) if f in FAMILIES else len(FAMILIES), f)
+    )
     for family in families:
         keys = sorted(k for k in values if k.split(".")[0] == family)
         lines += [f"## {family}", "", "| metric | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
@@ -98,7 +137,11 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
             per = values[key]
             means = {v: float(np.mean(per[v])) if per.get(v) else None for v in variants}
             present = [m for m in means.values() if m is not None]
-            best = (min(present) if lower_is_better(key) else max(present)) if len(present) > 1 and not np.allclose(present, present[0]) else None
+            best = (
+                (min(present) if lower_is_better(key) else max(present))
+                if len(present) > 1 and not np.allclose(present, present[0])
+                else None
+            )
             cells = []
             for v in variants:
                 if means[v] is None:
@@ -106,14 +149,21 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
                     continue
                 text = f"{means[v]:.4g} ± {float(np.std(per[v])):.2g}"
                 cells.append(f"**{text}**" if best is not None and np.isclose(means[v], best) else text)
-            lines.append(f"| {key[len(family) + 1:]} | " + " | ".join(cells) + " |")
+            lines.append(f"| {key[len(family) + 1 :]} | " + " | ".join(cells) + " |")
         lines.append("")
     for key in spec.per_scene:
-        lines += [f"## {key} per scene", "", "| scene | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
+        lines += [
+            f"## {key} per scene",
+            "",
+            "| scene | " + " | ".join(variants) + " |",
+            "|---|" + "---|" * len(variants),
+        ]
         for scene in scenes:
             cells = []
             for v in variants:
-                rec = next((r for r, row in zip(records, rows, strict=True) if r["scene"] == scene and r["variant"] == v), None)
+                rec = next(
+                    (r for r, row in zip(records, rows, strict=True) if r["scene"] == scene and r["variant"] == v), None
+                )
                 value = record_row(rec).get(key) if rec is not None else None
                 cells.append("–" if value is None else f"{value:.3f}")
             if any(c != "–" for c in cells):
@@ -124,7 +174,12 @@ def write_markdown(results: dict[str, Any], spec: Any, rows: list[dict[str, floa
         if "classification" in rec.get("metrics", {}):
             from stratamap.core.evaluation.classification import format_table
 
-            lines += [f"## Table IV: {rec['scene']} ({rec['variant']})", "", format_table(rec["metrics"]["classification"]), ""]
+            lines += [
+                f"## Table IV: {rec['scene']} ({rec['variant']})",
+                "",
+                format_table(rec["metrics"]["classification"]),
+                "",
+            ]
     figures = sorted(p.name for p in path.parent.glob("*.png"))
     if figures:
         lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]
@@ -148,7 +203,10 @@ def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path)
 
     written: list[Path] = []
     # Chamfer-L1 by visibility, one line per completer variant.
-    objects = {v: [o for r in records if r["variant"] == v for o in r.get("details", {}).get("completion_objects", [])] for v in variants}
+    objects = {
+        v: [o for r in records if r["variant"] == v for o in r.get("details", {}).get("completion_objects", [])]
+        for v in variants
+    }
     if any(objects.values()):
         bins = np.linspace(0, 1, 6)
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -168,7 +226,14 @@ def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path)
         ax.legend()
         written.append(_save(fig, out / "chamfer_by_visibility.png"))
     # PQ by class.
-    pq = {v: [r["details"]["pq_by_class"] for r in records if r["variant"] == v and r.get("details", {}).get("pq_by_class")] for v in variants}
+    pq = {
+        v: [
+            r["details"]["pq_by_class"]
+            for r in records
+            if r["variant"] == v and r.get("details", {}).get("pq_by_class")
+        ]
+        for v in variants
+    }
     classes = sorted({c for rows in pq.values() for row in rows for c in row})
     if classes:
         fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes)), 4))
@@ -177,7 +242,10 @@ def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path)
         for v, rows in pq.items():
             if not rows:
                 continue
-            means = [float(np.mean([row[c] for row in rows if c in row])) if any(c in row for row in rows) else 0.0 for c in classes]
+            means = [
+                float(np.mean([row[c] for row in rows if c in row])) if any(c in row for row in rows) else 0.0
+                for c in classes
+            ]
             ax.bar(np.arange(len(classes)) + k * width, means, width, label=v)
             k += 1
         ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=45, ha="right")
@@ -208,18 +276,33 @@ def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
         return None
     grids = np.load(npz)
     fig, axes = plt.subplots(1, 2, figsize=(11, 5))
-    for ax, (title, key, hit) in zip(axes, (("laser-only map", "laser_only", "laser_collides"), ("multimap", "multimap", "multimap_collides")), strict=True):
+    for ax, (title, key, hit) in zip(
+        axes,
+        (("laser-only map", "laser_only", "laser_collides"), ("multimap", "multimap", "multimap_collides")),
+        strict=True,
+    ):
         grid = grids["slam" if key == "laser_only" else "multimap"]
         ox, oy = grids["origin"][:2]
         res = float(grids["resolution"])
         extent = (ox, ox + grid.shape[1] * res, oy, oy + grid.shape[0] * res)
-        ax.imshow(np.where(grid == 100, 0.0, np.where(grid == 0, 1.0, 0.6)), cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
+        ax.imshow(
+            np.where(grid == 100, 0.0, np.where(grid == 0, 1.0, 0.6)),
+            cmap="gray",
+            origin="lower",
+            extent=extent,
+            vmin=0,
+            vmax=1,
+        )
         truth = grids["truth"]
         tox, toy = grids["truth_origin"][:2]
         tres = float(grids["truth_resolution"])
         ax.contour(
-            np.arange(truth.shape[1]) * tres + tox + tres / 2, np.arange(truth.shape[0]) * tres + toy + tres / 2, (truth == 100).astype(float),
-            levels=[0.5], colors="tab:orange", linewidths=0.8,
+            np.arange(truth.shape[1]) * tres + tox + tres / 2,
+            np.arange(truth.shape[0]) * tres + toy + tres / 2,
+            (truth == 100).astype(float),
+            levels=[0.5],
+            colors="tab:orange",
+            linewidths=0.8,
         )
         n_hit = 0
         for path in rec["details"]["navigation"]:
@@ -229,7 +312,9 @@ def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
             ax.plot(xy[:, 0], xy[:, 1], color="tab:red" if collided else "tab:blue", linewidth=1.4 if collided else 0.9)
         ax.set_title(f"{title}: {n_hit} of {len(rec['details']['navigation'])} paths hit 3D obstacles")
         ax.set_aspect("equal")
-    fig.suptitle(f"A* for a robot of radius {rec['metrics']['navigation'].get('robot_radius', 0.4)} m ({rec['scene']}); orange: true obstacles in [0.1 m, robot height]")
+    fig.suptitle(
+        f"A* for a robot of radius {rec['metrics']['navigation'].get('robot_radius', 0.4)} m ({rec['scene']}); orange: true obstacles in [0.1 m, robot height]"
+    )
     return _save(fig, out / "navigation.png")
 
 

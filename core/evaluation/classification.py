@@ -17,12 +17,21 @@ from typing import Any
 
 import numpy as np
 
-from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL1_CLASS, LEVEL1_HORIZONTAL, LEVEL1_VERTICAL, LEVEL2, LEVEL2_CLASS
+from stratamap.core.simulation.virtual_scan import (
+    LEVEL1,
+    LEVEL1_CLASS,
+    LEVEL1_HORIZONTAL,
+    LEVEL1_VERTICAL,
+    LEVEL2,
+    LEVEL2_CLASS,
+)
 
 FURNITURE_MACRO = ("cupboard", "drawer", "appliance")
 
 
-def per_label(pred: list[str], truth: list[str], labels: tuple[str, ...], macro_over: tuple[str, ...] | None = None) -> dict[str, Any]:
+def per_label(
+    pred: list[str], truth: list[str], labels: tuple[str, ...], macro_over: tuple[str, ...] | None = None
+) -> dict[str, Any]:
     """Precision, recall, F1 and support per label, and the macro F1 over ``macro_over`` (default all)."""
     pred_a, truth_a = np.asarray(pred, dtype=object), np.asarray(truth, dtype=object)
     out: dict[str, Any] = {}
@@ -31,7 +40,13 @@ def per_label(pred: list[str], truth: list[str], labels: tuple[str, ...], macro_
         n_pred, n_true = int(np.sum(pred_a == c)), int(np.sum(truth_a == c))
         p = tp / n_pred if n_pred else 0.0
         r = tp / n_true if n_true else 0.0
-        out[c] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "support": n_true, "predicted": n_pred}
+        out[c] = {
+            "precision": p,
+            "recall": r,
+            "f1": 2 * p * r / (p + r) if p + r else 0.0,
+            "support": n_true,
+            "predicted": n_pred,
+        }
     over = [c for c in (macro_over or labels) if out[c]["support"] > 0 or out[c]["predicted"] > 0]
     out["macro_f1"] = float(np.mean([out[c]["f1"] for c in over])) if over else 0.0
     return out
@@ -43,8 +58,16 @@ def _mode(values: np.ndarray) -> int:
 
 
 def kitchen_tables(
-    pred_level1: np.ndarray, pred_segment: np.ndarray, pred_level2: np.ndarray, pred_front: np.ndarray, pred_hinge: dict[int, str | None],
-    true_level1: np.ndarray, true_level2: np.ndarray, true_front: np.ndarray, true_fronts: list[dict], min_points: int = 30,
+    pred_level1: np.ndarray,
+    pred_segment: np.ndarray,
+    pred_level2: np.ndarray,
+    pred_front: np.ndarray,
+    pred_hinge: dict[int, str | None],
+    true_level1: np.ndarray,
+    true_level2: np.ndarray,
+    true_front: np.ndarray,
+    true_fronts: list[dict],
+    min_points: int = 30,
 ) -> dict[str, Any]:
     """Table IV from per-point labels (indices into LEVEL1 / LEVEL2, -1 none), segment and front ids."""
     seg_pred, seg_true = [], []
@@ -80,7 +103,12 @@ def kitchen_tables(
             hinge_rows.append({"front": front["name"], "true": front["hinge"], "predicted": guess})
     out["furniture"] = per_label(f_pred, f_true, LEVEL2, macro_over=FURNITURE_MACRO)
     out["furniture"]["fronts"] = len(f_true)
-    out["hinge"] = {"doors": doors, "correct": correct, "accuracy": correct / doors if doors else 0.0, "by_door": hinge_rows}
+    out["hinge"] = {
+        "doors": doors,
+        "correct": correct,
+        "accuracy": correct / doors if doors else 0.0,
+        "by_door": hinge_rows,
+    }
     return out
 
 
@@ -91,7 +119,9 @@ def format_table(tables: dict[str, Any]) -> str:
         t = tables[group]
         for c in labels:
             r = t[c]
-            lines.append(f"| {group} | {c} | {r['precision']:.2f} | {r['recall']:.2f} | {r['f1']:.2f} | {r['support']} |")
+            lines.append(
+                f"| {group} | {c} | {r['precision']:.2f} | {r['recall']:.2f} | {r['f1']:.2f} | {r['support']} |"
+            )
         lines.append(f"| {group} | **macro F1** | | | **{t['macro_f1']:.2f}** | |")
     h = tables["hinge"]
     lines.append(f"| hinge | doors correct | | | **{h['accuracy']:.2f}** | {h['correct']}/{h['doors']} |")
@@ -114,7 +144,11 @@ def tables_from_map(m, scan_points: np.ndarray, kitchen: dict[str, Any]) -> dict
     hinge = {inst.id: inst.attributes.get("hinge") for inst in (m.instances or [])}
     t1, t2, tf = (np.asarray(kitchen[k]) for k in ("level1", "level2", "front"))
     pts = np.asarray(m.geometry.points)
-    if len(pts) != len(scan_points) or not np.allclose(pts[:: max(1, len(pts) // 1000)], scan_points[:: max(1, len(pts) // 1000)]):
+    if len(pts) != len(scan_points) or not np.allclose(
+        pts[:: max(1, len(pts) // 1000)], scan_points[:: max(1, len(pts) // 1000)]
+    ):
         _, nearest = cKDTree(scan_points).query(pts)
         t1, t2, tf = t1[nearest], t2[nearest], tf[nearest]
-    return kitchen_tables(pred1, sem.plane_ids.astype(np.int64), pred2, pred_front, hinge, t1, t2, tf, list(kitchen["fronts"]))
+    return kitchen_tables(
+        pred1, sem.plane_ids.astype(np.int64), pred2, pred_front, hinge, t1, t2, tf, list(kitchen["fronts"])
+    )

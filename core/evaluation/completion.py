@@ -20,10 +20,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from stratamap.core.map.groundtruth import GroundTruthObject
-from stratamap.core.map.layers import ObjectInstance, ObjectInstances
 from stratamap.core.evaluation.detection import match_boxes
 from stratamap.core.geometry.transforms import wrap_angle, yaw_of
+from stratamap.core.map.groundtruth import GroundTruthObject
+from stratamap.core.map.layers import ObjectInstance, ObjectInstances
 
 THRESHOLDS = (0.01, 0.02, 0.05)
 
@@ -55,7 +55,9 @@ def shape_distances(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     return out
 
 
-def evaluate_completion(instances: ObjectInstances, gt_objects: list[GroundTruthObject], spacing: float = 0.01) -> dict[str, Any]:
+def evaluate_completion(
+    instances: ObjectInstances, gt_objects: list[GroundTruthObject], spacing: float = 0.01
+) -> dict[str, Any]:
     insts = list(instances)
     pred = [(i.class_name, i.box) for i in insts]
     gts = [(o.class_name, o.box()) for o in gt_objects]
@@ -69,7 +71,12 @@ def evaluate_completion(instances: ObjectInstances, gt_objects: list[GroundTruth
             pred_pts = sample_mesh(inst.completion.world_mesh(), spacing, seed=inst.id)
         else:
             pred_pts = thin(inst.points, spacing)
-        rec: dict[str, Any] = {"id": inst.id, "gt_id": gt.id, "class": gt.class_name, **shape_distances(pred_pts, gt_pts)}
+        rec: dict[str, Any] = {
+            "id": inst.id,
+            "gt_id": gt.id,
+            "class": gt.class_name,
+            **shape_distances(pred_pts, gt_pts),
+        }
         rec["visibility"] = float((cKDTree(inst.points).query(gt_pts)[0] < 0.03).mean()) if len(inst.points) else 0.0
         c = inst.completion
         if c is not None and c.model_id is not None:
@@ -87,10 +94,21 @@ def evaluate_completion(instances: ObjectInstances, gt_objects: list[GroundTruth
         return float(np.median(vals)) if vals else None
 
     out: dict[str, Any] = {"objects": len(per_object)}
-    for key in ("chamfer_l1", "chamfer_l2", "fscore_1cm", "fscore_2cm", "fscore_5cm", "yaw_error_deg", "translation_error_m"):
+    for key in (
+        "chamfer_l1",
+        "chamfer_l2",
+        "fscore_1cm",
+        "fscore_2cm",
+        "fscore_5cm",
+        "yaw_error_deg",
+        "translation_error_m",
+    ):
         out[key] = median(key, per_object)
     posed = [r for r in per_object if "scan2cad" in r]
     out["scan2cad_accuracy"] = float(np.mean([r["scan2cad"] for r in posed])) if posed else None
-    out["chamfer_l1_by_class"] = {c: median("chamfer_l1", [r for r in per_object if r["class"] == c]) for c in sorted({r["class"] for r in per_object})}
+    out["chamfer_l1_by_class"] = {
+        c: median("chamfer_l1", [r for r in per_object if r["class"] == c])
+        for c in sorted({r["class"] for r in per_object})
+    }
     out["per_object"] = per_object
     return out

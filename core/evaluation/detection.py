@@ -108,7 +108,12 @@ def mean_average_precision(
     return {"map": float(np.mean(values)) if values else 0.0, "by_class": by_class}
 
 
-def box_map(instances: Iterable[ObjectInstance], gt_objects: Iterable[Any], threshold: float = 0.5, boxes: dict[int, OrientedBox] | None = None) -> float:
+def box_map(
+    instances: Iterable[ObjectInstance],
+    gt_objects: Iterable[Any],
+    threshold: float = 0.5,
+    boxes: dict[int, OrientedBox] | None = None,
+) -> float:
     """Oriented 3D box mAP at IoU ``threshold`` (functional-scenes paper, Tables 3-4); ``boxes``
     replaces an instance's box by id (e.g. the support-refined boxes of the contact graph)."""
     boxes = boxes or {}

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from stratamap.core.map.layers import ContactGraph, ObjectInstances
 from stratamap.core.evaluation.detection import match_boxes
+from stratamap.core.map.layers import ContactGraph, ObjectInstances
 
 
-def evaluate_graph(pred: ContactGraph, instances: ObjectInstances, truth: ContactGraph, gt_objects: list) -> dict[str, Any]:
+def evaluate_graph(
+    pred: ContactGraph, instances: ObjectInstances, truth: ContactGraph, gt_objects: list
+) -> dict[str, Any]:
     insts = list(instances)
     matches = match_boxes([(i.class_name, i.box) for i in insts], [(o.class_name, o.box()) for o in gt_objects])
     to_gt = {insts[p].id: gt_objects[g].id for p, g in matches}

@@ -29,7 +29,11 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
         if m.contact_graph is not None:
             from stratamap.core.map.layers import OrientedBox
 
-            refined = {n: OrientedBox.from_dict(d["box_refined"]) for n, d in m.contact_graph.support.nodes(data=True) if "box_refined" in d}
+            refined = {
+                n: OrientedBox.from_dict(d["box_refined"])
+                for n, d in m.contact_graph.support.nodes(data=True)
+                if "box_refined" in d
+            }
             out["detection"]["box_map50_refined"] = detection.box_map(m.instances, gt.objects, boxes=refined)
         out["completion"] = completion.evaluate_completion(m.instances, gt.objects)
         if m.contact_graph is not None and gt.contact_graph is not None:
@@ -38,17 +42,32 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
             out["graph"] = evaluate_graph(m.contact_graph, m.instances, gt.contact_graph, gt.objects)
     if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
         if gt.point_class_ids is not None and data.stream is not None and data.stream.points is not None:
-            gt_cls, gt_inst = panoptic.transfer_point_labels(m.geometry.points, np.asarray(data.stream.points), gt.point_class_ids, gt.point_instance_ids)
+            gt_cls, gt_inst = panoptic.transfer_point_labels(
+                m.geometry.points, np.asarray(data.stream.points), gt.point_class_ids, gt.point_instance_ids
+            )
         else:
             gt_cls, gt_inst = panoptic.ground_truth_point_labels(m.geometry.points, gt)
-        pq = panoptic.panoptic_quality(m.semantics.class_ids, m.semantics.instance_ids, gt_cls, gt_inst, m.semantics.vocabulary)
+        pq = panoptic.panoptic_quality(
+            m.semantics.class_ids, m.semantics.instance_ids, gt_cls, gt_inst, m.semantics.vocabulary
+        )
         inst = pq.pop("instances")
         p, r = inst["precision"], inst["recall"]
         out["panoptic"] = pq
-        out["instances"] = {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0, "count": len(m.instances or [])}
+        out["instances"] = {
+            "precision": p,
+            "recall": r,
+            "f1": 2 * p * r / (p + r) if p + r else 0.0,
+            "count": len(m.instances or []),
+        }
         out["instances"]["map50"] = panoptic.instance_map(m.semantics, m.instances, gt_cls, gt_inst)
     kitchen = gt.layout.get("kitchen_scan") if isinstance(gt.layout, dict) else None
-    if kitchen is not None and m.semantics is not None and m.semantics.plane_ids is not None and m.geometry is not None and data.stream is not None:
+    if (
+        kitchen is not None
+        and m.semantics is not None
+        and m.semantics.plane_ids is not None
+        and m.geometry is not None
+        and data.stream is not None
+    ):
         from stratamap.core.evaluation.classification import tables_from_map
 
         out["classification"] = tables_from_map(m, np.asarray(data.stream.points), kitchen)

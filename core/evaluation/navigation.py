@@ -70,7 +70,9 @@ def astar(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> li
     return None
 
 
-def plan_path(grid: OccupancyGrid, start_xy: np.ndarray, goal_xy: np.ndarray, robot_radius: float, unknown_is_free: bool = False) -> Plan | None:
+def plan_path(
+    grid: OccupancyGrid, start_xy: np.ndarray, goal_xy: np.ndarray, robot_radius: float, unknown_is_free: bool = False
+) -> Plan | None:
     free = traversable(grid, robot_radius, unknown_is_free)
     s = tuple(int(v) for v in grid.world_to_cell(np.asarray(start_xy)[None])[0])
     g = tuple(int(v) for v in grid.world_to_cell(np.asarray(goal_xy)[None])[0])
@@ -98,7 +100,14 @@ def collides(plan: Plan, obstacles: OccupancyGrid, robot_radius: float) -> bool:
     return bool(np.any(dist[rc[ok, 0], rc[ok, 1]] < robot_radius - obstacles.resolution))
 
 
-def evaluate_navigation(slam: OccupancyGrid, multimap: OccupancyGrid, truth: OccupancyGrid, robot_radius: float = 0.4, pairs: int = 12, seed: int = 0) -> dict:
+def evaluate_navigation(
+    slam: OccupancyGrid,
+    multimap: OccupancyGrid,
+    truth: OccupancyGrid,
+    robot_radius: float = 0.4,
+    pairs: int = 12,
+    seed: int = 0,
+) -> dict:
     """Plan between start/goal pairs (free for the robot on the multimap) on both maps and count
     paths that touch ground-truth obstacles."""
     import itertools
@@ -125,5 +134,20 @@ def evaluate_navigation(slam: OccupancyGrid, multimap: OccupancyGrid, truth: Occ
         hit_l, hit_m = collides(p_laser, truth, robot_radius), collides(p_multi, truth, robot_radius)
         laser_hits += hit_l
         multi_hits += hit_m
-        records.append({"start": s.tolist(), "goal": g.tolist(), "laser_only": p_laser.xy.tolist(), "multimap": p_multi.xy.tolist(), "laser_collides": hit_l, "multimap_collides": hit_m})
-    return {"paths": n, "colliding_laser_only": int(laser_hits), "colliding_multimap": int(multi_hits), "robot_radius": robot_radius, "records": records}
+        records.append(
+            {
+                "start": s.tolist(),
+                "goal": g.tolist(),
+                "laser_only": p_laser.xy.tolist(),
+                "multimap": p_multi.xy.tolist(),
+                "laser_collides": hit_l,
+                "multimap_collides": hit_m,
+            }
+        )
+    return {
+        "paths": n,
+        "colliding_laser_only": int(laser_hits),
+        "colliding_multimap": int(multi_hits),
+        "robot_radius": robot_radius,
+        "records": records,
+    }

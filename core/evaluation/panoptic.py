@@ -42,7 +42,11 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
         gcls = np.asarray(g.class_ids, np.int64)
         valid = gcls > 0
         inter += np.bincount(gcls[valid & (pcls == gcls)], minlength=n)[:n]
-        union += (np.bincount(gcls[valid], minlength=n) + np.bincount(pcls[valid], minlength=n) - np.bincount(gcls[valid & (pcls == gcls)], minlength=n))[:n]
+        union += (
+            np.bincount(gcls[valid], minlength=n)
+            + np.bincount(pcls[valid], minlength=n)
+            - np.bincount(gcls[valid & (pcls == gcls)], minlength=n)
+        )[:n]
         off = (k + 1) << 20
         pc.append(pcls.ravel())
         pi.append(np.where(p.instance_ids > 0, np.asarray(p.instance_ids, np.int64) + off, 0).ravel())
@@ -54,13 +58,19 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
     return {
         "miou": float(np.mean(inter[present] / union[present])) if present.any() else 0.0,
         "iou_by_class": {vocab.name(c): float(inter[c] / union[c]) for c in np.flatnonzero(present)},
-        "pq": pq["pq"], "sq": pq["sq"], "rq": pq["rq"], "pq_things": pq["pq_things"], "pq_stuff": pq["pq_stuff"],
+        "pq": pq["pq"],
+        "sq": pq["sq"],
+        "rq": pq["rq"],
+        "pq_things": pq["pq_things"],
+        "pq_stuff": pq["pq_stuff"],
         "by_class": pq["by_class"],
         "frames": len(range(0, len(truth), stride)),
     }
 
 
-def instance_map(semantics: Any, instances: Any, gt_class: np.ndarray, gt_instance: np.ndarray, threshold: float = 0.5) -> float:
+def instance_map(
+    semantics: Any, instances: Any, gt_class: np.ndarray, gt_instance: np.ndarray, threshold: float = 0.5
+) -> float:
     """Instance segmentation mAP at mask IoU ``threshold`` over map points (functional-scenes paper,
     Table 2): a predicted instance's mask is its points, scored by its confidence."""
     from stratamap.core.evaluation.detection import mean_average_precision
@@ -87,7 +97,13 @@ def instance_map(semantics: Any, instances: Any, gt_class: np.ndarray, gt_instan
     return mean_average_precision(pred, gt, iou, threshold)["map"]
 
 
-def transfer_point_labels(points: np.ndarray, labelled: np.ndarray, classes: np.ndarray, instances: np.ndarray | None, max_distance: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+def transfer_point_labels(
+    points: np.ndarray,
+    labelled: np.ndarray,
+    classes: np.ndarray,
+    instances: np.ndarray | None,
+    max_distance: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray]:
     """Labels of the nearest labelled point (a dataset's per-point ground truth, e.g. mOSD) for
     each map point; class -1 (void) farther than ``max_distance`` or on unlabelled points."""
     from scipy.spatial import cKDTree
@@ -97,11 +113,17 @@ def transfer_point_labels(points: np.ndarray, labelled: np.ndarray, classes: np.
     near = np.where(ok, nearest, 0)
     cls = np.where(ok, np.asarray(classes)[near], VOID).astype(np.int32)
     cls[cls == 0] = VOID  # unlabelled in the dataset: not counted either way
-    inst = np.where(ok, np.asarray(instances)[near], 0).astype(np.int32) if instances is not None else np.zeros(len(points), np.int32)
+    inst = (
+        np.where(ok, np.asarray(instances)[near], 0).astype(np.int32)
+        if instances is not None
+        else np.zeros(len(points), np.int32)
+    )
     return cls, inst
 
 
-def ground_truth_point_labels(points: np.ndarray, gt: GroundTruth, max_distance: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+def ground_truth_point_labels(
+    points: np.ndarray, gt: GroundTruth, max_distance: float = 0.05
+) -> tuple[np.ndarray, np.ndarray]:
     """Class and instance of the closest ground-truth surface for each point (class -1: void)."""
     from stratamap.core.synthetic.scene import room_layout
 
@@ -158,10 +180,17 @@ def _pair_counts(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def panoptic_quality(
-    pred_class: np.ndarray, pred_instance: np.ndarray, gt_class: np.ndarray, gt_instance: np.ndarray, vocab: Vocabulary, iou_threshold: float = 0.5
+    pred_class: np.ndarray,
+    pred_instance: np.ndarray,
+    gt_class: np.ndarray,
+    gt_instance: np.ndarray,
+    vocab: Vocabulary,
+    iou_threshold: float = 0.5,
 ) -> dict[str, Any]:
     # plain arrays: labels derived from trimesh data arrive as TrackedArray, whose sort is slow
-    pred_class, pred_instance, gt_class, gt_instance = (np.asarray(a).view(np.ndarray) for a in (pred_class, pred_instance, gt_class, gt_instance))
+    pred_class, pred_instance, gt_class, gt_instance = (
+        np.asarray(a).view(np.ndarray) for a in (pred_class, pred_instance, gt_class, gt_instance)
+    )
     valid = gt_class != VOID
     gt_key = _segments(np.where(valid, gt_class, 0), gt_instance, vocab)
     pred_key = _segments(pred_class, pred_instance, vocab)
@@ -201,7 +230,14 @@ def panoptic_quality(
         pq = s["iou"] / denom if denom else 0.0
         sq = s["iou"] / s["tp"] if s["tp"] else 0.0
         rq = s["tp"] / denom if denom else 0.0
-        per_class[vocab.name(c)] = {"pq": pq, "sq": sq, "rq": rq, "tp": int(s["tp"]), "fp": int(s["fp"]), "fn": int(s["fn"])}
+        per_class[vocab.name(c)] = {
+            "pq": pq,
+            "sq": sq,
+            "rq": rq,
+            "tp": int(s["tp"]),
+            "fp": int(s["fp"]),
+            "fn": int(s["fn"]),
+        }
 
     def mean(names: list[str], key: str) -> float:
         return float(np.mean([per_class[n][key] for n in names])) if names else 0.0

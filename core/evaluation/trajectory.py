@@ -35,7 +35,11 @@ def ate(estimated: Sequence[np.ndarray], ground_truth: Sequence[np.ndarray]) -> 
         raise ValueError(f"ATE needs equally many poses, got {len(est)} and {len(gt)}")
     align = umeyama(est, gt) if len(est) >= 3 else np.eye(4)
     err = np.linalg.norm(est @ align[:3, :3].T + align[:3, 3] - gt, axis=1)
-    return {"ate_rmse_m": float(np.sqrt(np.mean(err**2))), "ate_mean_m": float(err.mean()), "ate_max_m": float(err.max())}
+    return {
+        "ate_rmse_m": float(np.sqrt(np.mean(err**2))),
+        "ate_mean_m": float(err.mean()),
+        "ate_max_m": float(err.max()),
+    }
 
 
 def rpe(estimated: Sequence[np.ndarray], ground_truth: Sequence[np.ndarray], delta: int = 1) -> dict[str, float]:
@@ -49,4 +53,7 @@ def rpe(estimated: Sequence[np.ndarray], ground_truth: Sequence[np.ndarray], del
         rot.append(np.degrees(np.arccos(np.clip((np.trace(e[:3, :3]) - 1) / 2, -1, 1))))
     if not trans:
         return {"rpe_trans_rmse_m": 0.0, "rpe_rot_rmse_deg": 0.0}
-    return {"rpe_trans_rmse_m": float(np.sqrt(np.mean(np.square(trans)))), "rpe_rot_rmse_deg": float(np.sqrt(np.mean(np.square(rot))))}
+    return {
+        "rpe_trans_rmse_m": float(np.sqrt(np.mean(np.square(trans)))),
+        "rpe_rot_rmse_deg": float(np.sqrt(np.mean(np.square(rot)))),
+    }

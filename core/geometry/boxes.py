@@ -10,7 +10,6 @@ import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
 
-
 @dataclass
 class OrientedBox:
     """A gravity-aligned box: center, yaw about +z, and size (extent along the box's x, y, z)."""
@@ -57,7 +56,6 @@ class OrientedBox:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> OrientedBox:
         return cls(d["center"], d["yaw"], d["size"])
-
 
 
 def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
@@ -108,7 +106,9 @@ def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndar
     return center, float(yaw), size
 
 
-def gravity_aligned_box(points: np.ndarray, z_range: tuple[float, float] | None = None, area_slack: float = 0.03) -> OrientedBox:
+def gravity_aligned_box(
+    points: np.ndarray, z_range: tuple[float, float] | None = None, area_slack: float = 0.03
+) -> OrientedBox:
     """The gravity-aligned minimal box of points: footprint by min-area rectangle (see
     :func:`min_area_rectangle` for ``area_slack``), z from min to max."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -139,10 +139,12 @@ def clip_polygon(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
         if not inputs:
             break
 
-        def inside(p: tuple[float, float]) -> bool:
+        def inside(p: tuple[float, float], a: np.ndarray = a, b: np.ndarray = b) -> bool:
             return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) >= -1e-12
 
-        def intersect(p: tuple[float, float], q: tuple[float, float]) -> tuple[float, float]:
+        def intersect(
+            p: tuple[float, float], q: tuple[float, float], a: np.ndarray = a, b: np.ndarray = b
+        ) -> tuple[float, float]:
             d1 = np.subtract(q, p)
             d2 = b - a
             denom = d1[0] * d2[1] - d1[1] * d2[0]
@@ -170,5 +172,3 @@ def box_iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     inter = inter_xy * inter_z
     union = float(np.prod(a.size) + np.prod(b.size)) - inter
     return inter / union if union > 0 else 0.0
-
-

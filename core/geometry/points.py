@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 # A voxel itself, then its 26 neighbours by distance (faces, edges, corners).
-VOXEL_NEIGHBOURS = np.array(sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v)))
+VOXEL_NEIGHBOURS = np.array(
+    sorted(([x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)), key=lambda v: (sum(map(abs, v)), v))
+)
 
 
 def ransac_plane(

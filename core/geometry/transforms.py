@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+
 def make_pose(translation=(0.0, 0.0, 0.0), yaw: float = 0.0, rotation: np.ndarray | None = None) -> np.ndarray:
     """Pose from a translation and either a yaw about +z or a 3x3 rotation."""
     pose = np.eye(4)

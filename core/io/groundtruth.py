@@ -11,9 +11,9 @@ import numpy as np
 import trimesh
 
 from stratamap.core.errors import DataError
+from stratamap.core.io.rgbd import read_image
 from stratamap.core.map.groundtruth import GroundTruth, GroundTruthObject
 from stratamap.core.map.layers import ContactGraph, Joint, OccupancyMaps
-from stratamap.core.io.rgbd import read_image
 from stratamap.core.map.sensors import FrameSegmentation
 from stratamap.core.map.vocabulary import Vocabulary
 
@@ -72,7 +72,9 @@ def load_ground_truth(gt_dir: Path, stamps: list[str]) -> GroundTruth:
     graph = None
     graph_file = gt_dir / "contact_graph.json"
     if graph_file.is_file():
-        graph = ContactGraph(support=nx.node_link_graph(json.loads(graph_file.read_text()), directed=True, edges="links"))
+        graph = ContactGraph(
+            support=nx.node_link_graph(json.loads(graph_file.read_text()), directed=True, edges="links")
+        )
         graph.proximal.add_nodes_from(graph.support.nodes)
     occupancy = OccupancyMaps()
     from stratamap.core.io.nav2 import read_map

@@ -36,7 +36,9 @@ OCCUPIED_CELL, FREE_CELL = 65, 25
 COST_FREE, COST_INSCRIBED, COST_LETHAL, COST_UNKNOWN = 0, 253, 254, 255
 
 
-def _write_image_map(image: np.ndarray, grid: OccupancyGrid, directory: Path, basename: str, mode: str) -> tuple[Path, Path]:
+def _write_image_map(
+    image: np.ndarray, grid: OccupancyGrid, directory: Path, basename: str, mode: str
+) -> tuple[Path, Path]:
     """``basename.pgm`` (rows flipped: the image's first row is the map's top) and ``basename.yaml``."""
     directory.mkdir(parents=True, exist_ok=True)
     pgm = directory / f"{basename}.pgm"
@@ -65,7 +67,9 @@ def write_map(grid: OccupancyGrid, directory: str | Path, basename: str = "map")
     return _write_image_map(img, grid, Path(directory), basename, "trinary")
 
 
-def costmap_values(grid: OccupancyGrid, inscribed_radius: float, inflation_radius: float, cost_scaling_factor: float) -> np.ndarray:
+def costmap_values(
+    grid: OccupancyGrid, inscribed_radius: float, inflation_radius: float, cost_scaling_factor: float
+) -> np.ndarray:
     """Nav2 cost values of an occupancy grid with inflation: 0 free, 254 lethal (occupied), 253
     inscribed (within ``inscribed_radius`` of an obstacle), 255 unknown, and between them Nav2's
     decay ``252 * exp(-cost_scaling_factor * (d - inscribed_radius))`` up to ``inflation_radius``."""
@@ -73,7 +77,11 @@ def costmap_values(grid: OccupancyGrid, inscribed_radius: float, inflation_radiu
 
     occupied = grid.data >= OCCUPIED_CELL
     unknown = grid.data < 0
-    dist = ndimage.distance_transform_edt(~occupied) * grid.resolution if occupied.any() else np.full(grid.data.shape, np.inf)
+    dist = (
+        ndimage.distance_transform_edt(~occupied) * grid.resolution
+        if occupied.any()
+        else np.full(grid.data.shape, np.inf)
+    )
     cost = np.zeros(grid.data.shape, np.float64)
     ramp = (dist > inscribed_radius) & (dist <= inflation_radius)
     cost[ramp] = 252.0 * np.exp(-cost_scaling_factor * (dist[ramp] - inscribed_radius))
@@ -84,7 +92,9 @@ def costmap_values(grid: OccupancyGrid, inscribed_radius: float, inflation_radiu
     return out
 
 
-def write_costmap(values: np.ndarray, grid: OccupancyGrid, directory: str | Path, basename: str = "costmap") -> tuple[Path, Path]:
+def write_costmap(
+    values: np.ndarray, grid: OccupancyGrid, directory: str | Path, basename: str = "costmap"
+) -> tuple[Path, Path]:
     """Write cost values as ``basename.pgm`` + ``basename.yaml`` in Nav2's *raw* mode (atomically)."""
     return _write_image_map(np.asarray(values, np.uint8), grid, Path(directory), basename, "raw")
 

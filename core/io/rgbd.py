@@ -70,7 +70,9 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
             )
     depth[~np.isfinite(depth) | (depth < 0)] = 0.0
     if shape is not None and depth.shape != shape:
-        raise DataError(f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} (rgb/depth size mismatch?)")
+        raise DataError(
+            f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} (rgb/depth size mismatch?)"
+        )
     return depth
 
 
@@ -107,7 +109,9 @@ def read_timestamped_list(path: Path) -> list[tuple[float, list[str]]]:
     times = np.array([r[0] for r in rows])
     bad = np.flatnonzero(np.diff(times) <= 0)
     if len(bad):
-        raise DataError(f"{path}: timestamps are not increasing at entry {bad[0] + 2} ({times[bad[0]]} then {times[bad[0] + 1]})")
+        raise DataError(
+            f"{path}: timestamps are not increasing at entry {bad[0] + 2} ({times[bad[0]]} then {times[bad[0] + 1]})"
+        )
     return rows
 
 
@@ -125,7 +129,7 @@ def associate(a: np.ndarray, b: np.ndarray, tolerance: float) -> list[tuple[int,
             if d <= tolerance:
                 candidates.append((d, i, j))
     taken_a: set[int] = set()
-    for d, i, j in sorted(candidates):
+    for _distance, i, j in sorted(candidates):
         if i in taken_a or j in used:
             continue
         taken_a.add(i)
@@ -140,7 +144,9 @@ def parse_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
     times, poses = [], []
     for n, (t, vals) in enumerate(rows):
         if len(vals) != 7:
-            raise DataError(f"{path}: entry {n + 1} has {len(vals)} values after the timestamp, expected 7 (tx ty tz qx qy qz qw)")
+            raise DataError(
+                f"{path}: entry {n + 1} has {len(vals)} values after the timestamp, expected 7 (tx ty tz qx qy qz qw)"
+            )
         v = np.array([float(x) for x in vals])
         if not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-6:
             raise DataError(f"{path}: entry {n + 1} is not a valid pose ({vals})")
@@ -152,7 +158,9 @@ def parse_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(times), np.array(poses)
 
 
-def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray, tolerance: float) -> list[np.ndarray | None]:
+def interpolate_poses(
+    times: np.ndarray, poses: np.ndarray, query: np.ndarray, tolerance: float
+) -> list[np.ndarray | None]:
     """Poses at ``query`` times: linear/slerp between neighbours, or the nearest within ``tolerance``."""
     out: list[np.ndarray | None] = []
     if len(times) == 1:
@@ -161,7 +169,10 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray, t
     for q in query:
         if times[0] <= q <= times[-1]:
             j = int(np.clip(np.searchsorted(times, q), 1, len(times) - 1))
-            if min(q - times[j - 1], times[j] - q) > max(tolerance, 0.5 * (times[j] - times[j - 1])) and times[j] - times[j - 1] > 2 * tolerance:
+            if (
+                min(q - times[j - 1], times[j] - q) > max(tolerance, 0.5 * (times[j] - times[j - 1]))
+                and times[j] - times[j - 1] > 2 * tolerance
+            ):
                 out.append(None)  # a gap in the ground truth
                 continue
             w = (q - times[j - 1]) / (times[j] - times[j - 1])
@@ -177,8 +188,8 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray, t
 
 def read_laser_file(path: Path) -> list:
     """2D laser scans from ``laser.txt``: ``timestamp x y z yaw angle_min angle_increment range_max r...``."""
-    from stratamap.core.map.sensors import LaserScan
     from stratamap.core.geometry.transforms import make_pose
+    from stratamap.core.map.sensors import LaserScan
 
     scans = []
     for n, line in enumerate(path.read_text().splitlines(), 1):
@@ -212,7 +223,9 @@ def write_redwood(stream: SensorStream, root: Path) -> Path:
         log.append(f"{k} {k} {k + 1}\n" + "\n".join(" ".join(f"{v:.12g}" for v in row) for row in f.pose) + "\n")
     (root / "trajectory.log").write_text("".join(log))
     intr = stream.intrinsics
-    (root / "camera.json").write_text(json.dumps({"width": intr.width, "height": intr.height, "intrinsic_matrix": intr.matrix.T.reshape(-1).tolist()}))
+    (root / "camera.json").write_text(
+        json.dumps({"width": intr.width, "height": intr.height, "intrinsic_matrix": intr.matrix.T.reshape(-1).tolist()})
+    )
     return root
 
 

@@ -57,11 +57,19 @@ def _tf(ts: Any, t: float, parent: str, child: str, pose: np.ndarray, ros_versio
         translation=T["geometry_msgs/msg/Vector3"](x=float(pose[0, 3]), y=float(pose[1, 3]), z=float(pose[2, 3])),
         rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
     )
-    stamped = T["geometry_msgs/msg/TransformStamped"](header=_header(ts, t, parent, ros_version), child_frame_id=child, transform=transform)
+    stamped = T["geometry_msgs/msg/TransformStamped"](
+        header=_header(ts, t, parent, ros_version), child_frame_id=child, transform=transform
+    )
     return T["tf2_msgs/msg/TFMessage"](transforms=[stamped])
 
 
-def write_rgbd_bag(path: str | Path, stream: SensorStream, ros_version: int = 2, world_frame: str = "map", camera_frame: str = "camera_color_optical_frame") -> Path:
+def write_rgbd_bag(
+    path: str | Path,
+    stream: SensorStream,
+    ros_version: int = 2,
+    world_frame: str = "map",
+    camera_frame: str = "camera_color_optical_frame",
+) -> Path:
     """Depth (16UC1, mm), color (rgb8), camera_info and tf (world -> camera) per frame."""
     path = Path(path)
     ts = _typestore(ros_version)
@@ -79,21 +87,70 @@ def write_rgbd_bag(path: str | Path, stream: SensorStream, ros_version: int = 2,
             ns = int(round(t * 1e9))
             header = _header(ts, t, camera_frame, ros_version, k)
             depth = np.clip(np.round(frame.depth * 1000.0), 0, 65535).astype("<u2")
-            d_msg = T["sensor_msgs/msg/Image"](header=header, height=intr.height, width=intr.width, encoding="16UC1", is_bigendian=0, step=intr.width * 2, data=np.frombuffer(depth.tobytes(), np.uint8))
-            c_msg = T["sensor_msgs/msg/Image"](header=header, height=intr.height, width=intr.width, encoding="rgb8", is_bigendian=0, step=intr.width * 3, data=np.frombuffer(np.ascontiguousarray(frame.rgb).tobytes(), np.uint8))
+            d_msg = T["sensor_msgs/msg/Image"](
+                header=header,
+                height=intr.height,
+                width=intr.width,
+                encoding="16UC1",
+                is_bigendian=0,
+                step=intr.width * 2,
+                data=np.frombuffer(depth.tobytes(), np.uint8),
+            )
+            c_msg = T["sensor_msgs/msg/Image"](
+                header=header,
+                height=intr.height,
+                width=intr.width,
+                encoding="rgb8",
+                is_bigendian=0,
+                step=intr.width * 3,
+                data=np.frombuffer(np.ascontiguousarray(frame.rgb).tobytes(), np.uint8),
+            )
             K = intr.matrix.reshape(-1)
             P = np.c_[intr.matrix, np.zeros(3)].reshape(-1)
             roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-            info_kw = {"d": np.zeros(5), "k": K, "r": np.eye(3).reshape(-1), "p": P} if ros_version == 2 else {"D": np.zeros(5), "K": K, "R": np.eye(3).reshape(-1), "P": P}
-            i_msg = T["sensor_msgs/msg/CameraInfo"](header=header, height=intr.height, width=intr.width, distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi, **info_kw)
-            for conn, msg, mtype in ((c_depth, d_msg, "sensor_msgs/msg/Image"), (c_color, c_msg, "sensor_msgs/msg/Image"), (c_info, i_msg, "sensor_msgs/msg/CameraInfo")):
+            info_kw = (
+                {"d": np.zeros(5), "k": K, "r": np.eye(3).reshape(-1), "p": P}
+                if ros_version == 2
+                else {"D": np.zeros(5), "K": K, "R": np.eye(3).reshape(-1), "P": P}
+            )
+            i_msg = T["sensor_msgs/msg/CameraInfo"](
+                header=header,
+                height=intr.height,
+                width=intr.width,
+                distortion_model="plumb_bob",
+                binning_x=0,
+                binning_y=0,
+                roi=roi,
+                **info_kw,
+            )
+            for conn, msg, mtype in (
+                (c_depth, d_msg, "sensor_msgs/msg/Image"),
+                (c_color, c_msg, "sensor_msgs/msg/Image"),
+                (c_info, i_msg, "sensor_msgs/msg/CameraInfo"),
+            ):
                 w.write(conn, ns, _serialize(ts, msg, mtype, ros_version))
             if frame.pose is not None:
-                w.write(c_tf, ns, _serialize(ts, _tf(ts, t, world_frame, camera_frame, frame.pose, ros_version), "tf2_msgs/msg/TFMessage", ros_version))
+                w.write(
+                    c_tf,
+                    ns,
+                    _serialize(
+                        ts,
+                        _tf(ts, t, world_frame, camera_frame, frame.pose, ros_version),
+                        "tf2_msgs/msg/TFMessage",
+                        ros_version,
+                    ),
+                )
     return path
 
 
-def write_lidar_bag(path: str | Path, scans: list[LidarScan], ros_version: int = 1, world_frame: str = "map", sensor_frame: str = "lidar", with_tf: bool = True) -> Path:
+def write_lidar_bag(
+    path: str | Path,
+    scans: list[LidarScan],
+    ros_version: int = 1,
+    world_frame: str = "map",
+    sensor_frame: str = "lidar",
+    with_tf: bool = True,
+) -> Path:
     """PointCloud2 sweeps (float32 x, y, z) and, optionally, tf poses of the sensor."""
     path = Path(path)
     ts = _typestore(ros_version)
@@ -102,13 +159,34 @@ def write_lidar_bag(path: str | Path, scans: list[LidarScan], ros_version: int =
         kw = {"typestore": ts}
         c_pc = w.add_connection("/lidar/points", "sensor_msgs/msg/PointCloud2", **kw)
         c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", **kw) if with_tf else None
-        fields = [T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
+        fields = [
+            T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")
+        ]
         for k, scan in enumerate(scans):
             t = float(scan.timestamp) + 1.0
             ns = int(round(t * 1e9))
             data = np.ascontiguousarray(scan.points.astype("<f4"))
-            msg = T["sensor_msgs/msg/PointCloud2"](header=_header(ts, t, sensor_frame, ros_version, k), height=1, width=len(data), fields=fields, is_bigendian=False, point_step=12, row_step=12 * len(data), data=np.frombuffer(data.tobytes(), np.uint8), is_dense=True)
+            msg = T["sensor_msgs/msg/PointCloud2"](
+                header=_header(ts, t, sensor_frame, ros_version, k),
+                height=1,
+                width=len(data),
+                fields=fields,
+                is_bigendian=False,
+                point_step=12,
+                row_step=12 * len(data),
+                data=np.frombuffer(data.tobytes(), np.uint8),
+                is_dense=True,
+            )
             w.write(c_pc, ns, _serialize(ts, msg, "sensor_msgs/msg/PointCloud2", ros_version))
             if c_tf is not None and scan.pose is not None:
-                w.write(c_tf, ns, _serialize(ts, _tf(ts, t, world_frame, sensor_frame, scan.pose, ros_version), "tf2_msgs/msg/TFMessage", ros_version))
+                w.write(
+                    c_tf,
+                    ns,
+                    _serialize(
+                        ts,
+                        _tf(ts, t, world_frame, sensor_frame, scan.pose, ros_version),
+                        "tf2_msgs/msg/TFMessage",
+                        ros_version,
+                    ),
+                )
     return path

@@ -181,7 +181,9 @@ def read_urdf(path: str | Path, package_roots: dict[str, Path] | None = None, lo
                     visuals.append(UrdfVisual(mesh, source, vis.get("name", "")))
                     model.warnings.append(f"{problem}; using its collision geometry {source}")
                 except (FileNotFoundError, ValueError, OSError) as exc:
-                    model.warnings.append(f"{problem}; no usable collision geometry either ({exc}); link left without a mesh")
+                    model.warnings.append(
+                        f"{problem}; no usable collision geometry either ({exc}); link left without a mesh"
+                    )
         model.links[name] = visuals
     for joint in root.findall("joint"):
         parent, child = joint.find("parent"), joint.find("child")
@@ -193,7 +195,16 @@ def read_urdf(path: str | Path, package_roots: dict[str, Path] | None = None, lo
         lower = float(limit.get("lower", 0)) if limit is not None else 0.0
         upper = float(limit.get("upper", 0)) if limit is not None else 0.0
         model.joints.append(
-            UrdfJoint(joint.get("name", ""), joint.get("type", "fixed"), parent.get("link", ""), child.get("link", ""), _origin(joint.find("origin")), axis, lower, upper)
+            UrdfJoint(
+                joint.get("name", ""),
+                joint.get("type", "fixed"),
+                parent.get("link", ""),
+                child.get("link", ""),
+                _origin(joint.find("origin")),
+                axis,
+                lower,
+                upper,
+            )
         )
     for j in model.joints:
         for end in (j.parent, j.child):

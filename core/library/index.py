@@ -65,13 +65,17 @@ class IndexedModel:
 class ModelIndex:
     """Per-class arrays of model descriptors and sizes, with samples and trees per model."""
 
-    def __init__(self, library: ModelLibrary, spacing: float = 0.02, max_samples: int = 3000, cache_dir: str | Path | None = None):
+    def __init__(
+        self, library: ModelLibrary, spacing: float = 0.02, max_samples: int = 3000, cache_dir: str | Path | None = None
+    ):
         self.library = library
         self.spacing = spacing
         self.max_samples = max_samples
         self.problems: list[str] = list(library.problems)
         self.models: dict[str, IndexedModel] = {}
-        key = hashlib.sha256(f"{library.content_hash()}:{spacing}:{max_samples}:{DESCRIPTOR_VERSION}".encode()).hexdigest()[:20]
+        key = hashlib.sha256(
+            f"{library.content_hash()}:{spacing}:{max_samples}:{DESCRIPTOR_VERSION}".encode()
+        ).hexdigest()[:20]
         cache = Path(cache_dir) / f"index-{key}.npz" if cache_dir is not None else None
         if cache is not None and cache.is_file():
             self._load(cache)
@@ -84,7 +88,11 @@ class ModelIndex:
             self._by_class.setdefault(m.class_name, ([], [], []))  # type: ignore[arg-type]
         for cls in list(self._by_class):
             ids = sorted(i for i, m in self.models.items() if m.class_name == cls)
-            self._by_class[cls] = (ids, np.array([self.models[i].descriptor for i in ids]), np.array([self.models[i].size for i in ids]))
+            self._by_class[cls] = (
+                ids,
+                np.array([self.models[i].descriptor for i in ids]),
+                np.array([self.models[i].size for i in ids]),
+            )
 
     def _build(self) -> None:
         for model in self.library:
@@ -100,7 +108,15 @@ class ModelIndex:
         seed = int(hashlib.sha256(model.id.encode()).hexdigest()[:8], 16)
         samples = np.asarray(trimesh.sample.sample_surface(mesh, count, seed=seed)[0], dtype=np.float64)
         size = np.asarray(model.size, float)
-        return IndexedModel(model.id, model.class_name, model.family, samples, size, np.asarray(model.feature_planes, float), shape_descriptor(samples, size))
+        return IndexedModel(
+            model.id,
+            model.class_name,
+            model.family,
+            samples,
+            size,
+            np.asarray(model.feature_planes, float),
+            shape_descriptor(samples, size),
+        )
 
     def _save(self, path: Path) -> None:
         from stratamap.core.atomic import atomic_path
@@ -120,7 +136,15 @@ class ModelIndex:
         with np.load(path, allow_pickle=False) as z:
             for i, mid in enumerate(z["ids"].tolist()):
                 cls, fam = z[f"{i}.meta"].tolist()
-                self.models[mid] = IndexedModel(mid, cls, fam, z[f"{i}.samples"].astype(np.float64), z[f"{i}.size"], z[f"{i}.planes"], z[f"{i}.descriptor"])
+                self.models[mid] = IndexedModel(
+                    mid,
+                    cls,
+                    fam,
+                    z[f"{i}.samples"].astype(np.float64),
+                    z[f"{i}.size"],
+                    z[f"{i}.planes"],
+                    z[f"{i}.descriptor"],
+                )
 
     def classes(self) -> list[str]:
         return sorted(self._by_class)

@@ -122,7 +122,13 @@ class LibraryModel:
             "feature_planes": np.round(np.asarray(self.feature_planes), 6).tolist(),
             "support_surfaces": [list(map(float, s)) for s in self.support_surfaces],
             "parts": [
-                {"name": p.name, "file": p.file.name if p.file else None, "link": p.link, "albedo": list(p.albedo), "semantic": p.semantic}
+                {
+                    "name": p.name,
+                    "file": p.file.name if p.file else None,
+                    "link": p.link,
+                    "albedo": list(p.albedo),
+                    "semantic": p.semantic,
+                }
                 for p in self.parts
             ],
             "joints": [j.to_dict() for j in self.joints],
@@ -269,7 +275,9 @@ def model_to_library(model: Any) -> LibraryModel:
     )
 
 
-def write_library(models: Iterable[LibraryModel], out: str | Path, progress: Callable[[int], None] | None = None) -> Path:
+def write_library(
+    models: Iterable[LibraryModel], out: str | Path, progress: Callable[[int], None] | None = None
+) -> Path:
     """Write models in the native format; the folder is replaced atomically as a whole."""
     out = Path(out)
     with atomic_directory(out) as staging:
@@ -287,7 +295,9 @@ def write_library(models: Iterable[LibraryModel], out: str | Path, progress: Cal
             records.append(rec)
             if progress is not None:
                 progress(k + 1)
-        write_json(staging / "models.json", {"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "models": records}, indent=1)
+        write_json(
+            staging / "models.json", {"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "models": records}, indent=1
+        )
     return out
 
 
@@ -318,12 +328,20 @@ def _load_native(path: Path) -> ModelLibrary:
     except json.JSONDecodeError as exc:
         raise DataError(f"{index}: corrupt JSON ({exc})") from exc
     if doc.get("format") != LIBRARY_FORMAT or doc.get("version") != LIBRARY_VERSION:
-        raise DataError(f"{index}: format {doc.get('format')!r} v{doc.get('version')} is not {LIBRARY_FORMAT!r} v{LIBRARY_VERSION}")
+        raise DataError(
+            f"{index}: format {doc.get('format')!r} v{doc.get('version')} is not {LIBRARY_FORMAT!r} v{LIBRARY_VERSION}"
+        )
     lib = ModelLibrary([], root=path)
     for k, rec in enumerate(doc.get("models", [])):
         try:
             parts = [
-                LibraryPart(p["name"], p.get("link", "body"), tuple(p.get("albedo", (0.6, 0.6, 0.6))), p.get("semantic", ""), file=path / p["file"])
+                LibraryPart(
+                    p["name"],
+                    p.get("link", "body"),
+                    tuple(p.get("albedo", (0.6, 0.6, 0.6))),
+                    p.get("semantic", ""),
+                    file=path / p["file"],
+                )
                 for p in rec["parts"]
             ]
             lib.models.append(
@@ -382,7 +400,17 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
             lib.problems.append(f"{exc}; skipped")
             continue
         lib.models.append(
-            LibraryModel(model_id, row["class"], row.get("family", row["class"]), {}, [part], [], bounds, feature_planes(mesh), source=str(file))
+            LibraryModel(
+                model_id,
+                row["class"],
+                row.get("family", row["class"]),
+                {},
+                [part],
+                [],
+                bounds,
+                feature_planes(mesh),
+                source=str(file),
+            )
         )
     return lib
 
@@ -415,19 +443,40 @@ def model_from_urdf(
         for k, vis in enumerate(visuals):
             mesh = vis.mesh.copy()
             mesh.apply_transform(transform @ poses[link])
-            parts.append(LibraryPart(f"{link}_{k}", "body" if link == root else link, tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)), (semantics or {}).get(link, ""), mesh=mesh))
+            parts.append(
+                LibraryPart(
+                    f"{link}_{k}",
+                    "body" if link == root else link,
+                    tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)),
+                    (semantics or {}).get(link, ""),
+                    mesh=mesh,
+                )
+            )
     if not parts:
         raise DataError(f"{urdf_path}: no link has a usable mesh")
     joints = []
     for j in urdf.joints:
         origin = transform @ j.origin if j.parent == root else j.origin
-        joints.append(Joint(j.name, j.type, "body" if j.parent == root else j.parent, "body" if j.child == root else j.child, origin, j.axis, j.lower, j.upper))
+        joints.append(
+            Joint(
+                j.name,
+                j.type,
+                "body" if j.parent == root else j.parent,
+                "body" if j.child == root else j.child,
+                origin,
+                j.axis,
+                j.lower,
+                j.upper,
+            )
+        )
     bounds = _canonicalize(parts, joints, "body")
     mesh = trimesh.util.concatenate([p.load() for p in parts])
     params: dict[str, Any] = {"urdf": str(urdf_path)}
     if urdf.warnings:
         params["warnings"] = list(urdf.warnings)
-    return LibraryModel(model_id, class_name, family, params, parts, joints, bounds, feature_planes(mesh), source=str(urdf_path))
+    return LibraryModel(
+        model_id, class_name, family, params, parts, joints, bounds, feature_planes(mesh), source=str(urdf_path)
+    )
 
 
 def load_partnet(folder: Path) -> LibraryModel:

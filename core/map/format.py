@@ -123,8 +123,11 @@ def write_layers(m: LayeredMap, directory: Path) -> dict[str, Any]:
     if m.semantics is not None:
         _save_npz(
             directory / "semantics.npz",
-            {"class_ids": m.semantics.class_ids, "instance_ids": m.semantics.instance_ids,
-             **({"plane_ids": m.semantics.plane_ids} if m.semantics.plane_ids is not None else {})},
+            {
+                "class_ids": m.semantics.class_ids,
+                "instance_ids": m.semantics.instance_ids,
+                **({"plane_ids": m.semantics.plane_ids} if m.semantics.plane_ids is not None else {}),
+            },
         )
         layers["semantics"] = {"file": "semantics.npz", "vocabulary": m.semantics.vocabulary.to_dict()}
     if m.instances is not None:

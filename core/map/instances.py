@@ -8,7 +8,9 @@ from stratamap.core.geometry.boxes import gravity_aligned_box
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, Semantics
 
 
-def instances_from_semantics(points: np.ndarray, colors: np.ndarray | None, sem: Semantics, min_points: int) -> ObjectInstances:
+def instances_from_semantics(
+    points: np.ndarray, colors: np.ndarray | None, sem: Semantics, min_points: int
+) -> ObjectInstances:
     """One object per instance id of a thing class, with its points and gravity-aligned box."""
     out = ObjectInstances()
     ids = sem.instance_ids

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
 
 ROOT_LINK = "world"
 
@@ -138,7 +138,15 @@ def build_tree(
             # Articulated: the body is the object's link; every moving part gets a link and its joint.
             parts = {p.name: p for p in c.parts}
             body = parts.get("body")
-            links.append(Link(names[inst.id], body.mesh if body is not None else mesh, inertial_of(body.mesh if body is not None else mesh, rho), inst.id, inst.class_name))
+            links.append(
+                Link(
+                    names[inst.id],
+                    body.mesh if body is not None else mesh,
+                    inertial_of(body.mesh if body is not None else mesh, rho),
+                    inst.id,
+                    inst.class_name,
+                )
+            )
             for j in c.joints:
                 part = parts.get(j.child)
                 if part is None:
@@ -146,7 +154,11 @@ def build_tree(
                 child = safe_name(f"{names[inst.id]}__{j.child}")
                 parent = names[inst.id] if j.parent == "body" else safe_name(f"{names[inst.id]}__{j.parent}")
                 links.append(Link(child, part.mesh, inertial_of(part.mesh, rho), inst.id, inst.class_name))
-                joints.append(KinematicJoint(safe_name(f"{child}_{j.name}"), j.type, parent, child, j.origin, j.axis, j.lower, j.upper))
+                joints.append(
+                    KinematicJoint(
+                        safe_name(f"{child}_{j.name}"), j.type, parent, child, j.origin, j.axis, j.lower, j.upper
+                    )
+                )
         else:
             links.append(Link(names[inst.id], mesh, inertial_of(mesh, rho), inst.id, inst.class_name))
     for inst in instances:
@@ -157,6 +169,8 @@ def build_tree(
             parent_name, parent_pose = ROOT_LINK, np.eye(4)
         jtype = "floating" if inst.class_name in floating_classes else "fixed"
         joints.append(
-            KinematicJoint(f"{names[inst.id]}_joint", jtype, parent_name, names[inst.id], invert(parent_pose) @ poses[inst.id])
+            KinematicJoint(
+                f"{names[inst.id]}_joint", jtype, parent_name, names[inst.id], invert(parent_pose) @ poses[inst.id]
+            )
         )
     return KinematicTree(links, joints)

@@ -67,26 +67,49 @@ def write_mjcf(
 
     def add_body(parent_el: ET.Element, joint) -> None:
         link = links[joint.child]
-        body = ET.SubElement(parent_el, "body", name=link.name, pos=_fmt(joint.origin[:3, 3]), quat=_quat_wxyz(joint.origin))
+        body = ET.SubElement(
+            parent_el, "body", name=link.name, pos=_fmt(joint.origin[:3, 3]), quat=_quat_wxyz(joint.origin)
+        )
         if joint.parent == ROOT_LINK and classes.get(link.name) in free_classes:
             ET.SubElement(body, "freejoint", name=f"{link.name}_free")
         elif joint.type in ("revolute", "continuous"):
             # Real hinges hold a lid or door where it was left: dry friction above gravity's torque.
             arm = np.linalg.norm(np.cross(link.inertial.center, joint.axis / max(np.linalg.norm(joint.axis), 1e-9)))
             hold = hinge_holding * link.inertial.mass * 9.81 * arm
-            attrs = {"name": joint.name, "type": "hinge", "axis": _fmt(joint.axis), "damping": "1", "frictionloss": f"{hold:.6g}"}
+            attrs = {
+                "name": joint.name,
+                "type": "hinge",
+                "axis": _fmt(joint.axis),
+                "damping": "1",
+                "frictionloss": f"{hold:.6g}",
+            }
             if joint.type == "revolute":
                 attrs["range"] = _fmt([joint.lower, joint.upper])
             ET.SubElement(body, "joint", **attrs)
         elif joint.type == "prismatic":
-            ET.SubElement(body, "joint", name=joint.name, type="slide", axis=_fmt(joint.axis), range=_fmt([joint.lower, joint.upper]), damping="5")
+            ET.SubElement(
+                body,
+                "joint",
+                name=joint.name,
+                type="slide",
+                axis=_fmt(joint.axis),
+                range=_fmt([joint.lower, joint.upper]),
+                damping="5",
+            )
         i = link.inertial
         evals, evecs = np.linalg.eigh(i.inertia)
         if np.linalg.det(evecs) < 0:
             evecs[:, 0] = -evecs[:, 0]
         frame = np.eye(4)
         frame[:3, :3] = evecs
-        ET.SubElement(body, "inertial", pos=_fmt(i.center), quat=_quat_wxyz(frame), mass=f"{i.mass:.6g}", diaginertia=_fmt(np.maximum(evals, 1e-8)))
+        ET.SubElement(
+            body,
+            "inertial",
+            pos=_fmt(i.center),
+            quat=_quat_wxyz(frame),
+            mass=f"{i.mass:.6g}",
+            diaginertia=_fmt(np.maximum(evals, 1e-8)),
+        )
         for k, shell in enumerate(mesh_parts(link.mesh)):
             mesh_name = f"{link.name}_{k}"
             rel = f"{mesh_name}.stl"

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 from scipy.optimize import linprog
+from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
 
@@ -196,7 +196,11 @@ def resolve_scene(
 
         for inst in instances:
             if inst.id in graph.support:
-                descendants[inst.id] = [int(n) for n in nx.descendants(graph.support, inst.id) if isinstance(n, (int, np.integer)) and int(n) in by_id]
+                descendants[inst.id] = [
+                    int(n)
+                    for n in nx.descendants(graph.support, inst.id)
+                    if isinstance(n, (int, np.integer)) and int(n) in by_id
+                ]
     shells: dict[int, list[Shell]] = {inst.id: mesh_shells(world_mesh(inst)) for inst in instances}
     result = Resolution({inst.id: [0.0, 0.0, 0.0] for inst in instances})
 
@@ -253,7 +257,13 @@ def _overlap_volume(a: Shell, b: Shell) -> float:
     halfspaces = np.concatenate([a.equations, b.equations])
     # An interior point: the Chebyshev center of the intersection (linear program).
     norm = np.linalg.norm(halfspaces[:, :3], axis=1, keepdims=True)
-    res = linprog(np.r_[0, 0, 0, -1.0], A_ub=np.hstack([halfspaces[:, :3], norm]), b_ub=-halfspaces[:, 3], bounds=[(None, None)] * 3 + [(0, None)], method="highs")
+    res = linprog(
+        np.r_[0, 0, 0, -1.0],
+        A_ub=np.hstack([halfspaces[:, :3], norm]),
+        b_ub=-halfspaces[:, 3],
+        bounds=[(None, None)] * 3 + [(0, None)],
+        method="highs",
+    )
     if not res.success or res.x[3] <= 1e-5:
         return 0.0
     try:
@@ -285,5 +295,8 @@ def settle(mjcf_path: str | Path, seconds: float = 2.0) -> dict[str, Any]:
     start = {b: data.xpos[b].copy() for b in bodies}
     for _ in range(int(round(seconds / model.opt.timestep))):
         mujoco.mj_step(model, data)
-    moved = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): float(np.linalg.norm(data.xpos[b] - start[b])) for b in bodies}
+    moved = {
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): float(np.linalg.norm(data.xpos[b] - start[b]))
+        for b in bodies
+    }
     return {"free_bodies": len(bodies), "max_displacement_m": max(moved.values(), default=0.0), "displacement_m": moved}

@@ -73,7 +73,12 @@ class KitchenScene:
 
     def bounds(self) -> np.ndarray:
         """(2, 3) lower and upper corner over every part."""
-        return np.stack([np.min([p.mesh.bounds[0] for p in self.parts], axis=0), np.max([p.mesh.bounds[1] for p in self.parts], axis=0)])
+        return np.stack(
+            [
+                np.min([p.mesh.bounds[0] for p in self.parts], axis=0),
+                np.max([p.mesh.bounds[1] for p in self.parts], axis=0),
+            ]
+        )
 
 
 def _world_axis(model: UrdfModel, poses: dict[str, np.ndarray], joint) -> tuple[np.ndarray, np.ndarray]:
@@ -138,7 +143,9 @@ def kitchen_from_urdf(
             return front_of_link[name]
         j = joint_of.get(name)
         moving = j is not None and j.type in ("prismatic", "revolute")
-        if appliance.search(name) or (moving and j.type == "revolute" and any(appliance.search(s) for s in subtree(name))):
+        if appliance.search(name) or (
+            moving and j.type == "revolute" and any(appliance.search(s) for s in subtree(name))
+        ):
             kind = "appliance"
         elif moving and j.type == "prismatic":
             kind = "drawer"
@@ -166,7 +173,12 @@ def kitchen_from_urdf(
     return scene
 
 
-def add_room(scene: KitchenScene, room: tuple[float, float, float, float, float] | None = None, margin: float = 1.0, thickness: float = 0.05) -> None:
+def add_room(
+    scene: KitchenScene,
+    room: tuple[float, float, float, float, float] | None = None,
+    margin: float = 1.0,
+    thickness: float = 0.05,
+) -> None:
     """Floor, ceiling and four walls: ``room`` = (x0, y0, x1, y1, height), or the furniture's
     footprint grown by ``margin`` and 2.6 m high."""
     if room is None:
@@ -221,7 +233,10 @@ def virtual_scan(
     viewpoints = np.asarray(viewpoints, float).reshape(-1, 3)
     rscene = o3d.t.geometry.RaycastingScene()
     for p in scene.parts:
-        rscene.add_triangles(o3d.core.Tensor(np.asarray(p.mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(p.mesh.faces, np.uint32)))
+        rscene.add_triangles(
+            o3d.core.Tensor(np.asarray(p.mesh.vertices, np.float32)),
+            o3d.core.Tensor(np.asarray(p.mesh.faces, np.uint32)),
+        )
     az = np.radians(np.arange(0.0, 360.0, resolution_deg))
     el = np.radians(np.arange(elevation_deg[0], elevation_deg[1] + 1e-9, resolution_deg))
     A, E = np.meshgrid(az, el)
@@ -275,8 +290,11 @@ def label_points(scene: KitchenScene, scan: Scan) -> ScanLabels:
     l2[furn] = LEVEL2.index("panel")
     kinds = np.array([LEVEL2.index(f.kind) for f in scene.fronts] + [LEVEL2.index("panel")])
     on_front = furn & (front >= 0)
-    appliances = [p.mesh.bounds.mean(axis=0) for p in scene.parts
-                  if p.front >= 0 and scene.fronts[p.front].kind == "appliance" and scene.fronts[p.front].joint_type != "revolute"]
+    appliances = [
+        p.mesh.bounds.mean(axis=0)
+        for p in scene.parts
+        if p.front >= 0 and scene.fronts[p.front].kind == "appliance" and scene.fronts[p.front].joint_type != "revolute"
+    ]
     # A front's label holds on the face it shows, not on the sides of a drawer box seen past it.
     for k, f in enumerate(scene.fronts):
         mine = on_front & (front == k) & ~np.isin(role, ["handle", "knob"])
@@ -292,7 +310,12 @@ def label_points(scene: KitchenScene, scan: Scan) -> ScanLabels:
         f.normal = np.array([np.cos(a), np.sin(a), 0.0])
         facing = n @ f.normal > np.cos(np.radians(ORIENTATION_TOLERANCE_DEG))
         idx = np.flatnonzero(mine)
-        if f.kind == "cupboard" and f.joint_type == "revolute" and facing.any() and _covers_appliance(f, scan.points[idx[facing]], appliances):
+        if (
+            f.kind == "cupboard"
+            and f.joint_type == "revolute"
+            and facing.any()
+            and _covers_appliance(f, scan.points[idx[facing]], appliances)
+        ):
             f.kind = "appliance"  # the door of a dishwasher or an oven: an appliance's face
             kinds[k] = LEVEL2.index("appliance")
         l2[idx[facing]] = kinds[k]
@@ -316,6 +339,10 @@ def _covers_appliance(front: Front, face: np.ndarray, appliance_centers: list[np
     center = face.mean(axis=0)
     for c in appliance_centers:
         behind = (c - center) @ front.normal
-        if -depth < behind < 0 and u.min() - 0.02 <= c @ right <= u.max() + 0.02 and z.min() - 0.02 <= c[2] <= z.max() + 0.02:
+        if (
+            -depth < behind < 0
+            and u.min() - 0.02 <= c @ right <= u.max() + 0.02
+            and z.min() - 0.02 <= c[2] <= z.max() + 0.02
+        ):
             return True
     return False

@@ -15,16 +15,16 @@ from typing import Any
 
 import numpy as np
 
+from stratamap.core.geometry.transforms import make_pose, yaw_of
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.layers import OccupancyMaps
 from stratamap.core.map.sensors import FrameSegmentation, LaserScan, LidarScan, RGBDFrame, SensorStream
+from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.synthetic.occupancy import VoxelOccupancy, scene_occupancy
 from stratamap.core.synthetic.render import SceneRenderer, apply_kinect_noise, laser_directions, lidar_directions
 from stratamap.core.synthetic.scene import Scene, generate_scene
 from stratamap.core.synthetic.spec import SceneSpec
 from stratamap.core.synthetic.trajectory import drift, make_trajectory
-from stratamap.core.geometry.transforms import make_pose, yaw_of
-from stratamap.core.map.vocabulary import Vocabulary
 
 
 def robot_pose(camera_pose: np.ndarray) -> tuple[float, float, float]:
@@ -73,7 +73,9 @@ class SyntheticWorld:
         depth = view.depth
         if noise.depth == "kinect":
             rng = np.random.default_rng([self.spec.seed, k, 31])
-            depth = apply_kinect_noise(view, rng, noise.min_range, cam.max_range, noise.grazing_angle_deg, noise.edge_dropout)
+            depth = apply_kinect_noise(
+                view, rng, noise.min_range, cam.max_range, noise.grazing_angle_deg, noise.edge_dropout
+            )
         out = (
             RGBDFrame(k, self.timestamp(k), view.rgb, depth, self.reported_poses[k].copy()),
             FrameSegmentation(k, view.class_ids, view.instance_ids),
@@ -102,7 +104,14 @@ class SyntheticWorld:
             reported = self.reported_poses[k]
             rx, ry, rheading = robot_pose(reported)
             scans.append(
-                LaserScan(self.timestamp(k), float(angles[0]), float(angles[1] - angles[0]), r.astype(np.float32), spec.range_max, make_pose((rx, ry, spec.height), rheading))
+                LaserScan(
+                    self.timestamp(k),
+                    float(angles[0]),
+                    float(angles[1] - angles[0]),
+                    r.astype(np.float32),
+                    spec.range_max,
+                    make_pose((rx, ry, spec.height), rheading),
+                )
             )
         return scans
 
@@ -142,7 +151,11 @@ class SyntheticWorld:
             objects=self.scene.ground_truth_objects(),
             frame_labels=LazyLabels(self),
             contact_graph=self.scene.contact_graph(),
-            layout={**self.scene.layout_info(), "true_poses": [p.tolist() for p in self.true_poses], "skipped": self.scene.skipped},
+            layout={
+                **self.scene.layout_info(),
+                "true_poses": [p.tolist() for p in self.true_poses],
+                "skipped": self.scene.skipped,
+            },
             occupancy=OccupancyMaps(objects=self.occupancy_band.project(), laser=self.occupancy_laser.project()),
         )
 

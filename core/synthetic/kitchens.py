@@ -35,14 +35,24 @@ class _Urdf:
         )
         self.links.append(f'<link name="{name}">{body}</link>')
 
-    def joint(self, name: str, kind: str, parent: str, child: str, xyz, rpy=(0, 0, 0), axis=(1, 0, 0), limit=(0.0, 0.0)) -> None:
-        extra = f'<axis xyz="{_f(axis)}"/><limit lower="{limit[0]:.4f}" upper="{limit[1]:.4f}" effort="10" velocity="1"/>' if kind != "fixed" else ""
+    def joint(
+        self, name: str, kind: str, parent: str, child: str, xyz, rpy=(0, 0, 0), axis=(1, 0, 0), limit=(0.0, 0.0)
+    ) -> None:
+        extra = (
+            f'<axis xyz="{_f(axis)}"/><limit lower="{limit[0]:.4f}" upper="{limit[1]:.4f}" effort="10" velocity="1"/>'
+            if kind != "fixed"
+            else ""
+        )
         self.joints.append(
             f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/><origin xyz="{_f(xyz)}" rpy="{_f(rpy)}"/>{extra}</joint>'
         )
 
     def text(self) -> str:
-        return f'<?xml version="1.0"?>\n<robot name="{self.name}">\n' + "\n".join(self.links + self.joints) + "\n</robot>\n"
+        return (
+            f'<?xml version="1.0"?>\n<robot name="{self.name}">\n'
+            + "\n".join(self.links + self.joints)
+            + "\n</robot>\n"
+        )
 
 
 def _f(v) -> str:
@@ -92,21 +102,39 @@ class _Kitchen:
             self.u.joint(f"{name}_joint", "fixed", parent, name, c)
 
     # -- fronts (local frame of the carcass: x along the row, -y outward, z up; front face at y = -FRONT_T)
-    def drawer(self, carcass: str, x0: float, x1: float, z0: float, z1: float, depth: float, handle: str = "top") -> None:
+    def drawer(
+        self, carcass: str, x0: float, x1: float, z0: float, z1: float, depth: float, handle: str = "top"
+    ) -> None:
         name = self._id("drawer_")
         w, h = x1 - x0 - GAP, z1 - z0 - GAP
         box_d = depth - 0.06
-        self.u.link(name, [
-            (np.array([0.0, -FRONT_T / 2, 0.0]), np.zeros(3), _box([w, FRONT_T, h])),
-            (np.array([0.0, box_d / 2, 0.0]), np.zeros(3), _box([w - 0.04, box_d, h - 0.04])),
-        ])
+        self.u.link(
+            name,
+            [
+                (np.array([0.0, -FRONT_T / 2, 0.0]), np.zeros(3), _box([w, FRONT_T, h])),
+                (np.array([0.0, box_d / 2, 0.0]), np.zeros(3), _box([w - 0.04, box_d, h - 0.04])),
+            ],
+        )
         c = np.array([(x0 + x1) / 2, 0.0, (z0 + z1) / 2])
         self.u.joint(f"{name}_joint", "prismatic", carcass, name, c, axis=(0, -1, 0), limit=(0.0, 0.4 * depth))
         if handle != "none":
             hz = h * (0.3 if handle == "top" and h > 0.18 else 0.0)
-            self.handle(name, [0.0, -FRONT_T, hz], vertical=False, length=min(0.6 * w, float(self.rng.uniform(0.12, 0.3))))
+            self.handle(
+                name, [0.0, -FRONT_T, hz], vertical=False, length=min(0.6 * w, float(self.rng.uniform(0.12, 0.3)))
+            )
 
-    def door(self, carcass: str, x0: float, x1: float, z0: float, z1: float, hinge: str, handle: str = "auto", name_stem: str = "door_", knob_count: int = 0) -> None:
+    def door(
+        self,
+        carcass: str,
+        x0: float,
+        x1: float,
+        z0: float,
+        z1: float,
+        hinge: str,
+        handle: str = "auto",
+        name_stem: str = "door_",
+        knob_count: int = 0,
+    ) -> None:
         """hinge: left | right | top | bottom (as seen facing the front)."""
         r = self.rng
         name = self._id(name_stem)
@@ -130,7 +158,9 @@ class _Kitchen:
             side = 1.0 if hinge == "left" else -1.0
             hx = side * (w / 2 - float(r.uniform(0.04, 0.07)))
             vertical = bool(r.random() < 0.6)
-            hz = float(r.uniform(0.25, 0.4)) * h * (1 if z1 < 1.2 else -1)  # near the top of base units, bottom of wall units
+            hz = (
+                float(r.uniform(0.25, 0.4)) * h * (1 if z1 < 1.2 else -1)
+            )  # near the top of base units, bottom of wall units
             length = float(r.uniform(0.1, 0.2)) if vertical else float(r.uniform(0.1, 0.18))
             self.handle(name, front + [hx - (0 if vertical else side * length / 2), 0.0, hz], vertical, length)
         else:
@@ -149,7 +179,9 @@ class _Kitchen:
         if z0 < 0.2 and z0 > 0.0:  # recessed plinth below base units
             vis.append((np.array([(x0 + x1) / 2, depth / 2 + 0.03, z0 / 2]), np.zeros(3), _box([w, depth - 0.06, z0])))
         self.u.link(name, vis)
-        self.u.joint(f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0])))
+        self.u.joint(
+            f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0]))
+        )
         return name
 
     def base_unit(self, frame, x0, x1, height, depth, kind) -> None:
@@ -173,10 +205,14 @@ class _Kitchen:
             self.drawer(c, x0, x1, top, height, depth)
             self.door(c, x0, x1, plinth, top, "left" if r.random() < 0.5 else "right")
         elif kind == "oven":
-            self.door(c, x0, x1, plinth + 0.1, height, "bottom", name_stem="oven_door_", knob_count=int(r.integers(2, 6)))
+            self.door(
+                c, x0, x1, plinth + 0.1, height, "bottom", name_stem="oven_door_", knob_count=int(r.integers(2, 6))
+            )
             self.drawer(c, x0, x1, plinth, plinth + 0.1, depth, handle="none")
         elif kind == "dishwasher":
-            self.door(c, x0, x1, plinth, height, "bottom", name_stem="dishwasher_door_", knob_count=int(r.integers(0, 3)))
+            self.door(
+                c, x0, x1, plinth, height, "bottom", name_stem="dishwasher_door_", knob_count=int(r.integers(0, 3))
+            )
 
     def wall_unit(self, frame, x0, x1, z0, z1, depth) -> None:
         r = self.rng
@@ -205,7 +241,9 @@ class _Kitchen:
             z_oven = float(r.uniform(0.7, 0.85))
             self.drawer(c, x0, x1, plinth, z_oven - 0.25, depth)
             self.drawer(c, x0, x1, z_oven - 0.25, z_oven, depth)
-            self.door(c, x0, x1, z_oven, z_oven + 0.6, "bottom", name_stem="oven_door_", knob_count=int(r.integers(0, 4)))
+            self.door(
+                c, x0, x1, z_oven, z_oven + 0.6, "bottom", name_stem="oven_door_", knob_count=int(r.integers(0, 4))
+            )
             self.door(c, x0, x1, z_oven + 0.6, height, hinge)
         else:
             split = plinth + float(r.uniform(0.7, 0.9))
@@ -231,7 +269,11 @@ class _Kitchen:
                 x += w
                 continue
             kind = str(r.choice(kinds, p=probs))
-            w = 0.6 if kind in ("oven", "dishwasher") else float(r.choice([0.4, 0.45, 0.5, 0.6, 0.8, 0.9] if kind != "double" else [0.8, 0.9, 1.0]))
+            w = (
+                0.6
+                if kind in ("oven", "dishwasher")
+                else float(r.choice([0.4, 0.45, 0.5, 0.6, 0.8, 0.9] if kind != "double" else [0.8, 0.9, 1.0]))
+            )
             if x + w > length:
                 w = length - x
                 if w < 0.3:
@@ -244,8 +286,19 @@ class _Kitchen:
         for a, b in _merge_spans(base_spans):
             name = self._id("countertop_")
             t = float(r.uniform(0.03, 0.04))
-            self.u.link(name, [(np.array([(a + b) / 2, depth / 2 - 0.02, height + t / 2]), np.zeros(3), _box([b - a, depth + 0.04, t]))])
-            self.u.joint(f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0])))
+            self.u.link(
+                name,
+                [
+                    (
+                        np.array([(a + b) / 2, depth / 2 - 0.02, height + t / 2]),
+                        np.zeros(3),
+                        _box([b - a, depth + 0.04, t]),
+                    )
+                ],
+            )
+            self.u.joint(
+                f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0]))
+            )
             if wall_units:
                 z0 = height + float(r.uniform(0.5, 0.6))
                 z1 = z0 + float(r.uniform(0.55, 0.8))
@@ -259,14 +312,25 @@ class _Kitchen:
                 s = r.uniform([0.2, 0.2, 0.25], [0.35, 0.3, 0.4])
                 px = float(r.uniform(a + 0.2, b - 0.2))
                 self.u.link(name, [(np.array([px, depth / 2, height + 0.04 + s[2] / 2]), np.zeros(3), _box(s))])
-                self.u.joint(f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0])))
+                self.u.joint(
+                    f"{name}_joint",
+                    "fixed",
+                    "world",
+                    name,
+                    frame[:3, 3],
+                    rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0])),
+                )
         return height
 
     def island(self, frame: np.ndarray, length: float, depth: float) -> None:
         height = self.row(frame, length, depth, wall_units=False, tall_ok=False)
         name = self._id("island_back_")
-        self.u.link(name, [(np.array([length / 2, depth + 0.01, height / 2]), np.zeros(3), _box([length, 0.02, height]))])
-        self.u.joint(f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0])))
+        self.u.link(
+            name, [(np.array([length / 2, depth + 0.01, height / 2]), np.zeros(3), _box([length, 0.02, height]))]
+        )
+        self.u.joint(
+            f"{name}_joint", "fixed", "world", name, frame[:3, 3], rpy=(0, 0, np.arctan2(frame[1, 0], frame[0, 0]))
+        )
 
     def table(self, center: np.ndarray, yaw: float) -> None:
         r = self.rng
@@ -276,7 +340,13 @@ class _Kitchen:
         vis = [(np.array([0.0, 0.0, h - 0.015]), np.zeros(3), _box([size[0], size[1], 0.03]))]
         for sx in (-1, 1):
             for sy in (-1, 1):
-                vis.append((np.array([sx * (size[0] / 2 - 0.05), sy * (size[1] / 2 - 0.05), (h - 0.03) / 2]), np.zeros(3), _box([0.04, 0.04, h - 0.03])))
+                vis.append(
+                    (
+                        np.array([sx * (size[0] / 2 - 0.05), sy * (size[1] / 2 - 0.05), (h - 0.03) / 2]),
+                        np.zeros(3),
+                        _box([0.04, 0.04, h - 0.03]),
+                    )
+                )
         self.u.link(name, vis)
         self.u.joint(f"{name}_joint", "fixed", "world", name, [center[0], center[1], 0.0], rpy=(0, 0, yaw))
 
@@ -332,8 +402,13 @@ def generate_kitchen(seed: int) -> KitchenLayout:
     else:
         y_views = D - depth - float(r.uniform(0.8, 1.1))
         if r.random() < 0.6:
-            k.table(np.array([float(r.uniform(x_free + 0.6, W - 0.9)), float(r.uniform(0.8, max(0.9, y_views - 0.9)))]), float(r.uniform(-0.3, 0.3)))
-    views = np.array([[x_free + f * (W - x_free - 0.3), y_views, float(r.uniform(1.2, 1.5))] for f in (0.15, 0.5, 0.85)])
+            k.table(
+                np.array([float(r.uniform(x_free + 0.6, W - 0.9)), float(r.uniform(0.8, max(0.9, y_views - 0.9)))]),
+                float(r.uniform(-0.3, 0.3)),
+            )
+    views = np.array(
+        [[x_free + f * (W - x_free - 0.3), y_views, float(r.uniform(1.2, 1.5))] for f in (0.15, 0.5, 0.85)]
+    )
     return KitchenLayout(k.u.text(), (0.0, 0.0, W, D, H), views)
 
 

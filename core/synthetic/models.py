@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from stratamap.core.map.layers import Joint
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.map.layers import Joint
 
 ROOT_LINK = "body"
 
@@ -52,7 +52,9 @@ class Model:
 
     @property
     def bounds(self) -> np.ndarray:
-        return np.array([np.min([p.mesh.bounds[0] for p in self.parts], 0), np.max([p.mesh.bounds[1] for p in self.parts], 0)])
+        return np.array(
+            [np.min([p.mesh.bounds[0] for p in self.parts], 0), np.max([p.mesh.bounds[1] for p in self.parts], 0)]
+        )
 
     @property
     def size(self) -> np.ndarray:
@@ -103,7 +105,9 @@ class Builder:
         self.parts.append(part)
         return part
 
-    def cylinder(self, name, radius, height, center, albedo, semantic="", link=ROOT_LINK, axis="z", sections=20) -> ModelPart:
+    def cylinder(
+        self, name, radius, height, center, albedo, semantic="", link=ROOT_LINK, axis="z", sections=20
+    ) -> ModelPart:
         mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
         if axis == "x":
             mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
@@ -114,24 +118,37 @@ class Builder:
         self.parts.append(part)
         return part
 
-    def frustum(self, name, r_bottom, r_top, height, center_bottom, albedo, semantic="", link=ROOT_LINK, sections=20) -> ModelPart:
+    def frustum(
+        self, name, r_bottom, r_top, height, center_bottom, albedo, semantic="", link=ROOT_LINK, sections=20
+    ) -> ModelPart:
         """A closed truncated cone (cups, pots)."""
         a = np.linspace(0, 2 * np.pi, sections, endpoint=False)
         ring = np.stack([np.cos(a), np.sin(a)], 1)
         verts = np.vstack(
-            [np.c_[ring * r_bottom, np.zeros(sections)], np.c_[ring * r_top, np.full(sections, height)], [[0, 0, 0], [0, 0, height]]]
+            [
+                np.c_[ring * r_bottom, np.zeros(sections)],
+                np.c_[ring * r_top, np.full(sections, height)],
+                [[0, 0, 0], [0, 0, height]],
+            ]
         )
         faces = []
         for i in range(sections):
             j = (i + 1) % sections
-            faces += [[i, j, sections + j], [i, sections + j, sections + i], [2 * sections, j, i], [2 * sections + 1, sections + i, sections + j]]
+            faces += [
+                [i, j, sections + j],
+                [i, sections + j, sections + i],
+                [2 * sections, j, i],
+                [2 * sections + 1, sections + i, sections + j],
+            ]
         mesh = trimesh.Trimesh(verts + np.asarray(center_bottom), np.array(faces), process=True)
         part = ModelPart(name, mesh, albedo, semantic or name, link)
         self.parts.append(part)
         return part
 
     def joint(self, name, jtype, child, origin_xyz, axis, lower, upper, parent=ROOT_LINK) -> None:
-        self.joints.append(Joint(name, jtype, parent, child, make_pose(origin_xyz), np.asarray(axis, float), lower, upper))
+        self.joints.append(
+            Joint(name, jtype, parent, child, make_pose(origin_xyz), np.asarray(axis, float), lower, upper)
+        )
 
     def surface(self, xmin, ymin, xmax, ymax, z) -> None:
         self.surfaces.append(tuple(float(v) for v in (xmin, ymin, xmax, ymax, z)))  # type: ignore[arg-type]
@@ -156,7 +173,14 @@ class Builder:
         """A revolute door covering x0..x1, z0..z1 on a front face at y_front (opening outwards)."""
         w = x1 - x0
         link = name
-        self.box(f"{name}_panel", (w - 0.004, thickness, z1 - z0 - 0.004), ((x0 + x1) / 2, y_front - thickness / 2, (z0 + z1) / 2), albedo, "door", link)
+        self.box(
+            f"{name}_panel",
+            (w - 0.004, thickness, z1 - z0 - 0.004),
+            ((x0 + x1) / 2, y_front - thickness / 2, (z0 + z1) / 2),
+            albedo,
+            "door",
+            link,
+        )
         fx = x1 - 0.05 if hinge == "left" else x0 + 0.05
         fz = (z0 + z1) / 2 if z1 - z0 < 0.5 else min(z1 - 0.15, z0 + 0.9)
         if fixture == "handle":
@@ -165,7 +189,15 @@ class Builder:
             self.knob(f"{name}_knob", (fx, y_front - thickness, fz), link)
         hx = x0 if hinge == "left" else x1
         axis = (0, 0, -1) if hinge == "left" else (0, 0, 1)
-        self.joint(f"{name}_hinge", "revolute", link, (hx, y_front - thickness, (z0 + z1) / 2), axis, 0.0, float(np.radians(100)))
+        self.joint(
+            f"{name}_hinge",
+            "revolute",
+            link,
+            (hx, y_front - thickness, (z0 + z1) / 2),
+            axis,
+            0.0,
+            float(np.radians(100)),
+        )
         self.params.setdefault("hinges", []).append(hinge)
 
     def drawer(self, name, x0, x1, z0, z1, y_front, depth, albedo, fixture: str = "handle") -> None:
@@ -174,18 +206,41 @@ class Builder:
         link = name
         t = 0.018
         cx = (x0 + x1) / 2
-        self.box(f"{name}_front", (w - 0.004, t, h - 0.004), (cx, y_front - t / 2, (z0 + z1) / 2), albedo, "drawer_front", link)
+        self.box(
+            f"{name}_front",
+            (w - 0.004, t, h - 0.004),
+            (cx, y_front - t / 2, (z0 + z1) / 2),
+            albedo,
+            "drawer_front",
+            link,
+        )
         inner_w, inner_h, d = w - 0.06, max(h - 0.06, 0.03), depth - 0.04
         yb = y_front + d / 2
         self.box(f"{name}_bottom", (inner_w, d, 0.012), (cx, yb, z0 + 0.03), albedo, "drawer", link)
         for k, sx in enumerate((-1, 1)):
-            self.box(f"{name}_side{k}", (0.012, d, inner_h), (cx + sx * (inner_w / 2 - 0.006), yb, z0 + 0.03 + inner_h / 2), albedo, "drawer", link)
-        self.box(f"{name}_back", (inner_w, 0.012, inner_h), (cx, y_front + d - 0.006, z0 + 0.03 + inner_h / 2), albedo, "drawer", link)
+            self.box(
+                f"{name}_side{k}",
+                (0.012, d, inner_h),
+                (cx + sx * (inner_w / 2 - 0.006), yb, z0 + 0.03 + inner_h / 2),
+                albedo,
+                "drawer",
+                link,
+            )
+        self.box(
+            f"{name}_back",
+            (inner_w, 0.012, inner_h),
+            (cx, y_front + d - 0.006, z0 + 0.03 + inner_h / 2),
+            albedo,
+            "drawer",
+            link,
+        )
         if fixture == "handle":
             self.handle(f"{name}_handle", (cx, y_front - t, (z0 + z1) / 2), min(0.3, w * 0.5), link, vertical=False)
         else:
             self.knob(f"{name}_knob", (cx, y_front - t, (z0 + z1) / 2), link)
-        self.joint(f"{name}_slide", "prismatic", link, (cx, y_front, (z0 + z1) / 2), (0, -1, 0), 0.0, float(round(d * 0.8, 4)))
+        self.joint(
+            f"{name}_slide", "prismatic", link, (cx, y_front, (z0 + z1) / 2), (0, -1, 0), 0.0, float(round(d * 0.8, 4))
+        )
 
     def carcass(self, w, d, h, t, albedo, z0=0.0, back=True, plinth=0.0) -> None:
         """An open-front box of panels: sides, top, bottom, back (the body of cabinets)."""
@@ -196,7 +251,13 @@ class Builder:
         if plinth > 0:
             self.box("plinth", (w - 2 * t, t, plinth), (0, -d / 2 + 0.05, z0 + plinth / 2), albedo, "panel")
         if back:
-            self.box("back", (w - 2 * t, t, h - z0 - 2 * t - plinth), (0, d / 2 - t / 2, z0 + plinth + (h - z0 - plinth) / 2), albedo, "panel")
+            self.box(
+                "back",
+                (w - 2 * t, t, h - z0 - 2 * t - plinth),
+                (0, d / 2 - t / 2, z0 + plinth + (h - z0 - plinth) / 2),
+                albedo,
+                "panel",
+            )
 
 
 WOOD_LO, WOOD_HI = (0.35, 0.2, 0.1), (0.75, 0.55, 0.35)
@@ -242,7 +303,13 @@ def office_chair(b: Builder) -> None:
         b.parts.append(ModelPart(f"spoke_{i}", spoke, DARK, "base"))
         tip = np.array([np.cos(a), np.sin(a)]) * (r - 0.02)
         b.cylinder(f"caster_{i}", caster_r, 0.02, (tip[0], tip[1], caster_r), DARK, "caster", axis="x", sections=12)
-        b.box(f"caster_fork_{i}", (0.02, 0.02, hub_z - 2 * caster_r + 0.002), (tip[0], tip[1], 2 * caster_r + (hub_z - 2 * caster_r) / 2 - 0.016), DARK, "caster")
+        b.box(
+            f"caster_fork_{i}",
+            (0.02, 0.02, hub_z - 2 * caster_r + 0.002),
+            (tip[0], tip[1], 2 * caster_r + (hub_z - 2 * caster_r) / 2 - 0.016),
+            DARK,
+            "caster",
+        )
     b.cylinder("hub", 0.04, 0.05, (0, 0, hub_z), DARK, "base")
     stem_h = h - 0.06 - hub_z - 0.025
     b.cylinder("gas_stem", 0.022, stem_h, (0, 0, hub_z + 0.025 + stem_h / 2), METAL, "stem")
@@ -265,7 +332,15 @@ def stool(b: Builder) -> None:
     b.cylinder("seat", r, 0.04, (0, 0, h - 0.02), top, "seat")
     for i in range(legs):
         a = 2 * np.pi * i / legs
-        b.cylinder(f"leg_{i}", 0.015, h - 0.04, (0.75 * r * np.cos(a), 0.75 * r * np.sin(a), (h - 0.04) / 2), METAL, "leg", sections=10)
+        b.cylinder(
+            f"leg_{i}",
+            0.015,
+            h - 0.04,
+            (0.75 * r * np.cos(a), 0.75 * r * np.sin(a), (h - 0.04) / 2),
+            METAL,
+            "leg",
+            sections=10,
+        )
 
 
 def armchair(b: Builder) -> None:
@@ -280,7 +355,13 @@ def armchair(b: Builder) -> None:
     b.box("cushion", (w - 2 * arm_w, d - 0.18, 0.12), (0, -0.09 + 0.0, sh - 0.06), fabric, "seat")
     b.box("back", (w, 0.18, bh - sh + 0.12), (0, d / 2 - 0.09, sh - 0.12 + (bh - sh + 0.12) / 2), fabric, "back")
     for k, sx in enumerate((-1, 1)):
-        b.box(f"arm_{k}", (arm_w, d - 0.18, ah - sh + 0.12), (sx * (w / 2 - arm_w / 2), -0.09, sh - 0.12 + (ah - sh + 0.12) / 2), fabric, "arm")
+        b.box(
+            f"arm_{k}",
+            (arm_w, d - 0.18, ah - sh + 0.12),
+            (sx * (w / 2 - arm_w / 2), -0.09, sh - 0.12 + (ah - sh + 0.12) / 2),
+            fabric,
+            "arm",
+        )
 
 
 def bench(b: Builder) -> None:
@@ -307,7 +388,13 @@ def rectangular_table(b: Builder) -> None:
     inset = 0.05
     b.box("top", (L, W, t), (0, 0, H - t / 2), top_c, "top")
     for i, (sx, sy) in enumerate([(-1, -1), (1, -1), (1, 1), (-1, 1)]):
-        b.box(f"leg_{i}", (lw, lw, H - t), (sx * (L / 2 - inset - lw / 2), sy * (W / 2 - inset - lw / 2), (H - t) / 2), leg_c, "leg")
+        b.box(
+            f"leg_{i}",
+            (lw, lw, H - t),
+            (sx * (L / 2 - inset - lw / 2), sy * (W / 2 - inset - lw / 2), (H - t) / 2),
+            leg_c,
+            "leg",
+        )
     b.surface(-L / 2, -W / 2, L / 2, W / 2, H)
 
 
@@ -370,7 +457,9 @@ def desk(b: Builder) -> None:
 def cabinet(b: Builder) -> None:
     """Cabinet with revolute doors and/or prismatic drawers; handles or knobs as separate parts."""
     w, d, h = b.u("width", 0.5, 1.0), b.u("depth", 0.4, 0.6), b.u("height", 0.7, 1.9)
-    layout = b.choice("layout", ["doors", "drawers", "drawers_over_doors"] if h < 1.2 else ["doors", "drawers_over_doors"])
+    layout = b.choice(
+        "layout", ["doors", "drawers", "drawers_over_doors"] if h < 1.2 else ["doors", "drawers_over_doors"]
+    )
     fixture = b.choice("fixture", ["handle", "knob"])
     c, front = b.color(WOOD_LO, WOOD_HI), b.color()
     t = 0.018
@@ -387,7 +476,17 @@ def cabinet(b: Builder) -> None:
         dh = 0.18 if layout == "drawers_over_doors" else (z_hi - z_lo) / n
         top = z_hi
         for k in range(n):
-            b.drawer(f"drawer_{k}", -w / 2 + t, w / 2 - t, top - (k + 1) * dh, top - k * dh, y_front, d - 0.04, front, fixture)
+            b.drawer(
+                f"drawer_{k}",
+                -w / 2 + t,
+                w / 2 - t,
+                top - (k + 1) * dh,
+                top - k * dh,
+                y_front,
+                d - 0.04,
+                front,
+                fixture,
+            )
         z_hi = top - n * dh
     if layout in ("doors", "drawers_over_doors"):
         two = w > 0.7
@@ -433,14 +532,31 @@ def kitchen_counter(b: Builder) -> None:
     for k in range(modules + 1):
         x = -w / 2 + k * mw
         x = min(max(x, -w / 2 + t / 2), w / 2 - t / 2)
-        b.box(f"divider_{k}", (t, d - t, body_h - plinth - t), (x, -t / 2, plinth + t + (body_h - plinth - t) / 2), c, "panel")
+        b.box(
+            f"divider_{k}",
+            (t, d - t, body_h - plinth - t),
+            (x, -t / 2, plinth + t + (body_h - plinth - t) / 2),
+            c,
+            "panel",
+        )
     kinds = []
     for k in range(modules):
         x0, x1 = -w / 2 + k * mw + t / 2, -w / 2 + (k + 1) * mw - t / 2
         kind = b.rng.choice(["cupboard", "drawers"], p=[0.6, 0.4])
         kinds.append(str(kind))
         if kind == "cupboard":
-            b.door(f"door_{k}", x0, x1, plinth + t, body_h, -d / 2, 0.018, front, "left" if k % 2 == 0 else "right", fixture)
+            b.door(
+                f"door_{k}",
+                x0,
+                x1,
+                plinth + t,
+                body_h,
+                -d / 2,
+                0.018,
+                front,
+                "left" if k % 2 == 0 else "right",
+                fixture,
+            )
         else:
             n = 3
             dh = (body_h - plinth - t) / n
@@ -487,7 +603,14 @@ def oven(b: Builder) -> None:
     b.box("control_panel", (w - 2 * t, 0.02, 0.12), (0, -d / 2 + 0.01, h - t - 0.06), DARK, "panel")
     door_top = h - t - 0.12
     link = "door"
-    b.box("door_panel", (w - 2 * t - 0.004, 0.03, door_top - t - 0.004), (0, -d / 2 - 0.015, (door_top + t) / 2), DARK, "door", link)
+    b.box(
+        "door_panel",
+        (w - 2 * t - 0.004, 0.03, door_top - t - 0.004),
+        (0, -d / 2 - 0.015, (door_top + t) / 2),
+        DARK,
+        "door",
+        link,
+    )
     b.handle("door_handle", (0, -d / 2 - 0.03, door_top - 0.05), w * 0.6, link, vertical=False)
     b.joint("door_hinge", "revolute", link, (0, -d / 2 - 0.03, t), (1, 0, 0), 0.0, float(np.radians(90)))
     b.params["hinges"] = ["bottom"]
@@ -508,10 +631,22 @@ def sofa(b: Builder) -> None:
         b.box(f"foot_{i}", (0.05, 0.05, 0.05), (sx * (w / 2 - 0.05), sy * (d / 2 - 0.05), 0.025), DARK, "leg")
     cw = (w - 0.4) / seats
     for k in range(seats):
-        b.box(f"cushion_{k}", (cw - 0.01, d - 0.22, 0.12), (-w / 2 + 0.2 + cw * (k + 0.5), -0.11, sh - 0.06), fabric, "seat")
+        b.box(
+            f"cushion_{k}",
+            (cw - 0.01, d - 0.22, 0.12),
+            (-w / 2 + 0.2 + cw * (k + 0.5), -0.11, sh - 0.06),
+            fabric,
+            "seat",
+        )
     b.box("back", (w, 0.2, bh - sh + 0.17), (0, d / 2 - 0.1, sh - 0.17 + (bh - sh + 0.17) / 2), fabric, "back")
     for k, sx in enumerate((-1, 1)):
-        b.box(f"arm_{k}", (0.2, d - 0.2, 0.6 - sh + 0.17), (sx * (w / 2 - 0.1), -0.1, sh - 0.17 + (0.6 - sh + 0.17) / 2), fabric, "arm")
+        b.box(
+            f"arm_{k}",
+            (0.2, d - 0.2, 0.6 - sh + 0.17),
+            (sx * (w / 2 - 0.1), -0.1, sh - 0.17 + (0.6 - sh + 0.17) / 2),
+            fabric,
+            "arm",
+        )
 
 
 def monitor(b: Builder) -> None:
@@ -536,7 +671,15 @@ def laptop(b: Builder) -> None:
     lid.apply_translation((0, d / 2, 0.018))
     b.parts.append(ModelPart("lid", lid, c, "lid", "lid"))
     # q = +angle closes the lid onto the base; q < 0 opens it further, up to 135 degrees.
-    b.joint("lid_hinge", "revolute", "lid", (0, d / 2, 0.018), (1, 0, 0), float(np.radians(angle - 135)), float(np.radians(angle)))
+    b.joint(
+        "lid_hinge",
+        "revolute",
+        "lid",
+        (0, d / 2, 0.018),
+        (1, 0, 0),
+        float(np.radians(angle - 135)),
+        float(np.radians(angle)),
+    )
 
 
 def box(b: Builder) -> None:
@@ -623,5 +766,7 @@ def make_model(family: str, seed: int, index: int = 0) -> Model:
         for j in b.joints:
             if j.parent == ROOT_LINK:
                 j.origin[:3, 3] += shift
-        b.surfaces = [(s[0] + shift[0], s[1] + shift[1], s[2] + shift[0], s[3] + shift[1], s[4] + shift[2]) for s in b.surfaces]
+        b.surfaces = [
+            (s[0] + shift[0], s[1] + shift[1], s[2] + shift[0], s[3] + shift[1], s[4] + shift[2]) for s in b.surfaces
+        ]
     return Model(f"{family}_{seed:04d}_{index:03d}", class_name, family, b.params, b.parts, b.joints, b.surfaces)

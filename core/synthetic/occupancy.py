@@ -46,7 +46,9 @@ def _occupancy(meshes: list[trimesh.Trimesh], lo: np.ndarray, shape: tuple[int, 
             grid = np.stack(np.meshgrid(zs, ys, xs, indexing="ij"), -1).reshape(-1, 3)[:, ::-1]
             if mesh.is_watertight and len(grid):
                 scene = o3d.t.geometry.RaycastingScene()
-                scene.add_triangles(o3c.Tensor(mesh.vertices.astype(np.float32)), o3c.Tensor(mesh.faces.astype(np.uint32)))
+                scene.add_triangles(
+                    o3c.Tensor(mesh.vertices.astype(np.float32)), o3c.Tensor(mesh.faces.astype(np.uint32))
+                )
                 inside = scene.compute_occupancy(o3c.Tensor(grid.astype(np.float32))).numpy() > 0.5
                 sub = occ[i0[2] : i1[2], i0[1] : i1[1], i0[0] : i1[0]]
                 sub |= inside.reshape(sub.shape)

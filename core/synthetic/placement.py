@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stratamap.core.synthetic.models import FAMILIES, Model, make_model
 from stratamap.core.geometry.transforms import apply, make_pose
+from stratamap.core.synthetic.models import FAMILIES, Model, make_model
 
 #: class -> placement rule
 PLACEMENT = {
@@ -60,9 +60,15 @@ SUPPORTERS = {
 #: scene type -> class -> {family: weight}
 FAMILY_WEIGHTS = {
     "room": {"chair": {"four_leg_chair": 0.7, "stool": 0.3}, "table": {"rectangular_table": 1.0}},
-    "office": {"chair": {"office_chair": 0.8, "four_leg_chair": 0.2}, "table": {"round_table": 0.5, "rectangular_table": 0.5}},
+    "office": {
+        "chair": {"office_chair": 0.8, "four_leg_chair": 0.2},
+        "table": {"round_table": 0.5, "rectangular_table": 0.5},
+    },
     "meeting_room": {"chair": {"four_leg_chair": 0.5, "office_chair": 0.5}, "table": {"rectangular_table": 1.0}},
-    "kitchen": {"chair": {"four_leg_chair": 0.7, "stool": 0.3}, "table": {"rectangular_table": 0.5, "round_table": 0.5}},
+    "kitchen": {
+        "chair": {"four_leg_chair": 0.7, "stool": 0.3},
+        "table": {"rectangular_table": 0.5, "round_table": 0.5},
+    },
     "lounge": {"chair": {"armchair": 1.0}, "table": {"coffee_table": 1.0}},
     "corridor": {"chair": {"four_leg_chair": 0.5, "stool": 0.5}, "table": {"round_table": 1.0}},
 }
@@ -128,7 +134,9 @@ class Placer:
     # ---- checks ------------------------------------------------------------------------
 
     def inside_room(self, aabbs: np.ndarray, margin: float = 0.02) -> bool:
-        return bool((aabbs[:, 0, :2].min(0) >= margin).all() and (aabbs[:, 1, :2].max(0) <= self.room[:2] - margin).all())
+        return bool(
+            (aabbs[:, 0, :2].min(0) >= margin).all() and (aabbs[:, 1, :2].max(0) <= self.room[:2] - margin).all()
+        )
 
     def free(self, aabbs: np.ndarray, ignore: dict[int, float] | None = None, clearance: float = 0.01) -> bool:
         """No overlap with placed objects; ``ignore`` maps an object id to a support height whose
@@ -181,7 +189,14 @@ class Placer:
             pose = make_pose((xy[0], xy[1], 0.0), self.facing(normal))
             aabbs = part_aabbs(model, pose)
             lo, hi = aabbs[:, 0].min(0), aabbs[:, 1].max(0)
-            zone = np.array([[np.minimum(lo[:2], lo[:2] + normal * 0.6).tolist() + [0.0], np.maximum(hi[:2], hi[:2] + normal * 0.6).tolist() + [2.0]]])
+            zone = np.array(
+                [
+                    [
+                        np.minimum(lo[:2], lo[:2] + normal * 0.6).tolist() + [0.0],
+                        np.maximum(hi[:2], hi[:2] + normal * 0.6).tolist() + [2.0],
+                    ]
+                ]
+            )
             needs_zone = model.class_name in KEEP_CLEAR
             if (
                 self.inside_room(aabbs, 0.0)
@@ -266,7 +281,12 @@ class Placer:
         return None
 
     def support_surfaces(self, supporter_class: str) -> list[tuple[Placed, tuple[float, ...]]]:
-        return [(obj, sfc) for obj in self.objects if obj.model.class_name == supporter_class for sfc in obj.model.support_surfaces]
+        return [
+            (obj, sfc)
+            for obj in self.objects
+            if obj.model.class_name == supporter_class
+            for sfc in obj.model.support_surfaces
+        ]
 
     def place_top(self, model: Model, tries: int = 120) -> Placed | None:
         """On a support surface, trying the preferred supporting classes first."""

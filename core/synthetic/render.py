@@ -8,10 +8,10 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from stratamap.core.map.sensors import CameraIntrinsics
-from stratamap.core.synthetic.scene import Scene
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.synthetic.scene import Scene
 
 KINECT_FOCAL_BASELINE = 580.0 * 0.075  # pixels x metres
 
@@ -48,7 +48,9 @@ class SceneRenderer:
         self._instance = np.append(np.asarray(instances, dtype=np.int32), 0)
         self._n = len(classes)
 
-    def render(self, intrinsics: CameraIntrinsics, camera_to_world: np.ndarray, max_range: float = 10.0) -> RenderedView:
+    def render(
+        self, intrinsics: CameraIntrinsics, camera_to_world: np.ndarray, max_range: float = 10.0
+    ) -> RenderedView:
         rays = self.raycaster.create_rays_pinhole(
             o3c.Tensor(intrinsics.matrix), o3c.Tensor(invert(camera_to_world)), intrinsics.width, intrinsics.height
         )
@@ -68,7 +70,9 @@ class SceneRenderer:
         rgb = np.clip(self._albedo[gid] * shade[..., None], 0.0, 1.0)
         rgb = (rgb * 255.0 + 0.5).astype(np.uint8)
         rgb[~valid] = 0
-        return RenderedView(rgb, depth, self._class[gid], self._instance[gid], np.where(valid, facing, 0).astype(np.float32))
+        return RenderedView(
+            rgb, depth, self._class[gid], self._instance[gid], np.where(valid, facing, 0).astype(np.float32)
+        )
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Distances along unit ``directions`` from ``origins`` (inf where nothing is hit)."""

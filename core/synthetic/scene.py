@@ -8,12 +8,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.map.groundtruth import GroundTruthObject
 from stratamap.core.map.layers import ContactGraph
 from stratamap.core.synthetic.models import Model, ModelPart
 from stratamap.core.synthetic.placement import place_objects
 from stratamap.core.synthetic.spec import SceneSpec
-from stratamap.core.geometry.transforms import make_pose
 
 WALL_THICKNESS = 0.1
 
@@ -105,8 +105,18 @@ def room_layout(room: tuple[float, float, float]) -> list[LayoutElement]:
     t = WALL_THICKNESS
     floor_c, wall_c, ceil_c = (0.55, 0.5, 0.45), (0.85, 0.84, 0.8), (0.95, 0.95, 0.95)
     els = [
-        LayoutElement("floor", "floor", trimesh.creation.box((lx + 2 * t, ly + 2 * t, t), make_pose((lx / 2, ly / 2, -t / 2))), floor_c),
-        LayoutElement("ceiling", "ceiling", trimesh.creation.box((lx + 2 * t, ly + 2 * t, t), make_pose((lx / 2, ly / 2, lz + t / 2))), ceil_c),
+        LayoutElement(
+            "floor",
+            "floor",
+            trimesh.creation.box((lx + 2 * t, ly + 2 * t, t), make_pose((lx / 2, ly / 2, -t / 2))),
+            floor_c,
+        ),
+        LayoutElement(
+            "ceiling",
+            "ceiling",
+            trimesh.creation.box((lx + 2 * t, ly + 2 * t, t), make_pose((lx / 2, ly / 2, lz + t / 2))),
+            ceil_c,
+        ),
     ]
     walls = [
         ((lx + 2 * t, t, lz), (lx / 2, -t / 2, lz / 2)),

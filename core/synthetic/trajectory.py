@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from stratamap.core.geometry.transforms import look_at
 from stratamap.core.synthetic.scene import Scene
 from stratamap.core.synthetic.spec import TrajectorySpec
-from stratamap.core.geometry.transforms import look_at
 
 GRID = 0.05
 
@@ -44,7 +44,9 @@ def walk(scene: Scene, spec: TrajectorySpec, rng: np.random.Generator) -> list[n
     dist, _ = free_space(scene, spec.clearance)
     ok = dist >= spec.clearance
     inset = np.array([min(1.0, lx / 2 - 0.05), min(1.0, ly / 2 - 0.05)])
-    corners = np.array([[inset[0], inset[1]], [lx - inset[0], inset[1]], [lx - inset[0], ly - inset[1]], [inset[0], ly - inset[1]]])
+    corners = np.array(
+        [[inset[0], inset[1]], [lx - inset[0], inset[1]], [lx - inset[0], ly - inset[1]], [inset[0], ly - inset[1]]]
+    )
     loop = _resample_loop(corners, 400)
     if ok.any():
         # Move every waypoint to the nearest cell with enough clearance.
@@ -63,7 +65,9 @@ def walk(scene: Scene, spec: TrajectorySpec, rng: np.random.Generator) -> list[n
     for k, p in enumerate(path):
         # Look mostly toward the room's middle, with a slow sweep as a teleoperator would.
         to_center = center - p
-        heading = np.arctan2(to_center[1], to_center[0]) + 0.35 * np.sin(2 * np.pi * 3 * k / max(spec.frames, 1) + phase)
+        heading = np.arctan2(to_center[1], to_center[0]) + 0.35 * np.sin(
+            2 * np.pi * 3 * k / max(spec.frames, 1) + phase
+        )
         target = np.array([p[0] + 2.0 * np.cos(heading), p[1] + 2.0 * np.sin(heading), spec.look_height])
         eye = np.array([p[0], p[1], spec.height + 0.02 * np.sin(0.5 * k)])
         poses.append(look_at(eye, target))

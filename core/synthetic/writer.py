@@ -36,9 +36,9 @@ import numpy as np
 from PIL import Image
 
 from stratamap.core.atomic import atomic_directory, write_json, write_text
+from stratamap.core.geometry.transforms import matrix_to_quat_xyzw, yaw_of
 from stratamap.core.io.nav2 import write_map
 from stratamap.core.synthetic.generate import SyntheticWorld
-from stratamap.core.geometry.transforms import matrix_to_quat_xyzw, yaw_of
 
 DEPTH_SCALE = 5000.0
 
@@ -73,7 +73,9 @@ def write_sequence(world: SyntheticWorld, out: str | Path, progress: Callable[[i
                     pool.submit(_png, d / "rgb" / f"{stamps[k]}.png", frame.rgb),
                     pool.submit(_png, d / "depth" / f"{stamps[k]}.png", depth),
                     pool.submit(_png, d / "gt" / "class" / f"{stamps[k]}.png", labels.class_ids.astype(np.uint16)),
-                    pool.submit(_png, d / "gt" / "instance" / f"{stamps[k]}.png", labels.instance_ids.astype(np.uint16)),
+                    pool.submit(
+                        _png, d / "gt" / "instance" / f"{stamps[k]}.png", labels.instance_ids.astype(np.uint16)
+                    ),
                 ]
                 if len(jobs) > 16:
                     for j in jobs:
@@ -87,17 +89,30 @@ def write_sequence(world: SyntheticWorld, out: str | Path, progress: Callable[[i
         write_text(d / "rgb.txt", "# color images\n" + header + "".join(f"{s} rgb/{s}.png\n" for s in stamps))
         write_text(d / "depth.txt", "# depth maps\n" + header + "".join(f"{s} depth/{s}.png\n" for s in stamps))
         gt_header = "# ground truth trajectory: camera (optical frame) to world\n# timestamp tx ty tz qx qy qz qw\n"
-        trajectory = gt_header + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.true_poses))
+        trajectory = gt_header + "".join(
+            tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.true_poses)
+        )
         write_text(d / "groundtruth.txt", trajectory)
         write_text(d / "gt" / "trajectory.txt", trajectory)  # kept when users drop groundtruth.txt to test odometry
         if world.spec.noise.pose_drift > 0:
-            write_text(d / "odometry.txt", "# drifting reported poses\n# timestamp tx ty tz qx qy qz qw\n" + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.reported_poses)))
+            write_text(
+                d / "odometry.txt",
+                "# drifting reported poses\n# timestamp tx ty tz qx qy qz qw\n"
+                + "".join(tum_pose_line(world.timestamp(k), p) + "\n" for k, p in enumerate(world.reported_poses)),
+            )
         if world.laser_scans:
-            lines = ["# 2D laser scans: timestamp x y z yaw angle_min angle_increment range_max ranges... (inf: no return)\n"]
+            lines = [
+                "# 2D laser scans: timestamp x y z yaw angle_min angle_increment range_max ranges... (inf: no return)\n"
+            ]
             for s in world.laser_scans:
                 p = s.pose
                 head = [s.timestamp, p[0, 3], p[1, 3], p[2, 3], yaw_of(p), s.angle_min, s.angle_increment, s.range_max]
-                lines.append(" ".join(f"{v:.6f}" for v in head) + " " + " ".join("inf" if not np.isfinite(r) else f"{r:.4f}" for r in s.ranges) + "\n")
+                lines.append(
+                    " ".join(f"{v:.6f}" for v in head)
+                    + " "
+                    + " ".join("inf" if not np.isfinite(r) else f"{r:.4f}" for r in s.ranges)
+                    + "\n"
+                )
             write_text(d / "laser.txt", "".join(lines))
         if world.lidar_scans:
             (d / "lidar").mkdir()
@@ -105,7 +120,11 @@ def write_sequence(world: SyntheticWorld, out: str | Path, progress: Callable[[i
                 cloud = np.zeros((len(s.points), 4), np.float32)
                 cloud[:, :3] = s.points
                 (d / "lidar" / f"{s.timestamp:.6f}.bin").write_bytes(cloud.tobytes())
-            write_text(d / "lidar_poses.txt", "# timestamp tx ty tz qx qy qz qw (sensor to world)\n" + "".join(tum_pose_line(s.timestamp, s.pose) + "\n" for s in world.lidar_scans))
+            write_text(
+                d / "lidar_poses.txt",
+                "# timestamp tx ty tz qx qy qz qw (sensor to world)\n"
+                + "".join(tum_pose_line(s.timestamp, s.pose) + "\n" for s in world.lidar_scans),
+            )
         _write_ground_truth(world, d / "gt")
     return out
 
@@ -139,7 +158,10 @@ def _write_ground_truth(world: SyntheticWorld, gt_dir: Path) -> None:
             "skipped": scene.skipped,
         },
     )
-    write_text(gt_dir / "contact_graph.json", json.dumps(scene.contact_graph().to_dict()["support"], indent=1, default=str) + "\n")
+    write_text(
+        gt_dir / "contact_graph.json",
+        json.dumps(scene.contact_graph().to_dict()["support"], indent=1, default=str) + "\n",
+    )
     write_map(world.occupancy_band.project(), gt_dir, "occupancy_objects")
     write_map(world.occupancy_laser.project(), gt_dir, "occupancy_laser")
     occ = world.occupancy_band

@@ -13,7 +13,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import open3d as o3d
@@ -21,26 +21,47 @@ import open3d.core as o3c
 import trimesh
 from pydantic import Field
 
-from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
-from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
-from stratamap.core.library.index import ModelIndex
-from stratamap.core.stages import Completer, PipelineData, StageConfig
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.library.index import ModelIndex
+from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
+from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
+from stratamap.core.stages import Completer, PipelineData, StageConfig
 
 
 class MatcherConfig(StageConfig):
     library: str | None = Field(
-        default=None, description="Model library folder (stratamap, PartNet-Mobility, or meshes + classes.csv); default: a procedural library."
+        default=None,
+        description="Model library folder (stratamap, PartNet-Mobility, or meshes + classes.csv); default: a procedural library.",
     )
-    library_per_family: int = Field(default=8, ge=1, le=500, description="Models per family of the default procedural library.")
-    library_seed: int = Field(default=1000, description="Seed of the default procedural library (distinct from scene seeds).")
-    classes: list[str] | None = Field(default=None, description="Complete only these classes (default: every class the library has).")
-    min_points: int = Field(default=50, ge=3, description="Objects with fewer observed points are left uncompleted (with a warning).")
-    shortlist: int | None = Field(default=20, ge=1, description="Rank models by global descriptor and align only the top k; null: every model.")
-    workers: int = Field(default=2, ge=1, le=64, description="Objects matched in parallel (threads; KD-tree queries release the GIL).")
-    epsilon: float = Field(default=0.1, gt=0.0, description="Augmented scene: observed points this close to a completed model are replaced, metres.")
-    sample_spacing: float = Field(default=0.02, gt=0.0, description="Surface sampling spacing of models (and of the augmented scene), metres.")
-    cache_dir: str | None = Field(default=None, description="Folder for the model index cache (default: $STRATAMAP_CACHE or ~/.cache/stratamap).")
+    library_per_family: int = Field(
+        default=8, ge=1, le=500, description="Models per family of the default procedural library."
+    )
+    library_seed: int = Field(
+        default=1000, description="Seed of the default procedural library (distinct from scene seeds)."
+    )
+    classes: list[str] | None = Field(
+        default=None, description="Complete only these classes (default: every class the library has)."
+    )
+    min_points: int = Field(
+        default=50, ge=3, description="Objects with fewer observed points are left uncompleted (with a warning)."
+    )
+    shortlist: int | None = Field(
+        default=20, ge=1, description="Rank models by global descriptor and align only the top k; null: every model."
+    )
+    workers: int = Field(
+        default=2, ge=1, le=64, description="Objects matched in parallel (threads; KD-tree queries release the GIL)."
+    )
+    epsilon: float = Field(
+        default=0.1,
+        gt=0.0,
+        description="Augmented scene: observed points this close to a completed model are replaced, metres.",
+    )
+    sample_spacing: float = Field(
+        default=0.02, gt=0.0, description="Surface sampling spacing of models (and of the augmented scene), metres."
+    )
+    cache_dir: str | None = Field(
+        default=None, description="Folder for the model index cache (default: $STRATAMAP_CACHE or ~/.cache/stratamap)."
+    )
 
 
 @dataclass
@@ -72,16 +93,36 @@ _INDEXES: dict[tuple, ModelIndex] = {}
 def register_library(name: str, library: ModelLibrary, spacing: float = 0.02) -> str:
     """Make an in-memory library usable as ``library: "<name>"`` in completer configs (benchmarks, notebooks)."""
     key = f"<{name}>"
-    _INDEXES[(key, MatcherConfig.model_fields["library_per_family"].default, MatcherConfig.model_fields["library_seed"].default, spacing)] = ModelIndex(library, spacing=spacing)
+    _INDEXES[
+        (
+            key,
+            MatcherConfig.model_fields["library_per_family"].default,
+            MatcherConfig.model_fields["library_seed"].default,
+            spacing,
+        )
+    ] = ModelIndex(library, spacing=spacing)
     return key
 
 
 def load_index(cfg: MatcherConfig) -> ModelIndex:
-    key = (cfg.library, MatcherConfig.model_fields["library_per_family"].default, MatcherConfig.model_fields["library_seed"].default, cfg.sample_spacing) if (cfg.library or "").startswith("<") else (cfg.library, cfg.library_per_family, cfg.library_seed, cfg.sample_spacing)
+    key = (
+        (
+            cfg.library,
+            MatcherConfig.model_fields["library_per_family"].default,
+            MatcherConfig.model_fields["library_seed"].default,
+            cfg.sample_spacing,
+        )
+        if (cfg.library or "").startswith("<")
+        else (cfg.library, cfg.library_per_family, cfg.library_seed, cfg.sample_spacing)
+    )
     if cfg.library is not None and cfg.library.startswith("<") and key not in _INDEXES:
         raise KeyError(f"no in-memory library registered as {cfg.library!r} (see register_library)")
     if key not in _INDEXES:
-        library = ModelLibrary.load(cfg.library) if cfg.library else procedural_library(cfg.library_per_family, cfg.library_seed)
+        library = (
+            ModelLibrary.load(cfg.library)
+            if cfg.library
+            else procedural_library(cfg.library_per_family, cfg.library_seed)
+        )
         try:
             cache = default_cache_dir(cfg.cache_dir)
             cache.mkdir(parents=True, exist_ok=True)
@@ -134,16 +175,31 @@ def posed_completion(model: LibraryModel, match: Match, completer: str) -> Compl
         lower, upper = (j.lower * s, j.upper * s) if j.type == "prismatic" else (j.lower, j.upper)
         joints.append(Joint(j.name, j.type, j.parent, j.child, origin, j.axis, lower, upper))
     pose = make_pose(match.translation, match.yaw)
-    return Completion(mesh=mesh, pose=pose, completer=completer, model_id=model.id, scale=np.full(3, s), score=match.score, parts=parts, joints=joints)
+    return Completion(
+        mesh=mesh,
+        pose=pose,
+        completer=completer,
+        model_id=model.id,
+        scale=np.full(3, s),
+        score=match.score,
+        parts=parts,
+        joints=joints,
+    )
 
 
-def augmented_scene(geometry: Geometry | None, instances: ObjectInstances, epsilon: float, spacing: float) -> Geometry | None:
+def augmented_scene(
+    geometry: Geometry | None, instances: ObjectInstances, epsilon: float, spacing: float
+) -> Geometry | None:
     """A = (G \\ S) U O: observed points near completed models are replaced by the models."""
     completed = instances.completed()
     if geometry is None:
         return None
     if not completed:
-        return Geometry(points=geometry.points.copy(), colors=None if geometry.colors is None else geometry.colors.copy(), mesh=geometry.mesh)
+        return Geometry(
+            points=geometry.points.copy(),
+            colors=None if geometry.colors is None else geometry.colors.copy(),
+            mesh=geometry.mesh,
+        )
     scene = o3d.t.geometry.RaycastingScene()
     model_pts, model_cols = [], []
     meshes = []
@@ -154,7 +210,9 @@ def augmented_scene(geometry: Geometry | None, instances: ObjectInstances, epsil
         count = int(np.clip(world.area / spacing**2, 64, 20000))
         pts, _ = trimesh.sample.sample_surface(world, count, seed=inst.id)
         model_pts.append(pts)
-        color = np.mean(inst.colors, axis=0) if inst.colors is not None and len(inst.colors) else np.array([0.6, 0.6, 0.6])
+        color = (
+            np.mean(inst.colors, axis=0) if inst.colors is not None and len(inst.colors) else np.array([0.6, 0.6, 0.6])
+        )
         model_cols.append(np.tile(color, (len(pts), 1)))
     dist = scene.compute_distance(o3c.Tensor(geometry.points.astype(np.float32))).numpy()
     keep = dist > epsilon
@@ -174,7 +232,10 @@ def augmented_scene(geometry: Geometry | None, instances: ObjectInstances, epsil
     return Geometry(points=points, colors=colors, mesh=mesh, voxel_size=geometry.voxel_size)
 
 
-class MatchingCompleter(Completer):
+MatcherConfigT = TypeVar("MatcherConfigT", bound=MatcherConfig)
+
+
+class MatchingCompleter(Completer[MatcherConfigT]):
     """Base of completers that match objects against a model library."""
 
     Config = MatcherConfig
@@ -187,7 +248,7 @@ class MatchingCompleter(Completer):
 
     def select(self, insts: ObjectInstances, index: ModelIndex) -> list[ObjectInstance]:
         """The objects to complete; the others are reported and left as observed."""
-        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         for problem in index.problems:
             self.warn(f"library: {problem}")
         todo = []
@@ -198,14 +259,16 @@ class MatchingCompleter(Completer):
                 self.warn(f"object {inst.id}: no {inst.class_name!r} models in the library; left uncompleted")
                 continue
             if len(inst.points) < cfg.min_points:
-                self.warn(f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left uncompleted")
+                self.warn(
+                    f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left uncompleted"
+                )
                 continue
             todo.append(inst)
         return todo
 
     def map_objects(self, todo: list[ObjectInstance], fn: Any) -> list[tuple[ObjectInstance, Any]]:
         """``fn(inst)`` for every object, in parallel threads; notes the mean seconds per object."""
-        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         timings: dict[int, float] = {}
 
         def work(inst: ObjectInstance) -> tuple[ObjectInstance, Any]:
@@ -221,7 +284,7 @@ class MatchingCompleter(Completer):
 
     def finish(self, insts: ObjectInstances, data: PipelineData, attempted: int) -> dict[str, Any]:
         """The completed instances and the augmented scene built from them."""
-        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         self.note("objects", {"completed": len(insts.completed()), "attempted": attempted})
         out: dict[str, Any] = {"instances": insts}
         aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
@@ -230,7 +293,7 @@ class MatchingCompleter(Completer):
         return out
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        cfg: MatcherConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         todo = self.select(insts, index)
@@ -241,5 +304,7 @@ class MatchingCompleter(Completer):
                 continue
             model = index.library.get(match.model_id)
             inst.completion = posed_completion(model, match, self.name)
-            inst.attributes["match"] = {k: v for k, v in match.details.items() if isinstance(v, (int, float, str, list))}
+            inst.attributes["match"] = {
+                k: v for k, v in match.details.items() if isinstance(v, (int, float, str, list))
+            }
         return self.finish(insts, data, len(todo))

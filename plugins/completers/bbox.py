@@ -17,14 +17,14 @@ class BBoxConfig(StageConfig):
     min_points: int = Field(default=10, ge=1, description="Objects with fewer observed points are left uncompleted.")
 
 
-class BBoxCompleter(Completer):
+class BBoxCompleter(Completer[BBoxConfig]):
     """Replaces every object by its gravity-aligned minimal box."""
 
     name = "bbox"
     Config = BBoxConfig
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        cfg: BBoxConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         for inst in insts:
             if cfg.classes is not None and inst.class_name not in cfg.classes:
@@ -38,7 +38,9 @@ class BBoxCompleter(Completer):
             mesh.apply_translation((0.0, 0.0, size[2] / 2))  # object frame: origin at the bottom center
             pose = box.pose
             pose[2, 3] = box.bottom_z
-            inst.completion = Completion(mesh=mesh, pose=pose, completer=self.name, model_id=None, scale=size, score=1.0)
+            inst.completion = Completion(
+                mesh=mesh, pose=pose, completer=self.name, model_id=None, scale=size, score=1.0
+            )
         return {"instances": insts}
 
 

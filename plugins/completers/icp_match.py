@@ -23,21 +23,39 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, hookimpl
-from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter
-from stratamap.core.map.layers import ObjectInstance
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
+from stratamap.core.map.layers import ObjectInstance
+from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter
 
 
 class ICPMatchConfig(MatcherConfig):
-    yaw_samples: int = Field(default=36, ge=4, le=360, description="Uniform rotations about z tried in the coarse alignment.")
-    coarse_translation_steps: int = Field(default=6, ge=0, le=30, description="Translation-only ICP steps for each sampled rotation.")
-    coarse_points: int = Field(default=300, ge=20, description="Observed points (evenly spaced) used to rank the coarse rotations.")
-    icp_iterations: int = Field(default=15, ge=1, le=100, description="ICP iterations refining the reference model's pose.")
-    candidate_iterations: int = Field(default=5, ge=0, le=50, description="ICP iterations per candidate from the reference pose.")
-    max_points: int = Field(default=1500, ge=100, description="Observed points used for matching (deterministic subsample).")
-    outlier_distance: float = Field(default=0.1, gt=0.0, description="Distances are clipped at this in the score, metres (robust to clutter).")
-    coverage_weight: float = Field(default=1.0, ge=0.0, description="Weight of the coverage term (metres of observation outside the model).")
-    scale_range: tuple[float, float] = Field(default=(0.85, 1.15), description="Allowed uniform scale of a model (from observed height).")
+    yaw_samples: int = Field(
+        default=36, ge=4, le=360, description="Uniform rotations about z tried in the coarse alignment."
+    )
+    coarse_translation_steps: int = Field(
+        default=6, ge=0, le=30, description="Translation-only ICP steps for each sampled rotation."
+    )
+    coarse_points: int = Field(
+        default=300, ge=20, description="Observed points (evenly spaced) used to rank the coarse rotations."
+    )
+    icp_iterations: int = Field(
+        default=15, ge=1, le=100, description="ICP iterations refining the reference model's pose."
+    )
+    candidate_iterations: int = Field(
+        default=5, ge=0, le=50, description="ICP iterations per candidate from the reference pose."
+    )
+    max_points: int = Field(
+        default=1500, ge=100, description="Observed points used for matching (deterministic subsample)."
+    )
+    outlier_distance: float = Field(
+        default=0.1, gt=0.0, description="Distances are clipped at this in the score, metres (robust to clutter)."
+    )
+    coverage_weight: float = Field(
+        default=1.0, ge=0.0, description="Weight of the coverage term (metres of observation outside the model)."
+    )
+    scale_range: tuple[float, float] = Field(
+        default=(0.85, 1.15), description="Allowed uniform scale of a model (from observed height)."
+    )
 
 
 def rot2(yaw: float) -> np.ndarray:
@@ -52,7 +70,9 @@ def to_model(points: np.ndarray, yaw: float, t: np.ndarray, scale: float) -> np.
     return np.c_[xy, q[:, 2]] / scale
 
 
-def icp_yaw(obs: np.ndarray, model: IndexedModel, yaw: float, t: np.ndarray, scale: float, iterations: int) -> tuple[float, np.ndarray, np.ndarray]:
+def icp_yaw(
+    obs: np.ndarray, model: IndexedModel, yaw: float, t: np.ndarray, scale: float, iterations: int
+) -> tuple[float, np.ndarray, np.ndarray]:
     """Yaw and xy translation aligning the model to the observation; returns (yaw, t, distances)."""
     for _ in range(iterations):
         dist, idx = model.tree.query(to_model(obs, yaw, t, scale), workers=1)
@@ -74,14 +94,14 @@ def icp_yaw(obs: np.ndarray, model: IndexedModel, yaw: float, t: np.ndarray, sca
     return yaw, t, dist * scale
 
 
-class ICPMatchCompleter(MatchingCompleter):
+class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
     """Model matching by z-rotation sampling and yaw ICP against a database (augmented-representations paper)."""
 
     name = "icp_match"
     Config = ICPMatchConfig
 
     def match(self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData) -> Match | None:
-        cfg: ICPMatchConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         obs = inst.points - base
         if len(obs) > cfg.max_points:
             obs = obs[np.linspace(0, len(obs) - 1, cfg.max_points).astype(int)]
@@ -126,7 +146,14 @@ class ICPMatchCompleter(MatchingCompleter):
             out_z = max(float(np.percentile(q[:, 2], 98)) - m.size[2] * s, 0.0)
             score = fit + cfg.coverage_weight * float(out_xy + out_z)
             if best is None or score < best.score - 1e-12:
-                best = Match(mid, y, base + np.append(tt, 0.0), s, score, {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)})
+                best = Match(
+                    mid,
+                    y,
+                    base + np.append(tt, 0.0),
+                    s,
+                    score,
+                    {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)},
+                )
         return best
 
 

@@ -33,10 +33,17 @@ from pydantic import Field
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from stratamap.core import PipelineData, hookimpl
-from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter, load_index, object_base, posed_completion
 from stratamap.core.geometry.points import ransac_plane
-from stratamap.core.map.layers import ObjectInstance, OrientedBox
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
+from stratamap.core.map.layers import ObjectInstance, OrientedBox
+from stratamap.plugins.completers._matching import (
+    Match,
+    MatcherConfig,
+    MatchingCompleter,
+    load_index,
+    object_base,
+    posed_completion,
+)
 
 
 def canonical_orientations() -> list[np.ndarray]:
@@ -69,12 +76,27 @@ class Candidate:
 
 
 class PlaneBoxConfig(MatcherConfig):
-    keep: int = Field(default=10, ge=1, le=50, description="Oriented candidates kept after the matching error (the paper keeps 10).")
-    upright_weight: float = Field(default=0.2, ge=0.0, description="Weight of the upright bias d_b in the matching error (eq. 10).")
-    plane_distance: float = Field(default=0.015, gt=0.0, description="RANSAC inlier distance of observed planes, metres.")
+    keep: int = Field(
+        default=10, ge=1, le=50, description="Oriented candidates kept after the matching error (the paper keeps 10)."
+    )
+    upright_weight: float = Field(
+        default=0.2, ge=0.0, description="Weight of the upright bias d_b in the matching error (eq. 10)."
+    )
+    plane_distance: float = Field(
+        default=0.015, gt=0.0, description="RANSAC inlier distance of observed planes, metres."
+    )
     max_planes: int = Field(default=4, ge=0, le=8, description="Planes extracted per object.")
-    support_ratio: float = Field(default=0.5, gt=0.0, le=1.0, description="b_th: share of a child's footprint its parent's top must support (eq. 2).")
-    penetration_tolerance: float = Field(default=0.02, ge=0.0, description="Tolerated overlap depth between models and of models below the floor, metres.")
+    support_ratio: float = Field(
+        default=0.5,
+        gt=0.0,
+        le=1.0,
+        description="b_th: share of a child's footprint its parent's top must support (eq. 2).",
+    )
+    penetration_tolerance: float = Field(
+        default=0.02,
+        ge=0.0,
+        description="Tolerated overlap depth between models and of models below the floor, metres.",
+    )
     min_conflict_iterations: int = Field(default=200, ge=1, description="Iterations of the min-conflict search.")
 
 
@@ -104,7 +126,7 @@ def model_planes(m: IndexedModel, rot: np.ndarray) -> list[tuple[np.ndarray, flo
     return out
 
 
-class PlaneBoxMatchCompleter(MatchingCompleter):
+class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
     """CAD matching over 24 orientations with box/plane errors, Hungarian plane assignment, LM alignment and min-conflict physics."""
 
     name = "plane_box_match"
@@ -112,8 +134,10 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
 
     # ---------------------------------------------------------------- per object
 
-    def candidates(self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex) -> tuple[list[Candidate], dict[str, Any]]:
-        cfg: PlaneBoxConfig = self.config  # type: ignore[assignment]
+    def candidates(
+        self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex
+    ) -> tuple[list[Candidate], dict[str, Any]]:
+        cfg = self.config
         pts = inst.points
         yaw0 = inst.box.yaw
         c, s = np.cos(yaw0), np.sin(yaw0)
@@ -162,7 +186,17 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
         unmatched = len(obs) - len(rows)
         return float(cost[rows, cols].sum() + unmatched) / len(obs)
 
-    def _align(self, cnd: Candidate, m: IndexedModel, local: np.ndarray, obs_size: np.ndarray, obs_center: np.ndarray, planes: list, yaw0: float, base: np.ndarray) -> None:
+    def _align(
+        self,
+        cnd: Candidate,
+        m: IndexedModel,
+        local: np.ndarray,
+        obs_size: np.ndarray,
+        obs_center: np.ndarray,
+        planes: list,
+        yaw0: float,
+        base: np.ndarray,
+    ) -> None:
         """Levenberg-Marquardt on box and plane residuals over (yaw, log scale, tx, ty)."""
         rot = ORIENTATIONS[cnd.orientation]
         samples = (rot @ m.samples.T).T
@@ -173,21 +207,33 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
         size0 = hi_m - lo_m
         s0 = obs_size[2] / max(size0[2], 1e-3)
         # Plane inliers (a few per plane) give point-to-surface residuals (eq. 14).
-        anchors = np.vstack([p[2][:: max(1, len(p[2]) // 40)] + obs_center for p in planes]) if planes else local[:: max(1, len(local) // 80)]
+        anchors = (
+            np.vstack([p[2][:: max(1, len(p[2]) // 40)] + obs_center for p in planes])
+            if planes
+            else local[:: max(1, len(local) // 80)]
+        )
         from scipy.spatial import cKDTree
 
         tree = cKDTree(samples)
 
         def transform(x: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
             yaw, log_s, tx, ty = x
-            return np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]), float(np.exp(log_s)), np.array([tx, ty])
+            return (
+                np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]),
+                float(np.exp(log_s)),
+                np.array([tx, ty]),
+            )
 
         def residuals(x: np.ndarray) -> np.ndarray:
             r2, s, t = transform(x)
             size = s * size0
             # Box residuals: the aligned model box against the observed box (extent and center).
             ext = np.abs(r2) @ size[:2]
-            box_res = np.r_[(ext - obs_size[:2]) / np.maximum(obs_size[:2], 0.05) * 0.2, (size[2] - obs_size[2]) / max(obs_size[2], 0.05), (t - obs_center[:2]) * 2.0]
+            box_res = np.r_[
+                (ext - obs_size[:2]) / np.maximum(obs_size[:2], 0.05) * 0.2,
+                (size[2] - obs_size[2]) / max(obs_size[2], 0.05),
+                (t - obs_center[:2]) * 2.0,
+            ]
             q = anchors.copy()
             q[:, :2] = (q[:, :2] - t) @ r2  # into the model's frame
             d, _ = tree.query(q / s)
@@ -212,7 +258,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
     # ---------------------------------------------------------------- global physical reasoning
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        cfg: PlaneBoxConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         todo = self.select(insts, index)
@@ -237,7 +283,14 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
             upright = bool(np.isclose(rot[2, 2], 1.0))
             # An upright orientation is a quarter turn about z: it belongs in the pose's yaw.
             yaw = cnd.yaw + (float(np.arctan2(rot[1, 0], rot[0, 0])) if upright else 0.0)
-            match = Match(cnd.model_id, yaw, translation, cnd.scale, cnd.ae, {"me": cnd.me, "ae": cnd.ae, "orientation": cnd.orientation})
+            match = Match(
+                cnd.model_id,
+                yaw,
+                translation,
+                cnd.scale,
+                cnd.ae,
+                {"me": cnd.me, "ae": cnd.ae, "orientation": cnd.orientation},
+            )
             completion = posed_completion(model, match, self.name)
             if not upright:
                 orient = np.eye(4)
@@ -275,7 +328,11 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
             kept = []
             for cand in cands:
                 box = self._footprint(cand)
-                ok = all(footprint_overlap(insts[ch].box, box) >= cfg.support_ratio * max(insts[ch].box.size[0] * insts[ch].box.size[1], 1e-6) for ch in children)
+                ok = all(
+                    footprint_overlap(insts[ch].box, box)
+                    >= cfg.support_ratio * max(insts[ch].box.size[0] * insts[ch].box.size[1], 1e-6)
+                    for ch in children
+                )
                 if ok:
                     kept.append(cand)
             options[pid] = kept or cands[:1]
@@ -295,7 +352,12 @@ class PlaneBoxMatchCompleter(MatchingCompleter):
                 if j == i:
                     continue
                 b = self._footprint(choice[j])
-                if box_iou_3d(shrink, OrientedBox(b.center, b.yaw, np.maximum(b.size - 2 * cfg.penetration_tolerance, 0.0))) > 0.05:
+                if (
+                    box_iou_3d(
+                        shrink, OrientedBox(b.center, b.yaw, np.maximum(b.size - 2 * cfg.penetration_tolerance, 0.0))
+                    )
+                    > 0.05
+                ):
                     n += 1
             return n
 

@@ -18,14 +18,20 @@ from stratamap.core.io.nav2 import costmap_values, write_costmap
 
 
 class CostmapConfig(StageConfig):
-    layer: str = Field(default="multimap", description="Occupancy layer to inflate (multimap keeps the robot off chair seats).")
+    layer: str = Field(
+        default="multimap", description="Occupancy layer to inflate (multimap keeps the robot off chair seats)."
+    )
     basename: str = Field(default="costmap", description="File basename in the export folder.")
-    inscribed_radius: float = Field(default=0.2, ge=0.0, description="Robot's inscribed radius, metres (cells this close to an obstacle are 253).")
+    inscribed_radius: float = Field(
+        default=0.2, ge=0.0, description="Robot's inscribed radius, metres (cells this close to an obstacle are 253)."
+    )
     inflation_radius: float = Field(default=0.55, gt=0.0, description="Inflation radius, metres (Nav2's default 0.55).")
-    cost_scaling_factor: float = Field(default=10.0, gt=0.0, description="Exponential decay rate of the inflation (Nav2's default 10).")
+    cost_scaling_factor: float = Field(
+        default=10.0, gt=0.0, description="Exponential decay rate of the inflation (Nav2's default 10)."
+    )
 
 
-class CostmapExporter(Exporter):
+class CostmapExporter(Exporter[CostmapConfig]):
     """Nav2 costmap values (0 free, 253 inscribed, 254 lethal, 255 unknown) with inflation, as PGM + YAML."""
 
     name = "costmap"
@@ -33,7 +39,7 @@ class CostmapExporter(Exporter):
     requires = frozenset({"occupancy"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
-        cfg: CostmapConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         grid = data.map.occupancy.get(cfg.layer)
         if grid is None:
             self.warn(f"no occupancy layer {cfg.layer!r} (have: {sorted(data.map.occupancy)}); costmap not written")

@@ -19,11 +19,15 @@ class MJCFConfig(StageConfig):
         description="Classes that get a free joint (movable objects); others are fixed to the world.",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
-    hinge_holding: float = Field(default=2.0, ge=0.0, description="Hinge dry friction as a multiple of gravity's torque on the part, so lids and doors stay where they are (0: swing freely).")
+    hinge_holding: float = Field(
+        default=2.0,
+        ge=0.0,
+        description="Hinge dry friction as a multiple of gravity's torque on the part, so lids and doors stay where they are (0: swing freely).",
+    )
     timestep: float = Field(default=0.002, gt=0.0, description="Simulation timestep, seconds.")
 
 
-class MJCFExporter(Exporter):
+class MJCFExporter(Exporter[MJCFConfig]):
     """The scene as a MuJoCo MJCF model: static furniture, free movable objects, hinge/slide joints."""
 
     name = "mjcf"
@@ -32,11 +36,17 @@ class MJCFExporter(Exporter):
     optional = frozenset({"contact_graph"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
-        cfg: MJCFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         assert data.map.instances is not None
         return write_mjcf(
-            data.map.instances, out_dir, filename=cfg.filename, mesh_dir=cfg.mesh_dir, free_classes=cfg.free_classes,
-            density=cfg.density, hinge_holding=cfg.hinge_holding, timestep=cfg.timestep,
+            data.map.instances,
+            out_dir,
+            filename=cfg.filename,
+            mesh_dir=cfg.mesh_dir,
+            free_classes=cfg.free_classes,
+            density=cfg.density,
+            hinge_holding=cfg.hinge_holding,
+            timestep=cfg.timestep,
         )
 
 

@@ -21,7 +21,7 @@ class Nav2MapConfig(StageConfig):
     )
 
 
-class Nav2MapExporter(Exporter):
+class Nav2MapExporter(Exporter[Nav2MapConfig]):
     """Nav2 map_server files (map.yaml + map.pgm) for the occupancy layers."""
 
     name = "nav2_map"
@@ -30,10 +30,12 @@ class Nav2MapExporter(Exporter):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         written: list[Path] = []
-        for layer, basename in self.config.grids.items():  # type: ignore[attr-defined]
+        for layer, basename in self.config.grids.items():
             grid = data.map.occupancy.get(layer)
             if grid is None:
-                self.warn(f"no occupancy layer {layer!r} (have: {sorted(data.map.occupancy)}); {basename}.yaml not written")
+                self.warn(
+                    f"no occupancy layer {layer!r} (have: {sorted(data.map.occupancy)}); {basename}.yaml not written"
+                )
                 continue
             written.extend(write_map(grid, out_dir, basename))
         return written

@@ -15,12 +15,14 @@ from stratamap.core.atomic import atomic_path
 
 class PLYConfig(StageConfig):
     filename: str = Field(default="geometry.ply", description="File name in the export folder.")
-    content: Literal["auto", "mesh", "points"] = Field(default="auto", description="auto: the mesh if the geometry has one, else the points.")
+    content: Literal["auto", "mesh", "points"] = Field(
+        default="auto", description="auto: the mesh if the geometry has one, else the points."
+    )
     layer: Literal["geometry", "augmented"] = Field(default="geometry", description="Which 3D layer to write.")
     binary: bool = Field(default=True, description="Binary little-endian PLY (smaller, faster); false for ASCII.")
 
 
-class PLYExporter(Exporter):
+class PLYExporter(Exporter[PLYConfig]):
     """Writes the geometry (or augmented) layer as a PLY mesh or point cloud."""
 
     name = "ply"
@@ -28,7 +30,7 @@ class PLYExporter(Exporter):
     optional = frozenset({"geometry", "augmented"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
-        cfg: PLYConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         geom = data.map.get(cfg.layer)
         if geom is None:
             self.warn(f"no {cfg.layer} layer; {cfg.filename} not written")

@@ -17,7 +17,7 @@ class SceneGraphConfig(StageConfig):
     filename: str = Field(default="scene_graph.json", description="File name in the export folder.")
 
 
-class SceneGraphExporter(Exporter):
+class SceneGraphExporter(Exporter[SceneGraphConfig]):
     """The support and proximal graph as node-link JSON with object attributes (class, box, pose, model, score)."""
 
     name = "scene_graph"
@@ -33,16 +33,28 @@ class SceneGraphExporter(Exporter):
         for node in support.nodes:
             if insts is not None and isinstance(node, (int, np.integer)) and int(node) in insts:
                 inst = insts[int(node)]
-                attrs: dict[str, Any] = {"class_name": inst.class_name, "box": inst.box.to_dict(), "observed_points": len(inst.points)}
+                attrs: dict[str, Any] = {
+                    "class_name": inst.class_name,
+                    "box": inst.box.to_dict(),
+                    "observed_points": len(inst.points),
+                }
                 c = inst.completion
                 if c is not None:
-                    attrs.update({"pose": c.pose.tolist(), "model_id": c.model_id, "completion_score": c.score, "completer": c.completer, "joints": [j.name for j in c.joints]})
+                    attrs.update(
+                        {
+                            "pose": c.pose.tolist(),
+                            "model_id": c.model_id,
+                            "completion_score": c.score,
+                            "completer": c.completer,
+                            "joints": [j.name for j in c.joints],
+                        }
+                    )
                 support.nodes[node].update(attrs)
         doc = {
             "support": nx.node_link_data(support, edges="links"),
             "proximal": nx.node_link_data(graph.proximal, edges="links"),
         }
-        path = out_dir / self.config.filename  # type: ignore[attr-defined]
+        path = out_dir / self.config.filename
         write_json(path, doc)
         return [path]
 

@@ -14,8 +14,8 @@ from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
-from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
 from stratamap.core.geometry.transforms import rpy_of
+from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
 
 
 def _pose(pose: np.ndarray) -> str:
@@ -27,12 +27,13 @@ class SDFConfig(StageConfig):
     mesh_dir: str = Field(default="sdf_meshes", description="Sub-folder (beside the world) for meshes.")
     world_name: str = Field(default="stratamap_scene", description="The <world name>.")
     dynamic_classes: list[str] = Field(
-        default_factory=lambda: ["chair", "box", "book", "cup", "bottle", "laptop", "monitor", "plant"], description="Classes simulated as dynamic (not static) models."
+        default_factory=lambda: ["chair", "box", "book", "cup", "bottle", "laptop", "monitor", "plant"],
+        description="Classes simulated as dynamic (not static) models.",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
 
 
-class SDFExporter(Exporter):
+class SDFExporter(Exporter[SDFConfig]):
     """A Gazebo world (SDFormat): one model per object, static furniture, articulated joints."""
 
     name = "sdf"
@@ -40,7 +41,7 @@ class SDFExporter(Exporter):
     requires = frozenset({"instances"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
-        cfg: SDFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         tree = build_tree(data.map.instances, None, cfg.density)  # type: ignore[arg-type]
         sdf = ET.Element("sdf", version="1.9")
         world = ET.SubElement(sdf, "world", name=cfg.world_name)
@@ -72,7 +73,14 @@ class SDFExporter(Exporter):
                 ET.SubElement(inertial, "pose").text = " ".join(f"{v:.9g}" for v in (*lk.inertial.center, 0, 0, 0))
                 ET.SubElement(inertial, "mass").text = f"{lk.inertial.mass:.6g}"
                 inertia = ET.SubElement(inertial, "inertia")
-                for tag, (r, c) in {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}.items():
+                for tag, (r, c) in {
+                    "ixx": (0, 0),
+                    "ixy": (0, 1),
+                    "ixz": (0, 2),
+                    "iyy": (1, 1),
+                    "iyz": (1, 2),
+                    "izz": (2, 2),
+                }.items():
                     ET.SubElement(inertia, tag).text = f"{lk.inertial.inertia[r, c]:.6g}"
                 rel = f"{cfg.mesh_dir}/{name}.stl"
                 with atomic_path(out_dir / rel) as tmp:
@@ -82,7 +90,9 @@ class SDFExporter(Exporter):
                     g = ET.SubElement(ET.SubElement(ET.SubElement(el, tag, name=tag), "geometry"), "mesh")
                     ET.SubElement(g, "uri").text = rel
                 for j in children.get(name, []):
-                    joint = ET.SubElement(model, "joint", name=j.name, type={"continuous": "revolute"}.get(j.type, j.type))
+                    joint = ET.SubElement(
+                        model, "joint", name=j.name, type={"continuous": "revolute"}.get(j.type, j.type)
+                    )
                     ET.SubElement(joint, "parent").text = j.parent
                     ET.SubElement(joint, "child").text = j.child
                     axis = ET.SubElement(joint, "axis")

@@ -16,8 +16,8 @@ from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
-from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
 from stratamap.core.geometry.transforms import rpy_of
+from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
 
 
 def _fmt(values) -> str:
@@ -32,17 +32,21 @@ class URDFConfig(StageConfig):
     filename: str = Field(default="scene.urdf", description="Name of the URDF file in the export folder.")
     robot_name: str = Field(default="stratamap_scene", description="The <robot name> of the URDF.")
     mesh_dir: str = Field(default="meshes", description="Sub-folder (beside the URDF) for link meshes.")
-    mesh_format: Literal["stl", "obj"] = Field(default="stl", description="Mesh file format for visual and collision geometry.")
+    mesh_format: Literal["stl", "obj"] = Field(
+        default="stl", description="Mesh file format for visual and collision geometry."
+    )
     package_uri: str | None = Field(
-        default=None, description="If set (e.g. 'package://my_scene'), mesh paths are written as '<package_uri>/<mesh_dir>/...'."
+        default=None,
+        description="If set (e.g. 'package://my_scene'), mesh paths are written as '<package_uri>/<mesh_dir>/...'.",
     )
     floating_classes: list[str] = Field(
-        default_factory=list, description="Classes joined by floating joints (movable objects); others get fixed joints."
+        default_factory=list,
+        description="Classes joined by floating joints (movable objects); others get fixed joints.",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
 
 
-class URDFExporter(Exporter):
+class URDFExporter(Exporter[URDFConfig]):
     """The scene as a URDF: one link per object, joints from the contact graph."""
 
     name = "urdf"
@@ -51,7 +55,7 @@ class URDFExporter(Exporter):
     optional = frozenset({"contact_graph"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
-        cfg: URDFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         tree = build_tree(data.map.instances, data.map.contact_graph, cfg.density, set(cfg.floating_classes))  # type: ignore[arg-type]
         robot = ET.Element("robot", name=cfg.robot_name)
         ET.SubElement(robot, "link", name=ROOT_LINK)
@@ -84,7 +88,9 @@ class URDFExporter(Exporter):
             ET.SubElement(el, "child", link=joint.child)
             if joint.type in ("revolute", "prismatic", "continuous"):
                 ET.SubElement(el, "axis", xyz=_fmt(joint.axis))
-                ET.SubElement(el, "limit", lower=f"{joint.lower:.6g}", upper=f"{joint.upper:.6g}", effort="100", velocity="1")
+                ET.SubElement(
+                    el, "limit", lower=f"{joint.lower:.6g}", upper=f"{joint.upper:.6g}", effort="100", velocity="1"
+                )
         ET.indent(robot)
         path = out_dir / cfg.filename
         write_text(path, '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n")

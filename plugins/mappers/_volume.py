@@ -86,11 +86,25 @@ class IntegrationConfig(StageConfig):
     """TSDF integration settings shared by the ``tsdf`` and ``semantic_tsdf`` mappers."""
 
     voxel_size: float = Field(default=0.02, gt=0.001, le=0.5, description="Voxel edge length, metres.")
-    truncation_voxels: float = Field(default=4.0, gt=1.0, le=20.0, description="TSDF truncation distance in voxels (Open3D's trunc_voxel_multiplier).")
-    depth_max: float = Field(default=5.0, gt=0.1, description="Ignore depth beyond this range, metres (noise grows with range).")
+    truncation_voxels: float = Field(
+        default=4.0,
+        gt=1.0,
+        le=20.0,
+        description="TSDF truncation distance in voxels (Open3D's trunc_voxel_multiplier).",
+    )
+    depth_max: float = Field(
+        default=5.0, gt=0.1, description="Ignore depth beyond this range, metres (noise grows with range)."
+    )
     depth_min: float = Field(default=0.1, ge=0.0, description="Ignore depth closer than this, metres.")
-    block_resolution: int = Field(default=8, ge=4, le=32, description="Voxels per block edge of the hash map (8: little memory spent on free space).")
-    block_count: int = Field(default=20000, ge=1000, description="Initial number of hashed blocks (the hash map grows as needed).")
+    block_resolution: int = Field(
+        default=8,
+        ge=4,
+        le=32,
+        description="Voxels per block edge of the hash map (8: little memory spent on free space).",
+    )
+    block_count: int = Field(
+        default=20000, ge=1000, description="Initial number of hashed blocks (the hash map grows as needed)."
+    )
     label_stride: int | None = Field(
         default=None,
         ge=1,
@@ -101,14 +115,18 @@ class IntegrationConfig(StageConfig):
             "(2 for 2 cm voxels and a Kinect-like camera at 5 m)."
         ),
     )
-    extract_mesh: bool = Field(default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer.")
+    extract_mesh: bool = Field(
+        default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer."
+    )
 
 
 class TSDFVolume:
     """A TSDF with colour in an Open3D VoxelBlockGrid, plus ``extra`` voxel attributes
     (name, dtype, channels) that a mapper fuses labels into."""
 
-    def __init__(self, cfg: IntegrationConfig, intrinsics: CameraIntrinsics, extra: Sequence[tuple[str, Any, int]] = ()):
+    def __init__(
+        self, cfg: IntegrationConfig, intrinsics: CameraIntrinsics, extra: Sequence[tuple[str, Any, int]] = ()
+    ):
         self.cfg = cfg
         self.intrinsics = intrinsics
         names, dtypes, channels = ["tsdf", "weight", "color"], [o3c.float32, o3c.float32, o3c.float32], [1, 1, 3]
@@ -143,8 +161,12 @@ class TSDFVolume:
         extrinsic = o3c.Tensor(invert(pose), o3c.float64)
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
         color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb, dtype=np.float32) / 255.0))
-        coords = self.grid.compute_unique_block_coordinates(depth_img, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels)
-        self.grid.integrate(coords, depth_img, color_img, self._K, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels)
+        coords = self.grid.compute_unique_block_coordinates(
+            depth_img, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
+        )
+        self.grid.integrate(
+            coords, depth_img, color_img, self._K, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
+        )
 
     def surface(self) -> Geometry:
         """Surface points (sorted by position, so runs are reproducible) and, if configured, the mesh."""

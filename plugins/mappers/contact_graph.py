@@ -36,7 +36,9 @@ def support_ratio(child_box, surface_xy: np.ndarray) -> float:
     return polygon_area(clip_polygon(child_box.corners_2d(), hull))
 
 
-def surface_planes(points: np.ndarray, distance: float, max_planes: int, min_share: float, seed: int = 0) -> list[dict[str, Any]]:
+def surface_planes(
+    points: np.ndarray, distance: float, max_planes: int, min_share: float, seed: int = 0
+) -> list[dict[str, Any]]:
     """Iterative RANSAC: the object's largest planes, each fitted after the previous inliers are removed."""
     from stratamap.core.geometry.points import ransac_plane
 
@@ -58,17 +60,38 @@ def surface_planes(points: np.ndarray, distance: float, max_planes: int, min_sha
 
 
 class ContactGraphConfig(StageConfig):
-    contact_tolerance: float = Field(default=0.04, gt=0.0, description="Max height difference between a child's bottom and its supporter's surface, metres (a_th).")
-    min_overlap: float = Field(default=0.5, gt=0.0, le=1.0, description="Min share of the child's footprint the supporter must cover (paper's b_th).")
-    feet_clearance: float = Field(default=0.015, ge=0.0, description="A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do not carry the chair beside it).")
-    wall_distance: float = Field(default=0.1, ge=0.0, description="An unsupported object this close to wall points is wall-supported, metres.")
-    plane_distance: float = Field(default=0.015, gt=0.0, description="RANSAC inlier distance of the surface planes, metres.")
+    contact_tolerance: float = Field(
+        default=0.04,
+        gt=0.0,
+        description="Max height difference between a child's bottom and its supporter's surface, metres (a_th).",
+    )
+    min_overlap: float = Field(
+        default=0.5,
+        gt=0.0,
+        le=1.0,
+        description="Min share of the child's footprint the supporter must cover (paper's b_th).",
+    )
+    feet_clearance: float = Field(
+        default=0.015,
+        ge=0.0,
+        description="A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do not carry the chair beside it).",
+    )
+    wall_distance: float = Field(
+        default=0.1, ge=0.0, description="An unsupported object this close to wall points is wall-supported, metres."
+    )
+    plane_distance: float = Field(
+        default=0.015, gt=0.0, description="RANSAC inlier distance of the surface planes, metres."
+    )
     max_planes: int = Field(default=4, ge=0, description="Surface planes kept per object (0: none).")
-    min_plane_share: float = Field(default=0.1, gt=0.0, le=1.0, description="A surface plane holds at least this share of the object's points.")
-    proximal_distance: float = Field(default=0.05, ge=0.0, description="Boxes closer than this (grown by it) are proximal, metres.")
+    min_plane_share: float = Field(
+        default=0.1, gt=0.0, le=1.0, description="A surface plane holds at least this share of the object's points."
+    )
+    proximal_distance: float = Field(
+        default=0.05, ge=0.0, description="Boxes closer than this (grown by it) are proximal, metres."
+    )
 
 
-class ContactGraphMapper(Mapper):
+class ContactGraphMapper(Mapper[ContactGraphConfig]):
     """Support relations (floor or the object below) and proximal relations between object boxes."""
 
     name = "contact_graph"
@@ -78,7 +101,7 @@ class ContactGraphMapper(Mapper):
     provides = frozenset({"contact_graph"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: ContactGraphConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         insts = list(data.map.instances or [])
         graph = ContactGraph()
         g = graph.support
@@ -93,14 +116,23 @@ class ContactGraphMapper(Mapper):
                     g.add_node(layout, kind="layout", class_name=layout)
                     g.add_edge("scene", layout, relation="support")
         walls = None
-        if sem is not None and data.map.geometry is not None and "wall" in sem.vocabulary and len(sem) == len(data.map.geometry):
+        if (
+            sem is not None
+            and data.map.geometry is not None
+            and "wall" in sem.vocabulary
+            and len(sem) == len(data.map.geometry)
+        ):
             wall_pts = data.map.geometry.points[sem.class_ids == sem.vocabulary.id("wall")]
             if len(wall_pts):
                 from scipy.spatial import cKDTree
 
                 walls = cKDTree(wall_pts)
         for inst in insts:
-            planes = surface_planes(inst.points, cfg.plane_distance, cfg.max_planes, cfg.min_plane_share, seed=inst.id) if cfg.max_planes else []
+            planes = (
+                surface_planes(inst.points, cfg.plane_distance, cfg.max_planes, cfg.min_plane_share, seed=inst.id)
+                if cfg.max_planes
+                else []
+            )
             g.add_node(inst.id, kind="object", class_name=inst.class_name, box=inst.box.to_dict(), planes=planes)
 
         for child in insts:
@@ -108,13 +140,20 @@ class ContactGraphMapper(Mapper):
             # The floor is a candidate when the child's bottom is at floor height; an object is one
             # when it has a surface at that height (above its own feet) under enough of the child.
             floor_gap = abs(bottom - floor_z)
-            best, best_gap, best_score, best_z = None, floor_gap if floor_gap <= cfg.contact_tolerance else np.inf, 0.0, 0.0
+            best, best_gap, best_score, best_z = (
+                None,
+                floor_gap if floor_gap <= cfg.contact_tolerance else np.inf,
+                0.0,
+                0.0,
+            )
             area = max(float(child.box.size[0] * child.box.size[1]), 1e-9)
             for parent in insts:
                 if parent.id == child.id or parent.box.bottom_z >= bottom - cfg.feet_clearance:
                     continue
                 z = parent.points[:, 2]
-                surface = parent.points[(np.abs(z - bottom) <= cfg.contact_tolerance) & (z > parent.box.bottom_z + cfg.feet_clearance)]
+                surface = parent.points[
+                    (np.abs(z - bottom) <= cfg.contact_tolerance) & (z > parent.box.bottom_z + cfg.feet_clearance)
+                ]
                 ratio = support_ratio(child.box, surface[:, :2]) / area if len(surface) >= 10 else 0.0
                 surface_z = float(np.percentile(surface[:, 2], 90)) if len(surface) else parent.box.top_z
                 if ratio < cfg.min_overlap and abs(parent.box.top_z - bottom) <= cfg.contact_tolerance:
@@ -124,11 +163,22 @@ class ContactGraphMapper(Mapper):
                     continue
                 gap = abs(surface_z - bottom)
                 # eq. 3: the best contact wins; a surface clearly nearer in height than the best so far wins too.
-                if gap < best_gap - cfg.contact_tolerance / 2 or (gap <= best_gap + cfg.contact_tolerance / 2 and ratio > best_score):
+                if gap < best_gap - cfg.contact_tolerance / 2 or (
+                    gap <= best_gap + cfg.contact_tolerance / 2 and ratio > best_score
+                ):
                     best, best_gap, best_score, best_z = parent, gap, ratio, surface_z
-            near_wall = walls is not None and np.isfinite(walls.query(child.points[:: max(1, len(child.points) // 200)], distance_upper_bound=cfg.wall_distance)[0]).any()
+            near_wall = (
+                walls is not None
+                and np.isfinite(
+                    walls.query(
+                        child.points[:: max(1, len(child.points) // 200)], distance_upper_bound=cfg.wall_distance
+                    )[0]
+                ).any()
+            )
             if best is not None:
-                g.add_edge(best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score)
+                g.add_edge(
+                    best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score
+                )
                 support_z = best_z
             elif bottom - floor_z > cfg.contact_tolerance and near_wall:
                 g.add_edge("wall", child.id, relation="support")  # hangs on the wall (a wall cabinet, a picture)
@@ -139,7 +189,9 @@ class ContactGraphMapper(Mapper):
             if support_z is not None and support_z < child.box.bottom_z:
                 # Box refinement: the unseen bottom of an object reaches down to its support.
                 refined = type(child.box)(
-                    np.array([*child.box.center[:2], (support_z + child.box.top_z) / 2]), child.box.yaw, np.array([*child.box.size[:2], child.box.top_z - support_z])
+                    np.array([*child.box.center[:2], (support_z + child.box.top_z) / 2]),
+                    child.box.yaw,
+                    np.array([*child.box.size[:2], child.box.top_z - support_z]),
                 )
                 g.nodes[child.id]["box_refined"] = refined.to_dict()
 

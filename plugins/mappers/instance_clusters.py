@@ -20,22 +20,36 @@ import open3d as o3d
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
-from stratamap.core.map.layers import Semantics
 from stratamap.core.map.instances import instances_from_semantics
+from stratamap.core.map.layers import Semantics
 from stratamap.core.map.priors import class_extents
 
+
 class InstanceClustersConfig(StageConfig):
-    method: Literal["euclidean", "don"] = Field(default="euclidean", description="Euclidean clustering, or difference of normals before it.")
+    method: Literal["euclidean", "don"] = Field(
+        default="euclidean", description="Euclidean clustering, or difference of normals before it."
+    )
     recluster: Literal["auto", "always", "never"] = Field(
-        default="auto", description="auto: cluster only classes whose points carry no instance ids; always: recluster everything."
+        default="auto",
+        description="auto: cluster only classes whose points carry no instance ids; always: recluster everything.",
     )
     tolerance: float = Field(default=0.05, gt=0.0, description="Euclidean clustering distance, metres (DBSCAN radius).")
     min_points: int = Field(default=50, ge=1, description="Clusters with fewer points are dropped.")
-    don_radii: tuple[float, float] = Field(default=(0.02, 0.08), description="Small and large normal radii of DoN, metres.")
-    don_threshold: float = Field(default=0.25, gt=0.0, le=2.0, description="Points with |n_small - n_large| above this are boundaries (DoN).")
-    shape_filter: bool = Field(default=True, description="Reject planar clusters and clusters outside the class's extent range.")
-    planarity: float = Field(default=0.002, ge=0.0, description="Planar when the smallest/largest covariance eigenvalue ratio is below this.")
-    extents: dict[str, tuple[float, float]] = Field(default_factory=class_extents, description="Per class (min, max) extent, metres.")
+    don_radii: tuple[float, float] = Field(
+        default=(0.02, 0.08), description="Small and large normal radii of DoN, metres."
+    )
+    don_threshold: float = Field(
+        default=0.25, gt=0.0, le=2.0, description="Points with |n_small - n_large| above this are boundaries (DoN)."
+    )
+    shape_filter: bool = Field(
+        default=True, description="Reject planar clusters and clusters outside the class's extent range."
+    )
+    planarity: float = Field(
+        default=0.002, ge=0.0, description="Planar when the smallest/largest covariance eigenvalue ratio is below this."
+    )
+    extents: dict[str, tuple[float, float]] = Field(
+        default_factory=class_extents, description="Per class (min, max) extent, metres."
+    )
 
 
 def planar(points: np.ndarray, ratio: float) -> bool:
@@ -49,7 +63,7 @@ def extent(points: np.ndarray) -> float:
     return float(np.linalg.norm(points - points.mean(0), axis=1).max())
 
 
-class InstanceClustersMapper(Mapper):
+class InstanceClustersMapper(Mapper[InstanceClustersConfig]):
     """Splits thing classes into objects (Euclidean or DoN clustering) and applies the shape filter."""
 
     name = "instance_clusters"
@@ -58,7 +72,7 @@ class InstanceClustersMapper(Mapper):
     provides = frozenset({"semantics", "instances"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: InstanceClustersConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         geom, sem = data.map.geometry, data.map.semantics
         assert geom is not None and sem is not None
         pts = geom.points
@@ -99,7 +113,10 @@ class InstanceClustersMapper(Mapper):
                 rejected[reason] = rejected.get(reason, 0) + 1
         self.note("rejected", rejected)
         semantics = Semantics(cls, inst, vocab)
-        return {"semantics": semantics, "instances": instances_from_semantics(pts, geom.colors, semantics, cfg.min_points)}
+        return {
+            "semantics": semantics,
+            "instances": instances_from_semantics(pts, geom.colors, semantics, cfg.min_points),
+        }
 
     @staticmethod
     def _cluster(points: np.ndarray, cfg: InstanceClustersConfig) -> list[np.ndarray]:

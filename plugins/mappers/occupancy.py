@@ -28,18 +28,35 @@ from stratamap.core.map.sensors import LaserScan
 class OccupancyConfig(StageConfig):
     resolution: float = Field(default=0.05, gt=0.005, le=1.0, description="Cell size, metres (Nav2's default is 0.05).")
     z_min: float = Field(default=0.1, ge=0.0, description="Lower edge of the obstacle band, metres above the floor.")
-    robot_height: float = Field(default=1.0, gt=0.0, description="Upper edge of the obstacle band: the robot's height, metres.")
-    laser_height: float = Field(default=0.25, gt=0.0, description="Height of the planar laser (used when there are no scans), metres.")
+    robot_height: float = Field(
+        default=1.0, gt=0.0, description="Upper edge of the obstacle band: the robot's height, metres."
+    )
+    laser_height: float = Field(
+        default=0.25, gt=0.0, description="Height of the planar laser (used when there are no scans), metres."
+    )
     laser_slice: float = Field(default=0.04, gt=0.0, description="Thickness of the slice around laser_height, metres.")
     objects_from: Literal["geometry", "instances"] = Field(
-        default="geometry", description="Project the band from the 3D geometry, or from object instances (completions when present)."
+        default="geometry",
+        description="Project the band from the 3D geometry, or from object instances (completions when present).",
     )
-    log_odds_hit: float = Field(default=0.85, gt=0.0, description="Log-odds added to a cell where a beam ends (p = 0.7).")
-    log_odds_miss: float = Field(default=-0.4, lt=0.0, description="Log-odds added to cells a beam passes through (p = 0.4).")
-    log_odds_clamp: tuple[float, float] = Field(default=(-2.0, 3.5), description="Clamping bounds of the log-odds, so cells can change again.")
-    max_free_range: float = Field(default=6.0, gt=0.0, description="Beams without a return clear cells up to this range, metres.")
-    floor_tolerance: float = Field(default=0.05, gt=0.0, description="Geometry this close to the floor is floor (free space), metres.")
-    min_points_per_cell: int = Field(default=2, ge=1, description="A cell is occupied when at least this many geometry points fall in it.")
+    log_odds_hit: float = Field(
+        default=0.85, gt=0.0, description="Log-odds added to a cell where a beam ends (p = 0.7)."
+    )
+    log_odds_miss: float = Field(
+        default=-0.4, lt=0.0, description="Log-odds added to cells a beam passes through (p = 0.4)."
+    )
+    log_odds_clamp: tuple[float, float] = Field(
+        default=(-2.0, 3.5), description="Clamping bounds of the log-odds, so cells can change again."
+    )
+    max_free_range: float = Field(
+        default=6.0, gt=0.0, description="Beams without a return clear cells up to this range, metres."
+    )
+    floor_tolerance: float = Field(
+        default=0.05, gt=0.0, description="Geometry this close to the floor is floor (free space), metres."
+    )
+    min_points_per_cell: int = Field(
+        default=2, ge=1, description="A cell is occupied when at least this many geometry points fall in it."
+    )
     margin: float = Field(default=0.5, ge=0.0, description="Border of unknown cells around the mapped area, metres.")
 
     @model_validator(mode="after")
@@ -49,7 +66,7 @@ class OccupancyConfig(StageConfig):
         return self
 
 
-class OccupancyMapper(Mapper):
+class OccupancyMapper(Mapper[OccupancyConfig]):
     """2D occupancy: laser log-odds (or a laser-height slice), the object band, and the multimap."""
 
     name = "occupancy"
@@ -59,7 +76,7 @@ class OccupancyMapper(Mapper):
     provides = frozenset({"occupancy"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: OccupancyConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         stream = data.stream
         scans = [s for s in (stream.laser_scans if stream is not None else []) if s.pose is not None]
         geom = data.map.geometry
@@ -132,7 +149,9 @@ class OccupancyMapper(Mapper):
         return origin, shape
 
     @staticmethod
-    def _laser_log_odds(scans: list[LaserScan], origin: np.ndarray, shape: tuple[int, int], cfg: OccupancyConfig) -> np.ndarray:
+    def _laser_log_odds(
+        scans: list[LaserScan], origin: np.ndarray, shape: tuple[int, int], cfg: OccupancyConfig
+    ) -> np.ndarray:
         logodds = np.zeros(shape, np.float64)
         seen = np.zeros(shape, bool)
         step = cfg.resolution / 2
@@ -170,7 +189,9 @@ class OccupancyMapper(Mapper):
         return out
 
     @staticmethod
-    def _instances_band(data: PipelineData, cfg: OccupancyConfig, floor_z: float, cells: Any, shape: tuple[int, int]) -> np.ndarray:
+    def _instances_band(
+        data: PipelineData, cfg: OccupancyConfig, floor_z: float, cells: Any, shape: tuple[int, int]
+    ) -> np.ndarray:
         from stratamap.core.simulation.kinematics import object_mesh
 
         band = np.zeros(shape, bool)
@@ -178,7 +199,11 @@ class OccupancyMapper(Mapper):
             mesh, pose = object_mesh(inst)
             world = mesh.copy()
             world.apply_transform(pose)
-            pts = world.sample(max(2000, int(world.area / (cfg.resolution / 3) ** 2)), seed=inst.id) if world.area > 0 else world.vertices
+            pts = (
+                world.sample(max(2000, int(world.area / (cfg.resolution / 3) ** 2)), seed=inst.id)
+                if world.area > 0
+                else world.vertices
+            )
             pts = np.vstack([pts, world.vertices])
             z = pts[:, 2] - floor_z
             r, c = cells(pts[(z >= cfg.z_min) & (z <= cfg.robot_height), :2])

@@ -18,13 +18,17 @@ from stratamap.core.simulation.physics import resolve_scene
 
 
 class PhysicalCheckConfig(StageConfig):
-    max_shift: float = Field(default=0.3, ge=0.0, description="Farthest an object may move sideways to leave an overlap, metres.")
+    max_shift: float = Field(
+        default=0.3, ge=0.0, description="Farthest an object may move sideways to leave an overlap, metres."
+    )
     step: float = Field(default=0.01, gt=0.0, description="Radius step of the search for a free offset, metres.")
     directions: int = Field(default=16, ge=4, description="Directions tried on every radius of the search.")
-    snap_distance: float = Field(default=0.1, ge=0.0, description="Largest gap or sinking closed by resting an object on its supporter, metres.")
+    snap_distance: float = Field(
+        default=0.1, ge=0.0, description="Largest gap or sinking closed by resting an object on its supporter, metres."
+    )
 
 
-class PhysicalCheckMapper(Mapper):
+class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
     """Rests objects on their supporters and moves overlapping ones apart (min-conflict)."""
 
     name = "physical_check"
@@ -34,10 +38,12 @@ class PhysicalCheckMapper(Mapper):
     provides = frozenset({"instances"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: PhysicalCheckConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         instances = data.map.instances.copy()  # type: ignore[union-attr]
         floor_z = float(data.notes.get("occupancy", {}).get("floor_z", 0.0))
-        result = resolve_scene(instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance)
+        result = resolve_scene(
+            instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance
+        )
         summary = result.to_dict()
         for key, value in summary.items():
             self.note(key, value)

@@ -10,16 +10,22 @@ from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.layers import Geometry
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.map.layers import Geometry
 
 
 class PointsConfig(StageConfig):
-    voxel_size: float = Field(default=0.0, ge=0.0, description="Voxel-grid downsampling, metres (0 keeps every point, so per-point labels stay aligned).")
-    normals_radius: float = Field(default=0.03, ge=0.0, description="Radius for normal estimation, metres (0: no normals).")
+    voxel_size: float = Field(
+        default=0.0,
+        ge=0.0,
+        description="Voxel-grid downsampling, metres (0 keeps every point, so per-point labels stay aligned).",
+    )
+    normals_radius: float = Field(
+        default=0.03, ge=0.0, description="Radius for normal estimation, metres (0: no normals)."
+    )
 
 
-class PointsMapper(Mapper):
+class PointsMapper(Mapper[PointsConfig]):
     """Static clouds or LiDAR sweeps (posed) into the geometry layer, with normals."""
 
     name = "points"
@@ -28,7 +34,7 @@ class PointsMapper(Mapper):
     provides = frozenset({"geometry"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: PointsConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         stream = data.stream
         assert stream is not None
         colors = stream.point_colors
@@ -41,7 +47,9 @@ class PointsMapper(Mapper):
             pts = np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans])
             colors = None
         else:
-            raise DataError(f"points: the stream {stream.name!r} has neither a point cloud nor LiDAR sweeps (use tsdf for RGB-D)")
+            raise DataError(
+                f"points: the stream {stream.name!r} has neither a point cloud nor LiDAR sweeps (use tsdf for RGB-D)"
+            )
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         if colors is not None:
             pcd.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64))
@@ -53,7 +61,11 @@ class PointsMapper(Mapper):
             pcd.orient_normals_to_align_with_direction(np.array([0.0, 0.0, 1.0]))
             normals = np.asarray(pcd.normals)
         out_colors = np.asarray(pcd.colors) if pcd.has_colors() else None
-        return {"geometry": Geometry(points=np.asarray(pcd.points), colors=out_colors, normals=normals, voxel_size=cfg.voxel_size or None)}
+        return {
+            "geometry": Geometry(
+                points=np.asarray(pcd.points), colors=out_colors, normals=normals, voxel_size=cfg.voxel_size or None
+            )
+        }
 
 
 @hookimpl

@@ -17,16 +17,19 @@ from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.layers import Semantics
-from stratamap.core.geometry.transforms import apply
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
+from stratamap.core.geometry.transforms import apply
+from stratamap.core.map.layers import Semantics
 from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
 
+
 class SemanticTSDFConfig(IntegrationConfig):
-    p_correct: float = Field(default=0.8, gt=0.0, lt=1.0, description="Probability that the segmenter's class is right (measurement model).")
+    p_correct: float = Field(
+        default=0.8, gt=0.0, lt=1.0, description="Probability that the segmenter's class is right (measurement model)."
+    )
 
 
-class SemanticTSDFMapper(Mapper):
+class SemanticTSDFMapper(Mapper[SemanticTSDFConfig]):
     """TSDF fusion with per-voxel Bayesian class probabilities (Kimera-Semantics); classes, no instances."""
 
     name = "semantic_tsdf"
@@ -36,7 +39,7 @@ class SemanticTSDFMapper(Mapper):
     provides = frozenset({"geometry", "semantics"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: SemanticTSDFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         stream, labels = data.stream, data.frame_labels
         assert stream is not None and labels is not None
         if stream.intrinsics is None:
@@ -57,7 +60,9 @@ class SemanticTSDFMapper(Mapper):
                 continue
             volume.integrate(depth, frame.rgb, frame.pose)
             seg = labels.frames[frame.index]
-            pts, pix = intr.backproject(np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width))
+            pts, pix = intr.backproject(
+                np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width)
+            )
             cls = seg.class_ids.reshape(-1)[pix].astype(np.int64)
             keep = cls > 0
             if not keep.any():

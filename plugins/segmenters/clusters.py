@@ -45,27 +45,78 @@ class ClassRule(BaseModel):
 
 
 class ClustersConfig(StageConfig):
-    method: Literal["convex", "euclidean"] = Field(default="convex", description="convex: cut concave creases between touching objects; euclidean: distance only.")
-    voxel_size: float = Field(default=0.005, gt=0.0, description="Work on a voxel-downsampled copy with this cell size, metres.")
+    method: Literal["convex", "euclidean"] = Field(
+        default="convex", description="convex: cut concave creases between touching objects; euclidean: distance only."
+    )
+    voxel_size: float = Field(
+        default=0.005, gt=0.0, description="Work on a voxel-downsampled copy with this cell size, metres."
+    )
     radius: float = Field(default=0.012, gt=0.0, description="Points closer than this are neighbours, metres.")
     normal_radius: float = Field(default=0.02, gt=0.0, description="Radius of the normal estimate, metres.")
-    smooth_deg: float = Field(default=12.0, ge=0.0, le=90.0, description="Neighbours whose normals differ by less than this stay linked even when slightly concave.")
-    patch_size: float = Field(default=0.02, gt=0.0, description="Cell size of the supervoxel patches the convexity test works on, metres.")
-    patch_normal_deg: float = Field(default=20.0, gt=0.0, le=90.0, description="Neighbours in one cell whose normals differ by less than this form a patch.")
-    convex_votes: float = Field(default=0.5, ge=0.0, le=1.0, description="Share of point links across a patch boundary that must be convex (or smooth) to merge.")
-    concavity_tolerance: float = Field(default=0.2, ge=0.0, description="Concavity tolerated (noise), as a fraction of the neighbour distance.")
-    plane_distance: float = Field(default=0.01, gt=0.0, description="RANSAC inlier distance of the dominant planes, metres.")
-    plane_share: float = Field(default=0.15, gt=0.0, le=1.0, description="A dominant plane holds at least this share of the points.")
+    smooth_deg: float = Field(
+        default=12.0,
+        ge=0.0,
+        le=90.0,
+        description="Neighbours whose normals differ by less than this stay linked even when slightly concave.",
+    )
+    patch_size: float = Field(
+        default=0.02, gt=0.0, description="Cell size of the supervoxel patches the convexity test works on, metres."
+    )
+    patch_normal_deg: float = Field(
+        default=20.0,
+        gt=0.0,
+        le=90.0,
+        description="Neighbours in one cell whose normals differ by less than this form a patch.",
+    )
+    convex_votes: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description="Share of point links across a patch boundary that must be convex (or smooth) to merge.",
+    )
+    concavity_tolerance: float = Field(
+        default=0.2, ge=0.0, description="Concavity tolerated (noise), as a fraction of the neighbour distance."
+    )
+    plane_distance: float = Field(
+        default=0.01, gt=0.0, description="RANSAC inlier distance of the dominant planes, metres."
+    )
+    plane_share: float = Field(
+        default=0.15, gt=0.0, le=1.0, description="A dominant plane holds at least this share of the points."
+    )
     max_planes: int = Field(default=3, ge=0, description="Dominant planes removed at most.")
     min_points: int = Field(default=300, ge=1, description="Smallest instance, in points of the input cloud.")
-    cut_min_links: int = Field(default=5, ge=0, description="Concave patch edges (creases) a segment needs before planar cuts are tried (0: no cuts).")
-    cut_concave_share: float = Field(default=0.5, ge=0.0, le=1.0, description="Share of the patch edges a cut severs that must be concave for the cut to be made.")
-    cut_distance: float = Field(default=0.015, gt=0.0, description="Crease edges (patch centroid midpoints) this close to a candidate plane support it, metres.")
-    cut_crease_deg: float = Field(default=45.0, gt=0.0, le=90.0, description="Concave edges whose patch normals turn by more than this are creases that propose cut planes.")
-    cut_face_patches: int = Field(default=10, ge=1, description="Patches that must lie on a cut plane facing its way (the face the cut follows).")
-    cut_candidates: int = Field(default=20, ge=1, description="Best supported candidate planes tried per segment and cut.")
+    cut_min_links: int = Field(
+        default=5,
+        ge=0,
+        description="Concave patch edges (creases) a segment needs before planar cuts are tried (0: no cuts).",
+    )
+    cut_concave_share: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description="Share of the patch edges a cut severs that must be concave for the cut to be made.",
+    )
+    cut_distance: float = Field(
+        default=0.015,
+        gt=0.0,
+        description="Crease edges (patch centroid midpoints) this close to a candidate plane support it, metres.",
+    )
+    cut_crease_deg: float = Field(
+        default=45.0,
+        gt=0.0,
+        le=90.0,
+        description="Concave edges whose patch normals turn by more than this are creases that propose cut planes.",
+    )
+    cut_face_patches: int = Field(
+        default=10, ge=1, description="Patches that must lie on a cut plane facing its way (the face the cut follows)."
+    )
+    cut_candidates: int = Field(
+        default=20, ge=1, description="Best supported candidate planes tried per segment and cut."
+    )
     cut_depth: int = Field(default=2, ge=0, description="Cuts applied in sequence at most per segment.")
-    class_rules: list[ClassRule] = Field(default_factory=list, description="Size rules naming clusters; unmatched clusters are `object`.")
+    class_rules: list[ClassRule] = Field(
+        default_factory=list, description="Size rules naming clusters; unmatched clusters are `object`."
+    )
 
 
 def estimate_normals(points: np.ndarray, radius: float, viewpoint: np.ndarray) -> np.ndarray:
@@ -80,7 +131,9 @@ def estimate_normals(points: np.ndarray, radius: float, viewpoint: np.ndarray) -
     return normals
 
 
-def convex_links(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, smooth_deg: float, tolerance: float) -> np.ndarray:
+def convex_links(
+    points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, smooth_deg: float, tolerance: float
+) -> np.ndarray:
     """Which neighbour pairs are locally convex or smooth (kept)."""
     i, j = pairs[:, 0], pairs[:, 1]
     diff = points[i] - points[j]
@@ -94,7 +147,11 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) if len(pairs) else coo_matrix((n, n))
+    graph = (
+        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        if len(pairs)
+        else coo_matrix((n, n))
+    )
     return connected_components(graph, directed=False)[1]
 
 
@@ -115,11 +172,15 @@ def patch_graph(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg:
     across it agree; one noisy link cannot join two objects."""
     cell = np.floor(points / cfg.patch_size).astype(np.int64)
     same_cell = np.all(cell[pairs[:, 0]] == cell[pairs[:, 1]], axis=1)
-    smooth = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) >= np.cos(np.radians(cfg.patch_normal_deg))
+    smooth = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) >= np.cos(
+        np.radians(cfg.patch_normal_deg)
+    )
     patch = _components(len(points), pairs[same_cell & smooth])
     n_patch = int(patch.max()) + 1
     count = np.bincount(patch, minlength=n_patch).astype(float)
-    centroid = np.stack([np.bincount(patch, weights=points[:, k], minlength=n_patch) for k in range(3)], 1) / count[:, None]
+    centroid = (
+        np.stack([np.bincount(patch, weights=points[:, k], minlength=n_patch) for k in range(3)], 1) / count[:, None]
+    )
     normal = np.stack([np.bincount(patch, weights=normals[:, k], minlength=n_patch) for k in range(3)], 1)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     a, b = patch[pairs[:, 0]], patch[pairs[:, 1]]
@@ -134,7 +195,9 @@ def patch_graph(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg:
     dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
     convex = np.einsum("ij,ij->i", normal[pa] - normal[pb], diff) >= -cfg.concavity_tolerance * dist
     flat = np.einsum("ij,ij->i", normal[pa], normal[pb]) >= np.cos(np.radians(cfg.smooth_deg))
-    return PatchGraph(patch, centroid, normal, count, np.stack([pa, pb], 1), (convex | flat) & (votes >= cfg.convex_votes))
+    return PatchGraph(
+        patch, centroid, normal, count, np.stack([pa, pb], 1), (convex | flat) & (votes >= cfg.convex_votes)
+    )
 
 
 def convex_segments(graph: PatchGraph) -> np.ndarray:
@@ -142,7 +205,9 @@ def convex_segments(graph: PatchGraph) -> np.ndarray:
     return _components(len(graph.centroid), graph.edges[graph.convex])
 
 
-def _cut_side(graph: PatchGraph, members: np.ndarray, n: np.ndarray, p0: np.ndarray, cfg: ClustersConfig) -> np.ndarray | None:
+def _cut_side(
+    graph: PatchGraph, members: np.ndarray, n: np.ndarray, p0: np.ndarray, cfg: ClustersConfig
+) -> np.ndarray | None:
     """Which of a segment's patches lie beyond the face plane (n, p0), the plane first refit to
     the face; None when the plane follows no real face or leaves one side empty."""
     centroid, normal = graph.centroid, graph.normal
@@ -238,7 +303,7 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
     return _components(len(labels), edges[same])
 
 
-class ClustersSegmenter(Segmenter):
+class ClustersSegmenter(Segmenter[ClustersConfig]):
     """Model-free instances: dominant planes removed, then convexity-aware (or Euclidean) clustering."""
 
     name = "clusters"
@@ -255,20 +320,26 @@ class ClustersSegmenter(Segmenter):
 
         from stratamap.core.map.instances import instances_from_semantics
 
-        cfg: ClustersConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         geometry = data.map.geometry
         if geometry is None or len(geometry.points) == 0:
             raise DataError("clusters: the geometry layer has no points")
-        vocab = data.map.vocabulary or (data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default())
+        vocab = data.map.vocabulary or (
+            data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default()
+        )
         for rule in cfg.class_rules:
             if rule.class_name not in vocab or not vocab.is_thing[vocab.id(rule.class_name)]:
-                raise DataError(f"clusters: class_rules names {rule.class_name!r}, which is not a thing class of the vocabulary")
+                raise DataError(
+                    f"clusters: class_rules names {rule.class_name!r}, which is not a thing class of the vocabulary"
+                )
         points = geometry.points
         cells, cell_of_point = voxel_downsample(points, cfg.voxel_size)
         weight = np.bincount(cell_of_point, minlength=len(cells))
         stream = data.stream
         transform = np.asarray((stream.metadata.get("world_transform") if stream is not None else None) or np.eye(4))
-        viewpoint = transform[:3, 3] if stream is not None and stream.points is not None else cells.mean(axis=0) + [0, 0, 2.0]
+        viewpoint = (
+            transform[:3, 3] if stream is not None and stream.points is not None else cells.mean(axis=0) + [0, 0, 2.0]
+        )
 
         # 1. Dominant planes.
         layout = np.zeros(len(cells), np.int32)  # class id of layout cells, 0 = still free
@@ -318,7 +389,9 @@ class ClustersSegmenter(Segmenter):
                 if vocab.is_thing[int(cid)]:
                     instance_ids[class_ids == cid] = next_id
                     next_id += 1
-        support_z = float(np.percentile(points[class_ids > 0, 2], 90)) if (class_ids > 0).any() else float(points[:, 2].min())
+        support_z = (
+            float(np.percentile(points[class_ids > 0, 2], 90)) if (class_ids > 0).any() else float(points[:, 2].min())
+        )
         kept = 0
         for k in order:
             if comp_sizes[k] < cfg.min_points:
@@ -328,7 +401,10 @@ class ClustersSegmenter(Segmenter):
             instance_ids[mask] = next_id
             next_id += 1
             kept += 1
-        self.note("segments", {"planes": int(len(np.unique(layout[layout > 0]))), "clusters": int(len(comp_ids)), "instances": kept})
+        self.note(
+            "segments",
+            {"planes": int(len(np.unique(layout[layout > 0]))), "clusters": int(len(comp_ids)), "instances": kept},
+        )
         semantics = Semantics(class_ids, instance_ids, vocab)
         return {"semantics": semantics, "instances": instances_from_semantics(points, geometry.colors, semantics, 1)}
 

@@ -13,11 +13,13 @@ from stratamap.core.map.sensors import FrameLabels
 
 class OracleConfig(StageConfig):
     min_pixels: int = Field(
-        default=0, ge=0, description="Drop instance labels covering fewer pixels than this in a frame (simulates detector misses)."
+        default=0,
+        ge=0,
+        description="Drop instance labels covering fewer pixels than this in a frame (simulates detector misses).",
     )
 
 
-class OracleSegmenter(Segmenter):
+class OracleSegmenter(Segmenter[OracleConfig]):
     """Ground-truth class and instance images (consistent instance ids across frames)."""
 
     name = "oracle"
@@ -43,7 +45,9 @@ class OracleSegmenter(Segmenter):
                 small = ids[(counts < self.config.min_pixels) & (ids > 0)]
                 if len(small):
                     mask = np.isin(seg.instance_ids, small)
-                    seg = type(seg)(seg.frame_index, np.where(mask, 0, seg.class_ids), np.where(mask, 0, seg.instance_ids))
+                    seg = type(seg)(
+                        seg.frame_index, np.where(mask, 0, seg.class_ids), np.where(mask, 0, seg.instance_ids)
+                    )
             out.frames.append(seg)
         return {"frame_labels": out}
 

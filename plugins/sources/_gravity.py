@@ -19,8 +19,8 @@ import open3d as o3d
 
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import ransac_plane
-from stratamap.core.map.sensors import SensorStream
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.map.sensors import SensorStream
 
 
 @dataclass
@@ -142,7 +142,9 @@ def find_floor(
     return normal, float(-np.dot(normal, centroid)), len(pts)
 
 
-def estimate_alignment(stream: SensorStream, up_hint: np.ndarray | None = None, max_angle_deg: float = 35.0) -> GravityAlignment:
+def estimate_alignment(
+    stream: SensorStream, up_hint: np.ndarray | None = None, max_angle_deg: float = 35.0
+) -> GravityAlignment:
     pts = sample_points(stream)
     if len(pts) < 100:
         raise DataError(f"{stream.name}: too few valid depth points to find the floor ({len(pts)})")
@@ -165,7 +167,12 @@ def estimate_alignment(stream: SensorStream, up_hint: np.ndarray | None = None, 
     if not realigned:
         transform = np.eye(4)
     return GravityAlignment(
-        transform, realigned, angle, float(-d), inliers, {"up_hint": np.round(hint, 4).tolist(), "floor_normal_input": np.round(normal, 6).tolist()}
+        transform,
+        realigned,
+        angle,
+        float(-d),
+        inliers,
+        {"up_hint": np.round(hint, 4).tolist(), "floor_normal_input": np.round(normal, 6).tolist()},
     )
 
 
@@ -176,4 +183,6 @@ def transform_stream(stream: SensorStream, transform: np.ndarray) -> None:
             scan.pose = transform @ scan.pose
     if stream.points is not None:
         stream.points = apply(transform, np.asarray(stream.points))
-    stream.metadata["world_transform"] = (transform @ np.asarray(stream.metadata.get("world_transform", np.eye(4)))).tolist()
+    stream.metadata["world_transform"] = (
+        transform @ np.asarray(stream.metadata.get("world_transform", np.eye(4)))
+    ).tolist()

@@ -57,7 +57,9 @@ def rgbd_frame_to_model(
     return poses
 
 
-def lidar_odometry(scans: Sequence[np.ndarray], timestamps: Sequence[float] | None = None, max_range: float = 30.0) -> list[np.ndarray]:
+def lidar_odometry(
+    scans: Sequence[np.ndarray], timestamps: Sequence[float] | None = None, max_range: float = 30.0
+) -> list[np.ndarray]:
     """Sensor-to-world poses (the first scan is the world) with KISS-ICP."""
     try:
         from kiss_icp.config import KISSConfig

@@ -5,17 +5,18 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 from pydantic import Field
 
 from stratamap.core.errors import DataError
-from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
-from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.evaluation.trajectory import ate, rpe
+from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import RGBDFrame, SensorStream
 from stratamap.core.stages import Source, StageConfig
+from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
 
 
 class SequenceConfig(StageConfig):
@@ -23,17 +24,25 @@ class SequenceConfig(StageConfig):
     max_frames: int | None = Field(default=None, ge=1, description="Read at most this many frames (after `stride`).")
     stride: int = Field(default=1, ge=1, description="Read every n-th frame.")
     gravity: Literal["auto", "off"] = Field(
-        default="auto", description="auto: find the floor, and re-align the world to z-up with the floor at z = 0 if needed; off: trust the input."
+        default="auto",
+        description="auto: find the floor, and re-align the world to z-up with the floor at z = 0 if needed; off: trust the input.",
     )
     odometry: Literal["auto", "always", "never"] = Field(
-        default="auto", description="auto: estimate poses when the input has none; always: estimate them even if given (given poses become ground truth)."
+        default="auto",
+        description="auto: estimate poses when the input has none; always: estimate them even if given (given poses become ground truth).",
     )
 
 
 class PosedFrames(Sequence):
     """Frames read on access; their poses come from a list the source may update (odometry, gravity)."""
 
-    def __init__(self, timestamps: list[float], read: Callable[[int], tuple[np.ndarray, np.ndarray]], poses: list[np.ndarray | None], cache: int = 3):
+    def __init__(
+        self,
+        timestamps: list[float],
+        read: Callable[[int], tuple[np.ndarray, np.ndarray]],
+        poses: list[np.ndarray | None],
+        cache: int = 3,
+    ):
         self.timestamps, self._read, self.poses = timestamps, read, poses
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._cache_size = cache
@@ -67,7 +76,10 @@ def select(indices: list[int], stride: int, max_frames: int | None) -> list[int]
     return picked[:max_frames] if max_frames else picked
 
 
-class SequenceSource(Source):
+SequenceConfigT = TypeVar("SequenceConfigT", bound=SequenceConfig)
+
+
+class SequenceSource(Source[SequenceConfigT]):
     """Base of RGB-D sequence sources. Subclasses implement :meth:`load`."""
 
     Config = SequenceConfig
@@ -81,7 +93,7 @@ class SequenceSource(Source):
 
     def finish(self, stream: SensorStream, frames: PosedFrames, gt: GroundTruth | None) -> dict[str, Any]:
         """Odometry where poses are missing, gravity alignment, and the layers to return."""
-        cfg: SequenceConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         if len(frames) == 0:
             raise DataError(f"{cfg.path}: no frames to read")
         given = [None if p is None else p.copy() for p in frames.poses]
@@ -97,7 +109,9 @@ class SequenceSource(Source):
             out["ground_truth"] = gt
         return out
 
-    def _odometry(self, stream: SensorStream, frames: PosedFrames, given: list[np.ndarray | None], gt: GroundTruth | None) -> None:
+    def _odometry(
+        self, stream: SensorStream, frames: PosedFrames, given: list[np.ndarray | None], gt: GroundTruth | None
+    ) -> None:
         from stratamap.plugins.sources._odometry import rgbd_frame_to_model
 
         assert stream.intrinsics is not None
@@ -138,10 +152,23 @@ class SequenceSource(Source):
         )
 
 
-def example_stream(width: int, height: int, frames: int) -> SensorStream:
-    """A tiny synthetic room seen from an orbit: what the conformance kit feeds file-based sources
-    (each writes it in its own format)."""
+def example_sequence(
+    write: Callable[[SensorStream, Path], Any], prefix: str, width: int = 128, height: int = 96, frames: int = 5
+) -> Path:
+    """A new temporary folder holding a tiny synthetic room seen from an orbit, written by
+    ``write(stream, folder)`` in a source's own format: the example input of the conformance kit."""
+    import tempfile
+
     from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 
-    spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": width, "height": height}, "trajectory": {"type": "orbit", "frames": frames}})
-    return SyntheticWorld(spec).stream()
+    spec = SceneSpec.model_validate(
+        {
+            "type": "room",
+            "seed": 1,
+            "camera": {"width": width, "height": height},
+            "trajectory": {"type": "orbit", "frames": frames},
+        }
+    )
+    folder = Path(tempfile.mkdtemp(prefix=f"stratamap-{prefix}-"))
+    write(SyntheticWorld(spec).stream(), folder)
+    return folder

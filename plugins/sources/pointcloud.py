@@ -16,26 +16,35 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
 
 UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 
 
 class PointCloudConfig(StageConfig):
-    path: str = Field(description="A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label).")
+    path: str = Field(
+        description="A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label)."
+    )
     label_field: str = Field(default="label", description="Name of the per-point label attribute (PLY/PCD).")
-    label_scheme: Literal["none", "raw", "mosd"] = Field(default="raw", description="How labels map to classes and instances (see module doc).")
+    label_scheme: Literal["none", "raw", "mosd"] = Field(
+        default="raw", description="How labels map to classes and instances (see module doc)."
+    )
     up_axis: Literal["z", "-y", "y", "-z"] = Field(
-        default="z", description="Up direction of the input (-y for clouds in a camera's optical frame, e.g. Kinect scans)."
+        default="z",
+        description="Up direction of the input (-y for clouds in a camera's optical frame, e.g. Kinect scans).",
     )
     gravity: Literal["auto", "off"] = Field(
-        default="auto", description="auto: find the lowest large plane perpendicular to up_axis (the floor, or the table of a tabletop scan) and make it z = 0."
+        default="auto",
+        description="auto: find the lowest large plane perpendicular to up_axis (the floor, or the table of a tabletop scan) and make it z = 0.",
     )
     up_tolerance_deg: float = Field(
-        default=35.0, gt=0, le=89, description="Max angle between up_axis and the support plane's normal (steep tabletop views need ~60)."
+        default=35.0,
+        gt=0,
+        le=89,
+        description="Max angle between up_axis and the support plane's normal (steep tabletop views need ~60).",
     )
     scale: float = Field(default=1.0, gt=0, description="Multiply coordinates by this (e.g. 0.001 for millimetres).")
 
@@ -51,7 +60,9 @@ def read_cloud(path: Path, label_field: str) -> tuple[np.ndarray, np.ndarray | N
         except ValueError as exc:
             raise DataError(f"{path}: not a plain .npy array ({exc})") from exc
         if arr.ndim != 2 or arr.shape[1] not in (3, 4, 6, 7):
-            raise DataError(f"{path}: expected an (N, 3|4|6|7) array (xyz[, label] or xyz rgb[, label]), got {arr.shape}")
+            raise DataError(
+                f"{path}: expected an (N, 3|4|6|7) array (xyz[, label] or xyz rgb[, label]), got {arr.shape}"
+            )
         pts = arr[:, :3].astype(np.float64)
         colors = arr[:, 3:6].astype(np.float64) if arr.shape[1] >= 6 else None
         if colors is not None and colors.max() > 1.0:
@@ -77,7 +88,7 @@ def read_cloud(path: Path, label_field: str) -> tuple[np.ndarray, np.ndarray | N
     raise DataError(f"{path}: unsupported point cloud format {suffix!r} (use .ply, .pcd, .xyz or .npy)")
 
 
-class PointCloudSource(Source):
+class PointCloudSource(Source[PointCloudConfig]):
     """Static point clouds (PLY, PCD, XYZ, NPY) with optional colors and per-point labels as ground truth."""
 
     name = "pointcloud"
@@ -97,7 +108,7 @@ class PointCloudSource(Source):
         return {"path": str(path), "label_scheme": "mosd"}
 
     def read(self) -> dict[str, Any]:
-        cfg: PointCloudConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         path = Path(cfg.path).expanduser()
         pts, colors, labels = read_cloud(path, cfg.label_field)
         valid = np.all(np.isfinite(pts), axis=1)
@@ -107,17 +118,23 @@ class PointCloudSource(Source):
         labels = None if labels is None else labels[valid]
         if len(pts) == 0:
             raise DataError(f"{path}: no valid (finite) points")
-        stream = SensorStream(name=path.stem, points=pts, point_colors=colors, metadata={"path": str(path), "dropped_invalid": dropped})
+        stream = SensorStream(
+            name=path.stem, points=pts, point_colors=colors, metadata={"path": str(path), "dropped_invalid": dropped}
+        )
         self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
         out: dict[str, Any] = {"frames": stream}
         if labels is not None and cfg.label_scheme != "none":
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)
         if cfg.gravity == "auto":
-            alignment = estimate_alignment(stream, up_hint=np.array(UP_AXES[cfg.up_axis]), max_angle_deg=cfg.up_tolerance_deg)
+            alignment = estimate_alignment(
+                stream, up_hint=np.array(UP_AXES[cfg.up_axis]), max_angle_deg=cfg.up_tolerance_deg
+            )
             self.note("gravity_alignment", alignment.report())
             if alignment.realigned:
                 transform_stream(stream, alignment.transform)
-                self.warn(f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg (support plane moved to z = 0)")
+                self.warn(
+                    f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg (support plane moved to z = 0)"
+                )
         return out
 
     @staticmethod

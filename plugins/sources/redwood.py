@@ -15,10 +15,10 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_rgb, write_redwood
+from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
-from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 PRIMESENSE = CameraIntrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm")
@@ -26,7 +26,9 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm")
 
 class RedwoodConfig(SequenceConfig):
     depth_scale: float = Field(default=1000.0, gt=0, description="Depth units per metre (Redwood: millimetres).")
-    trajectory: str = Field(default="trajectory.log", description="Trajectory file in the folder (Redwood .log format).")
+    trajectory: str = Field(
+        default="trajectory.log", description="Trajectory file in the folder (Redwood .log format)."
+    )
     frame_rate: float = Field(default=30.0, gt=0, description="Timestamps are frame index / frame_rate, seconds.")
 
 
@@ -48,7 +50,7 @@ def read_log(path: Path) -> dict[int, np.ndarray]:
     return poses
 
 
-class RedwoodSource(SequenceSource):
+class RedwoodSource(SequenceSource[RedwoodConfig]):
     """Open3D / Redwood RGB-D folders: color/, depth/ (mm), trajectory.log, camera json."""
 
     name = "redwood"
@@ -56,13 +58,10 @@ class RedwoodSource(SequenceSource):
 
     @classmethod
     def example_params(cls) -> dict:
-        import tempfile
-
-        root = write_redwood(example_stream(128, 96, 5), Path(tempfile.mkdtemp(prefix="stratamap-redwood-")))
-        return {"path": str(root)}
+        return {"path": str(example_sequence(write_redwood, "redwood"))}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
-        cfg: RedwoodConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         root = Path(cfg.path).expanduser()
         if not root.is_dir():
             raise DataError(f"{root}: sequence folder not found")
@@ -103,7 +102,9 @@ class RedwoodSource(SequenceSource):
             return read_rgb(colors[i], shape), read_depth(depths[i], cfg.depth_scale, shape)
 
         frames = PosedFrames([i / cfg.frame_rate for i in idx], read, poses)
-        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "redwood"})
+        stream = SensorStream(
+            name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "redwood"}
+        )
         return stream, frames, None
 
 

@@ -21,10 +21,10 @@ from scipy.spatial.transform import Rotation
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.io.rgbd import associate
+from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import CameraIntrinsics, LidarScan, SensorStream
-from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 IMAGE = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
 INFO = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
@@ -32,16 +32,35 @@ CLOUD = {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2"}
 TF = {"tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage"}
 DEPTH_ENCODINGS = {"16UC1", "mono16", "32FC1"}
 COLOR_ENCODINGS = {"rgb8", "bgr8", "rgba8", "bgra8", "mono8"}
-PC2_TYPES = {1: np.int8, 2: np.uint8, 3: np.int16, 4: np.uint16, 5: np.int32, 6: np.uint32, 7: np.float32, 8: np.float64}
+PC2_TYPES = {
+    1: np.int8,
+    2: np.uint8,
+    3: np.int16,
+    4: np.uint16,
+    5: np.int32,
+    6: np.uint32,
+    7: np.float32,
+    8: np.float64,
+}
 
 
 class RosbagConfig(SequenceConfig):
-    depth_topic: str | None = Field(default=None, description="Depth image topic (default: the first 16UC1/32FC1 image topic).")
-    color_topic: str | None = Field(default=None, description="Color image topic (default: the first rgb8/bgr8 image topic).")
+    depth_topic: str | None = Field(
+        default=None, description="Depth image topic (default: the first 16UC1/32FC1 image topic)."
+    )
+    color_topic: str | None = Field(
+        default=None, description="Color image topic (default: the first rgb8/bgr8 image topic)."
+    )
     camera_info_topic: str | None = Field(default=None, description="CameraInfo topic (default: the first one).")
-    pointcloud_topic: str | None = Field(default=None, description="PointCloud2 topic for LiDAR input (default: the first one, if no depth images).")
-    world_frame: str = Field(default="map", description="The tf frame poses are expressed in (falls back to the root of the tf tree).")
-    sync_tolerance: float = Field(default=0.02, gt=0, description="Max stamp difference between a depth and a color image, seconds.")
+    pointcloud_topic: str | None = Field(
+        default=None, description="PointCloud2 topic for LiDAR input (default: the first one, if no depth images)."
+    )
+    world_frame: str = Field(
+        default="map", description="The tf frame poses are expressed in (falls back to the root of the tf tree)."
+    )
+    sync_tolerance: float = Field(
+        default=0.02, gt=0, description="Max stamp difference between a depth and a color image, seconds."
+    )
 
 
 def stamp_of(msg: Any) -> float:
@@ -62,7 +81,9 @@ def image_array(msg: Any, topic: str) -> np.ndarray:
         return arr
     channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}.get(enc)
     if channels is None:
-        raise DataError(f"{topic}: unsupported image encoding {enc!r} (depth: 16UC1, 32FC1; color: {sorted(COLOR_ENCODINGS)})")
+        raise DataError(
+            f"{topic}: unsupported image encoding {enc!r} (depth: 16UC1, 32FC1; color: {sorted(COLOR_ENCODINGS)})"
+        )
     arr = data.reshape(h, msg.step)[:, : w * channels].reshape(h, w, channels)
     if enc.startswith("bgr"):
         arr = arr[..., [2, 1, 0]]
@@ -135,7 +156,7 @@ class TfBuffer:
         return parents - children
 
 
-class RosbagSource(SequenceSource):
+class RosbagSource(SequenceSource[RosbagConfig]):
     """ROS 1 and ROS 2 bags without ROS: depth + color + camera_info + tf, or PointCloud2 for LiDAR."""
 
     name = "rosbag"
@@ -143,19 +164,18 @@ class RosbagSource(SequenceSource):
 
     @classmethod
     def example_params(cls) -> dict:
-        import tempfile
-
         from stratamap.core.io.rosbag import write_rgbd_bag
 
-        path = Path(tempfile.mkdtemp(prefix="stratamap-bag-")) / "bag"
-        write_rgbd_bag(path, example_stream(96, 72, 5), ros_version=2)
-        return {"path": str(path), "world_frame": "map"}
+        folder = example_sequence(
+            lambda stream, root: write_rgbd_bag(root / "bag", stream, ros_version=2), "bag", 96, 72
+        )
+        return {"path": str(folder / "bag"), "world_frame": "map"}
 
     def _read_bag(self, path: Path) -> dict[str, Any]:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
 
-        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         if not path.exists():
             raise DataError(f"{path}: bag not found")
         typestore = get_typestore(Stores.ROS2_HUMBLE)
@@ -178,7 +198,9 @@ class RosbagSource(SequenceSource):
                     static = conn.topic.endswith("tf_static")
                     for tf in msg.transforms:
                         child = tf.child_frame_id.lstrip("/")
-                        edges.setdefault(child, []).append((0.0 if static else stamp_of(tf), tf.header.frame_id.lstrip("/"), transform_matrix(tf)))
+                        edges.setdefault(child, []).append(
+                            (0.0 if static else stamp_of(tf), tf.header.frame_id.lstrip("/"), transform_matrix(tf))
+                        )
                 elif conn.msgtype in IMAGE:
                     images.append((conn.topic, stamp_of(msg), msg))
                 elif conn.msgtype in INFO:
@@ -192,7 +214,7 @@ class RosbagSource(SequenceSource):
         return {"types": by_type, "images": images, "infos": infos, "clouds": clouds, "tf": TfBuffer(edges), "cfg": cfg}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
-        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         path = Path(cfg.path).expanduser()
         bag = self._read_bag(path)
         images = bag["images"]
@@ -202,7 +224,11 @@ class RosbagSource(SequenceSource):
         depth_topic = cfg.depth_topic or next((t for t, e in encodings.items() if e in DEPTH_ENCODINGS), None)
         color_topic = cfg.color_topic or next((t for t, e in encodings.items() if e in COLOR_ENCODINGS), None)
         tf: TfBuffer = bag["tf"]
-        world = cfg.world_frame if cfg.world_frame in tf.roots() or cfg.world_frame in tf.edges else (sorted(tf.roots()) or [""])[0]
+        world = (
+            cfg.world_frame
+            if cfg.world_frame in tf.roots() or cfg.world_frame in tf.edges
+            else (sorted(tf.roots()) or [""])[0]
+        )
         if depth_topic is None:
             return self._load_lidar(path, bag, tf, world)
         if depth_topic not in encodings:
@@ -218,7 +244,9 @@ class RosbagSource(SequenceSource):
         intr = CameraIntrinsics(int(info.width), int(info.height), k[0, 0], k[1, 1], k[0, 2], k[1, 2])
         depth_msgs = [(t, m) for tp, t, m in images if tp == depth_topic]
         color_msgs = [(t, m) for tp, t, m in images if tp == color_topic]
-        pairs = associate(np.array([t for t, _ in depth_msgs]), np.array([t for t, _ in color_msgs]), cfg.sync_tolerance)
+        pairs = associate(
+            np.array([t for t, _ in depth_msgs]), np.array([t for t, _ in color_msgs]), cfg.sync_tolerance
+        )
         if not pairs:
             raise DataError(f"{path}: no depth/color pair within {cfg.sync_tolerance} s")
         pairs = [pairs[i] for i in select(list(range(len(pairs))), cfg.stride, cfg.max_frames)]
@@ -236,11 +264,24 @@ class RosbagSource(SequenceSource):
         frame_id = depth_msgs[0][1].header.frame_id.lstrip("/")
         poses = [tf.lookup(world, frame_id, t) for t in times] if tf.edges else [None] * len(times)
         frames = PosedFrames(times, read, poses)
-        stream = SensorStream(name=path.stem, intrinsics=intr, frames=frames, metadata={"path": str(path), "format": "rosbag", "world_frame": world, "depth_topic": depth_topic, "color_topic": color_topic})
+        stream = SensorStream(
+            name=path.stem,
+            intrinsics=intr,
+            frames=frames,
+            metadata={
+                "path": str(path),
+                "format": "rosbag",
+                "world_frame": world,
+                "depth_topic": depth_topic,
+                "color_topic": color_topic,
+            },
+        )
         return stream, frames, None
 
-    def _load_lidar(self, path: Path, bag: dict, tf: TfBuffer, world: str) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
-        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+    def _load_lidar(
+        self, path: Path, bag: dict, tf: TfBuffer, world: str
+    ) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg = self.config
         clouds = bag["clouds"]
         topic = cfg.pointcloud_topic or (clouds[0][0] if clouds else None)
         sweeps = [(t, m) for tp, t, m in clouds if tp == topic]
@@ -256,21 +297,29 @@ class RosbagSource(SequenceSource):
                 raise DataError(f"{path}: LiDAR sweeps without tf poses and odometry is 'never'")
             from stratamap.plugins.sources._odometry import lidar_odometry
 
-            for s, pose in zip(scans, lidar_odometry([s.points for s in scans], [s.timestamp for s in scans]), strict=True):
+            for s, pose in zip(
+                scans, lidar_odometry([s.points for s in scans], [s.timestamp for s in scans]), strict=True
+            ):
                 s.pose = pose
             self.note("odometry", {"method": "kiss-icp", "sweeps": len(scans)})
-        stream = SensorStream(name=path.stem, lidar_scans=scans, metadata={"path": str(path), "format": "rosbag", "pointcloud_topic": topic})
+        stream = SensorStream(
+            name=path.stem,
+            lidar_scans=scans,
+            metadata={"path": str(path), "format": "rosbag", "pointcloud_topic": topic},
+        )
         return stream, PosedFrames([], lambda k: (np.zeros(0), np.zeros(0)), []), None
 
     def read(self) -> dict[str, Any]:
-        cfg: RosbagConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         stream, frames, gt = self.load()
         if len(frames) == 0:  # LiDAR input: poses settled in load, gravity from the sweeps
             if cfg.gravity == "auto" and stream.lidar_scans:
-                from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
                 from stratamap.core.geometry.transforms import apply
+                from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
 
-                probe = SensorStream(name=stream.name, points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]]))
+                probe = SensorStream(
+                    name=stream.name, points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]])
+                )
                 alignment = estimate_alignment(probe, up_hint=np.array([0.0, 0.0, 1.0]))
                 self.note("gravity_alignment", alignment.report())
                 if alignment.realigned:

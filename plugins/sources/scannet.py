@@ -14,10 +14,10 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_image, read_rgb, write_scannet
+from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
-from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_stream, select
+from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 
 class ScanNetConfig(SequenceConfig):
@@ -44,7 +44,7 @@ def read_matrix(path: Path) -> np.ndarray:
     return mat
 
 
-class ScanNetSource(SequenceSource):
+class ScanNetSource(SequenceSource[ScanNetConfig]):
     """ScanNet-style exports: color/, depth/ (mm), pose/ (camera-to-world), intrinsic/."""
 
     name = "scannet"
@@ -52,14 +52,11 @@ class ScanNetSource(SequenceSource):
 
     @classmethod
     def example_params(cls) -> dict:
-        import tempfile
-
-        root = Path(tempfile.mkdtemp(prefix="stratamap-scannet-"))
-        write_scannet(example_stream(128, 96, 5), root, color_size=(256, 192))
-        return {"path": str(root)}
+        folder = example_sequence(lambda stream, root: write_scannet(stream, root, color_size=(256, 192)), "scannet")
+        return {"path": str(folder)}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
-        cfg: ScanNetConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         root = Path(cfg.path).expanduser()
         if not root.is_dir():
             raise DataError(f"{root}: sequence folder not found")
@@ -100,7 +97,9 @@ class ScanNetSource(SequenceSource):
             return read_rgb(color, shape), read_depth(depths[idx[k]], cfg.depth_scale, shape)
 
         frames = PosedFrames([numbers[i] / cfg.frame_rate for i in idx], read, poses)
-        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "scannet"})
+        stream = SensorStream(
+            name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "format": "scannet"}
+        )
         return stream, frames, None
 
 

@@ -12,13 +12,19 @@ from stratamap.core.synthetic import SceneSpec, generate_sequence
 
 
 class SyntheticConfig(StageConfig):
-    scene: SceneSpec = Field(default_factory=SceneSpec, description="The procedural scene: type, objects, seed, sensors, trajectory, noise.")
-    scene_file: str | None = Field(default=None, description="A scene spec YAML file (configs/scenes/*.yaml); when set it replaces `scene`.")
-    frames: int | None = Field(default=None, ge=1, le=100000, description="Override the number of frames of the trajectory.")
+    scene: SceneSpec = Field(
+        default_factory=SceneSpec, description="The procedural scene: type, objects, seed, sensors, trajectory, noise."
+    )
+    scene_file: str | None = Field(
+        default=None, description="A scene spec YAML file (configs/scenes/*.yaml); when set it replaces `scene`."
+    )
+    frames: int | None = Field(
+        default=None, ge=1, le=100000, description="Override the number of frames of the trajectory."
+    )
     seed: int | None = Field(default=None, description="Override the scene's seed.")
 
 
-class SyntheticSource(Source):
+class SyntheticSource(Source[SyntheticConfig]):
     """Procedural scene rendered by ray casting, with per-pixel labels, object meshes, poses and support as ground truth."""
 
     name = "synthetic"
@@ -31,7 +37,7 @@ class SyntheticSource(Source):
         return {"scene": {"camera": {"width": 160, "height": 120}, "trajectory": {"frames": 20}}}
 
     def spec(self) -> SceneSpec:
-        cfg: SyntheticConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         spec = SceneSpec.from_yaml(self._resolve(cfg.scene_file)) if cfg.scene_file else cfg.scene
         updates: dict[str, Any] = {}
         if cfg.seed is not None:
@@ -53,7 +59,9 @@ class SyntheticSource(Source):
 
     def read(self) -> dict[str, Any]:
         seq = generate_sequence(self.spec())
-        self.note("scene", {"objects": len(seq.ground_truth.objects), "frames": len(seq.stream), "skipped": seq.scene.skipped})
+        self.note(
+            "scene", {"objects": len(seq.ground_truth.objects), "frames": len(seq.stream), "skipped": seq.scene.skipped}
+        )
         return {"frames": seq.stream, "ground_truth": seq.ground_truth}
 
 

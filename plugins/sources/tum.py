@@ -17,7 +17,6 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.io.groundtruth import load_ground_truth
 from stratamap.core.io.rgbd import (
     associate,
@@ -29,6 +28,7 @@ from stratamap.core.io.rgbd import (
     read_rgb,
     read_timestamped_list,
 )
+from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, select
 
@@ -36,14 +36,22 @@ TUM_DEFAULT = {"width": 640, "height": 480, "fx": 517.3, "fy": 516.5, "cx": 318.
 
 
 class TUMConfig(SequenceConfig):
-    depth_scale: float | None = Field(default=None, gt=0, description="Depth units per metre; default: camera.json, else 5000 (TUM).")
-    intrinsics: dict[str, float] | None = Field(default=None, description="width, height, fx, fy, cx, cy when there is no camera.json.")
-    association_tolerance: float = Field(default=0.02, gt=0, description="Max time between an rgb and a depth image to pair them, seconds.")
-    pose_tolerance: float = Field(default=0.02, gt=0, description="Max time to the nearest ground-truth pose outside interpolation, seconds.")
+    depth_scale: float | None = Field(
+        default=None, gt=0, description="Depth units per metre; default: camera.json, else 5000 (TUM)."
+    )
+    intrinsics: dict[str, float] | None = Field(
+        default=None, description="width, height, fx, fy, cx, cy when there is no camera.json."
+    )
+    association_tolerance: float = Field(
+        default=0.02, gt=0, description="Max time between an rgb and a depth image to pair them, seconds."
+    )
+    pose_tolerance: float = Field(
+        default=0.02, gt=0, description="Max time to the nearest ground-truth pose outside interpolation, seconds."
+    )
     load_ground_truth: bool = Field(default=True, description="Load a gt/ folder beside the sequence when present.")
 
 
-class TUMSource(SequenceSource):
+class TUMSource(SequenceSource[TUMConfig]):
     """TUM RGB-D folders: timestamp association, groundtruth.txt poses, camera.json intrinsics, gt/ ground truth."""
 
     name = "tum"
@@ -58,19 +66,28 @@ class TUMSource(SequenceSource):
         from stratamap.core.synthetic.writer import write_sequence
 
         folder = Path(tempfile.mkdtemp(prefix="stratamap-tum-example-")) / "seq"
-        spec = SceneSpec.model_validate({"type": "room", "seed": 1, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 6}})
+        spec = SceneSpec.model_validate(
+            {
+                "type": "room",
+                "seed": 1,
+                "camera": {"width": 160, "height": 120},
+                "trajectory": {"type": "orbit", "frames": 6},
+            }
+        )
         write_sequence(SyntheticWorld(spec), folder)
         return {"path": str(folder)}
 
     def _intrinsics(self, root: Path) -> tuple[CameraIntrinsics, float]:
-        cfg: TUMConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         cam_file = root / "camera.json"
         if cam_file.is_file():
             try:
                 cam = json.loads(cam_file.read_text())
                 intr = CameraIntrinsics.from_dict(cam)
             except (json.JSONDecodeError, KeyError, ValueError, TypeError) as exc:
-                raise DataError(f"{cam_file}: expected keys width, height, fx, fy, cx, cy, depth_scale ({exc!r})") from exc
+                raise DataError(
+                    f"{cam_file}: expected keys width, height, fx, fy, cx, cy, depth_scale ({exc!r})"
+                ) from exc
             scale = cfg.depth_scale or float(cam.get("depth_scale", TUM_DEFAULT["depth_scale"]))
             return intr, scale
         if cfg.intrinsics is not None:
@@ -82,7 +99,7 @@ class TUMSource(SequenceSource):
         return CameraIntrinsics.from_dict(TUM_DEFAULT), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
-        cfg: TUMConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         root = Path(cfg.path).expanduser()
         if not root.is_dir():
             raise DataError(f"{root}: sequence folder not found")
@@ -97,7 +114,9 @@ class TUMSource(SequenceSource):
                 f"{root}: no rgb/depth pair within {cfg.association_tolerance} s (rgb.txt {rgb_t[0]:.3f}..{rgb_t[-1]:.3f}, depth.txt {depth_t[0]:.3f}..{depth_t[-1]:.3f})"
             )
         if len(pairs) < 0.5 * len(depth_rows):
-            self.warn(f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within {cfg.association_tolerance} s")
+            self.warn(
+                f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within {cfg.association_tolerance} s"
+            )
         chosen = select(list(range(len(pairs))), cfg.stride, cfg.max_frames)
         pairs = [pairs[i] for i in chosen]
         times = [float(depth_t[d]) for d, _ in pairs]
@@ -120,7 +139,12 @@ class TUMSource(SequenceSource):
             if missing:
                 self.warn(f"{gt_file}: no pose within {cfg.pose_tolerance} s for {missing} of {len(poses)} frames")
         frames = PosedFrames(times, read, poses)
-        stream = SensorStream(name=root.name, intrinsics=intr, frames=frames, metadata={"path": str(root), "depth_scale": scale, "format": "tum"})
+        stream = SensorStream(
+            name=root.name,
+            intrinsics=intr,
+            frames=frames,
+            metadata={"path": str(root), "depth_scale": scale, "format": "tum"},
+        )
         if (root / "laser.txt").is_file():
             stream.laser_scans = read_laser_file(root / "laser.txt")
         gt = None

@@ -27,30 +27,48 @@ from pydantic import Field, model_validator
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.map.groundtruth import GroundTruth
-from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL1_CLASS, LEVEL2, LEVEL2_CLASS
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
-
+from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL1_CLASS, LEVEL2, LEVEL2_CLASS
 
 
 class UrdfScanConfig(StageConfig):
-    path: str | None = Field(default=None, description="URDF file of the scene (meshes resolved via package:// and the file's folders).")
-    synthetic_seed: int | None = Field(default=None, description="Scan a procedural kitchen with this seed instead of a URDF file.")
-    root_link: str | None = Field(default=None, description="Only the links under this one (e.g. kitchen_root); default: the whole model.")
-    room: tuple[float, float, float, float, float] | None = Field(
-        default=None, description="Room [x0, y0, x1, y1, height] added around the scene, metres; default: the scene's footprint + 1 m."
+    path: str | None = Field(
+        default=None, description="URDF file of the scene (meshes resolved via package:// and the file's folders)."
     )
-    viewpoints: list[tuple[float, float, float]] | None = Field(default=None, description="Scanner positions [x, y, z], metres (procedural kitchens bring their own).")
-    resolution_deg: float = Field(default=0.4, gt=0.02, le=5.0, description="Angular step of the panoramic scans, degrees.")
-    elevation_deg: tuple[float, float] = Field(default=(-70.0, 70.0), description="Lowest and highest beam elevation, degrees.")
+    synthetic_seed: int | None = Field(
+        default=None, description="Scan a procedural kitchen with this seed instead of a URDF file."
+    )
+    root_link: str | None = Field(
+        default=None, description="Only the links under this one (e.g. kitchen_root); default: the whole model."
+    )
+    room: tuple[float, float, float, float, float] | None = Field(
+        default=None,
+        description="Room [x0, y0, x1, y1, height] added around the scene, metres; default: the scene's footprint + 1 m.",
+    )
+    viewpoints: list[tuple[float, float, float]] | None = Field(
+        default=None, description="Scanner positions [x, y, z], metres (procedural kitchens bring their own)."
+    )
+    resolution_deg: float = Field(
+        default=0.4, gt=0.02, le=5.0, description="Angular step of the panoramic scans, degrees."
+    )
+    elevation_deg: tuple[float, float] = Field(
+        default=(-70.0, 70.0), description="Lowest and highest beam elevation, degrees."
+    )
     max_range: float = Field(default=8.0, gt=0.0, description="Beams longer than this return nothing, metres.")
     noise: float = Field(default=0.003, ge=0.0, description="Gaussian range noise, metres.")
     seed: int = Field(default=0, description="Seed of the range noise.")
-    joint_positions: dict[str, float] = Field(default_factory=dict, description="Joint values to scan at (default: all closed).")
-    appliance_pattern: str = Field(default=r"oven|dishwasher|fridge|refrigerator|microwave", description="Regex on link names that are appliances.")
+    joint_positions: dict[str, float] = Field(
+        default_factory=dict, description="Joint values to scan at (default: all closed)."
+    )
+    appliance_pattern: str = Field(
+        default=r"oven|dishwasher|fridge|refrigerator|microwave", description="Regex on link names that are appliances."
+    )
     handle_pattern: str = Field(default="handle", description="Regex on link names that are handles.")
     knob_pattern: str = Field(default="knob", description="Regex on link names that are knobs.")
-    ignore_pattern: str | None = Field(default=r"tap|hotplate|socket", description="Regex on link names left out of the scan.")
+    ignore_pattern: str | None = Field(
+        default=r"tap|hotplate|socket", description="Regex on link names left out of the scan."
+    )
 
     @model_validator(mode="after")
     def _one_scene(self) -> UrdfScanConfig:
@@ -61,7 +79,7 @@ class UrdfScanConfig(StageConfig):
         return self
 
 
-class UrdfScanSource(Source):
+class UrdfScanSource(Source[UrdfScanConfig]):
     """Virtual laser scans of a URDF scene with per-point plane and furniture ground truth."""
 
     name = "urdf_scan"
@@ -73,10 +91,10 @@ class UrdfScanSource(Source):
         return {"synthetic_seed": 0, "resolution_deg": 2.0}
 
     def read(self) -> dict[str, Any]:
-        from stratamap.core.simulation import virtual_scan as ks
         from stratamap.core.io.urdf import read_urdf
+        from stratamap.core.simulation import virtual_scan as ks
 
-        cfg: UrdfScanConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         room = cfg.room
         viewpoints = cfg.viewpoints
         if cfg.synthetic_seed is not None:
@@ -96,7 +114,15 @@ class UrdfScanSource(Source):
             path = Path(cfg.path).expanduser()  # type: ignore[arg-type]
             model = read_urdf(path)
             name = path.stem
-        scene = ks.kitchen_from_urdf(model, cfg.root_link, cfg.appliance_pattern, cfg.handle_pattern, cfg.knob_pattern, cfg.ignore_pattern, cfg.joint_positions)
+        scene = ks.kitchen_from_urdf(
+            model,
+            cfg.root_link,
+            cfg.appliance_pattern,
+            cfg.handle_pattern,
+            cfg.knob_pattern,
+            cfg.ignore_pattern,
+            cfg.joint_positions,
+        )
         for w in scene.warnings:
             self.warn(w)
         ks.add_room(scene, room)
@@ -116,12 +142,31 @@ class UrdfScanSource(Source):
         inst = np.where(labels.front >= 0, labels.front + 1, 0).astype(np.int32)
         fronts = [{"name": f.name, "kind": f.kind, "joint_type": f.joint_type, "hinge": f.hinge} for f in scene.fronts]
         gt = GroundTruth(
-            vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst,
-            layout={"kitchen_scan": {"level1": labels.level1, "level2": labels.level2, "front": labels.front, "fronts": fronts, "room": scene.room}},
+            vocabulary=vocab,
+            point_class_ids=cls,
+            point_instance_ids=inst,
+            layout={
+                "kitchen_scan": {
+                    "level1": labels.level1,
+                    "level2": labels.level2,
+                    "front": labels.front,
+                    "fronts": fronts,
+                    "room": scene.room,
+                }
+            },
         )
-        stream = SensorStream(name=name, points=scan.points, metadata={"viewpoints": views.tolist(), "source": "urdf_scan"})
-        self.note("scan", {"points": len(scan.points), "viewpoints": len(views), "fronts": len(fronts),
-                           "doors": sum(1 for f in fronts if f["joint_type"] == "revolute")})
+        stream = SensorStream(
+            name=name, points=scan.points, metadata={"viewpoints": views.tolist(), "source": "urdf_scan"}
+        )
+        self.note(
+            "scan",
+            {
+                "points": len(scan.points),
+                "viewpoints": len(views),
+                "fronts": len(fronts),
+                "doors": sum(1 for f in fronts if f["joint_type"] == "revolute"),
+            },
+        )
         return {"frames": stream, "ground_truth": gt}
 
 

@@ -19,18 +19,19 @@ from stratamap.core.map.layers import Completion
 class HullConfig(StageConfig):
     min_points: int = Field(default=10, ge=4, description="Objects with fewer observed points are left uncompleted.")
     extrude_to_base: bool = Field(
-        default=True, description="Add the footprint of the points at the object's lowest height, so unseen undersides are filled."
+        default=True,
+        description="Add the footprint of the points at the object's lowest height, so unseen undersides are filled.",
     )
 
 
-class HullCompleter(Completer):
+class HullCompleter(Completer[HullConfig]):
     """Replaces every object by the convex hull of its observed points (extruded to its base)."""
 
     name = "hull"
     Config = HullConfig
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        cfg: HullConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         insts = data.map.instances.copy()  # never modify the input layer in place
         for inst in insts:
             if len(inst.points) < cfg.min_points:

@@ -1,7 +1,8 @@
 """The plugin passes stratamap's conformance kit, like every built-in stage."""
 
-from stratamap.core.testing import example_data, parametrize_with_checks
 from stratamap_hull import HullCompleter
+
+from stratamap.core.testing import example_data, parametrize_with_checks
 
 
 @parametrize_with_checks([HullCompleter])

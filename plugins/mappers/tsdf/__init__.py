@@ -21,13 +21,20 @@ from pydantic import Field, PositiveFloat, PositiveInt
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
-from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
+from stratamap.core.geometry.transforms import apply
 from stratamap.core.map.instances import instances_from_semantics
 from stratamap.core.map.layers import Semantics
-from stratamap.plugins.mappers.tsdf.mask_instances import DEFAULT_MAX_LENGTH, DEFAULT_MIN_POINTS_BY_CLASS, DEFAULT_STACKED_CLASSES, MaskInstanceParams, MaskObservations, mask_instances
-from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 from stratamap.core.map.sensors import CameraIntrinsics
-from stratamap.core.geometry.transforms import apply
+from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
+from stratamap.plugins.mappers.tsdf.mask_instances import (
+    DEFAULT_MAX_LENGTH,
+    DEFAULT_MIN_POINTS_BY_CLASS,
+    DEFAULT_STACKED_CLASSES,
+    MaskInstanceParams,
+    MaskObservations,
+    mask_instances,
+)
+from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 
 
 def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size: float, depth_max: float) -> int:
@@ -40,11 +47,21 @@ def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size
 
 
 class TSDFConfig(IntegrationConfig):
-    associate_ratio: float = Field(default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label.")
-    merge_ratio: float = Field(default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge.")
+    associate_ratio: float = Field(
+        default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label."
+    )
+    merge_ratio: float = Field(
+        default=0.5, gt=0, le=1, description="Shared-voxel ratio above which a segment's two labels vote to merge."
+    )
     merge_votes: int = Field(default=2, ge=1, description="Frames of merge votes before two labels merge.")
-    instance_merge_ratio: float = Field(default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5).")
-    fragment_touch: float = Field(default=1.5, ge=0.0, description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).")
+    instance_merge_ratio: float = Field(
+        default=0.3, gt=0, le=1, description="Share of a label's votes two instances must each hold to merge (eq. 5)."
+    )
+    fragment_touch: float = Field(
+        default=1.5,
+        ge=0.0,
+        description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).",
+    )
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
     instances: Literal["labels", "masks"] = Field(
         default="labels",
@@ -55,7 +72,9 @@ class TSDFConfig(IntegrationConfig):
             "two chairs does not fuse them)."
         ),
     )
-    piece_min_points: int = Field(default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most.")
+    piece_min_points: int = Field(
+        default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most."
+    )
     piece_min_points_by_class: dict[str, PositiveInt] = Field(
         default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS),
         description=(
@@ -64,16 +83,26 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     piece_merge_ratio: float = Field(
-        default=0.5, gt=0, lt=1, description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
+        default=0.5,
+        gt=0,
+        lt=1,
+        description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time.",
     )
     piece_near_gap: float = Field(
-        default=0.2, ge=0, description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit."
+        default=0.2,
+        ge=0,
+        description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit.",
     )
     piece_far_ratio: float = Field(
-        default=0.9, gt=0, le=1, description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never)."
+        default=0.9,
+        gt=0,
+        le=1,
+        description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never).",
     )
     piece_min_class_share: float = Field(
-        default=0.1, ge=0, lt=1,
+        default=0.1,
+        ge=0,
+        lt=1,
         description="'masks': instances under this share of the typical size of their class's instances (piece_fragment_reference) are dropped as misfires; 0: keep all.",
     )
     piece_fragment_reference: Literal["median", "point_median"] = Field(
@@ -84,14 +113,18 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     piece_cross_ratio: float = Field(
-        default=0.8, ge=0, le=1,
+        default=0.8,
+        ge=0,
+        le=1,
         description=(
             "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw them in one mask "
             "more than this share of the time, taking their points' majority class; 0: never."
         ),
     )
     piece_cross_share: float = Field(
-        default=0.1, ge=0, le=1,
+        default=0.1,
+        ge=0,
+        le=1,
         description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
     )
     piece_stacked_classes: list[str] = Field(
@@ -102,7 +135,10 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     piece_stack_overlap: float = Field(
-        default=0.5, gt=0, le=1, description="'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the larger one."
+        default=0.5,
+        gt=0,
+        le=1,
+        description="'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the larger one.",
     )
     piece_max_length: dict[str, PositiveFloat] = Field(
         default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
@@ -112,12 +148,14 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     piece_split_balance: float = Field(
-        default=0.35, ge=0, le=1,
+        default=0.35,
+        ge=0,
+        le=1,
         description="'masks': an over-long instance is cut only if every part holds this share of the largest part's points (a monitor that took a scrap of something far beyond it stays whole).",
     )
 
 
-class TSDFMapper(Mapper):
+class TSDFMapper(Mapper[TSDFConfig]):
     """TSDF fusion of RGB-D frames (Open3D VoxelBlockGrid) with panoptic label fusion."""
 
     name = "tsdf"
@@ -127,7 +165,7 @@ class TSDFMapper(Mapper):
     provides = frozenset({"geometry", "semantics", "instances"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
-        cfg: TSDFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         stream = data.stream
         assert stream is not None
         if stream.intrinsics is None:
@@ -135,14 +173,24 @@ class TSDFMapper(Mapper):
         labels = data.frame_labels
         if labels is not None and len(labels) != len(stream.frames):
             raise DataError(f"tsdf: {len(labels)} label images for {len(stream.frames)} frames")
-        volume = TSDFVolume(cfg, stream.intrinsics, extra=[("label", o3c.int32, 1), ("conf", o3c.int32, 1)] if labels is not None else [])
+        volume = TSDFVolume(
+            cfg,
+            stream.intrinsics,
+            extra=[("label", o3c.int32, 1), ("conf", o3c.int32, 1)] if labels is not None else [],
+        )
         vbg = volume.grid
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         if cfg.instances == "masks":  # before integration, not after minutes of it
-            named = {"piece_max_length.{}": cfg.piece_max_length, "piece_min_points_by_class.{}": cfg.piece_min_points_by_class,
-                     "piece_stacked_classes: {!r}": cfg.piece_stacked_classes}
-            problems = [(f"tsdf.{key.format(name)}", f"not a class of the map's vocabulary {list(vocab.names)}")
-                        for key, names in named.items() for name in sorted(set(names) - set(vocab.names))]
+            named = {
+                "piece_max_length.{}": cfg.piece_max_length,
+                "piece_min_points_by_class.{}": cfg.piece_min_points_by_class,
+                "piece_stacked_classes: {!r}": cfg.piece_stacked_classes,
+            }
+            problems = [
+                (f"tsdf.{key.format(name)}", f"not a class of the map's vocabulary {list(vocab.names)}")
+                for key, names in named.items()
+                for name in sorted(set(names) - set(vocab.names))
+            ]
             if problems:
                 raise ConfigError(problems)
         state = PanopticState(
@@ -155,7 +203,9 @@ class TSDFMapper(Mapper):
         integrated = 0
         for frame in self.progress(stream.frames, description="TSDF integration"):
             if frame.pose is None:
-                raise DataError(f"tsdf: frame {frame.index} of {stream.name!r} has no pose; enable odometry or provide poses")
+                raise DataError(
+                    f"tsdf: frame {frame.index} of {stream.name!r} has no pose; enable odometry or provide poses"
+                )
             depth = volume.valid_depth(frame, "tsdf")
             if not np.any(depth > 0):
                 self.warn(f"frame {frame.index} has no valid depth; skipped")
@@ -181,14 +231,13 @@ class TSDFMapper(Mapper):
         fragments: dict[int, int] = {}
         if cfg.instances == "masks":
             point_class, point_instance = mask_instances(
-                points, point_class, point_instance, observations, vocab, cfg.voxel_size, MaskInstanceParams(
-                    min_points=cfg.piece_min_points, min_points_by_class=cfg.piece_min_points_by_class, merge_ratio=cfg.piece_merge_ratio, near_gap=cfg.piece_near_gap,
-                    far_ratio=cfg.piece_far_ratio, min_class_share=cfg.piece_min_class_share,
-                    fragment_reference=cfg.piece_fragment_reference,
-                    cross_class_ratio=cfg.piece_cross_ratio, cross_class_share=cfg.piece_cross_share,
-                    stacked_classes=tuple(cfg.piece_stacked_classes), stack_overlap=cfg.piece_stack_overlap,
-                    max_length=cfg.piece_max_length, split_balance=cfg.piece_split_balance,
-                ),
+                points,
+                point_class,
+                point_instance,
+                observations,
+                vocab,
+                cfg.voxel_size,
+                MaskInstanceParams.from_settings(cfg.model_dump()),
             )
         elif cfg.fragment_touch > 0:
             fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size)
@@ -201,7 +250,13 @@ class TSDFMapper(Mapper):
         semantics = Semantics(point_class, point_instance, vocab)
         self.note(
             "panoptic",
-            {"segment_labels": state.next_label - 1, "labels_merged": len(state.merged_into), "instances_merged": len(merged), "fragments_merged": len(fragments), "small_instances_dropped": len(small)},
+            {
+                "segment_labels": state.next_label - 1,
+                "labels_merged": len(state.merged_into),
+                "instances_merged": len(merged),
+                "fragments_merged": len(fragments),
+                "small_instances_dropped": len(small),
+            },
         )
         out["semantics"] = semantics
         out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points)
@@ -219,7 +274,15 @@ class TSDFMapper(Mapper):
         return flat, found
 
     def _fuse_labels(
-        self, vbg: Any, state: PanopticState, observations: MaskObservations, depth: np.ndarray, seg: Any, intr: Any, pose: np.ndarray, cfg: TSDFConfig
+        self,
+        vbg: Any,
+        state: PanopticState,
+        observations: MaskObservations,
+        depth: np.ndarray,
+        seg: Any,
+        intr: Any,
+        pose: np.ndarray,
+        cfg: TSDFConfig,
     ) -> None:
         d = np.where(depth <= cfg.depth_max, depth, 0)
         if cfg.instances == "masks":

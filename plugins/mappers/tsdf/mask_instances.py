@@ -7,14 +7,14 @@ the other way round, from evidence that averages out over frames:
 
 1. **Class per voxel**: every frame's class at a voxel is a vote; a map point takes the class most
    frames gave its voxel (SemanticFusion-style voting, McCormac et al. 2017), not its label's.
-2. **Atoms**: the points of one class and one fused instance, cut into connected pieces (points
+2. **Pieces**: the points of one class and one fused instance, cut into connected pieces (points
    within ``1.5`` voxels link). Two objects of a class that a merged label covered fall apart
    where they do not touch; pieces under ``min_points`` join the piece they touch most. Small
    things have a lower bar (``min_points_by_class``): a whole cup is about a hundred map points at
    2 cm, and the part of it most frames call "cup" is often under sixty, which then joined the table.
 3. **Agglomeration by masks** (as superpoint merging with 2D masks in open-vocabulary 3D instance
-   segmentation, e.g. Open3DIS, Nguyen et al. 2024): in each frame, an atom is *in* a 2D thing
-   segment when most of its visible voxels fall in it; two atoms in one segment count a *together*,
+   segmentation, e.g. Open3DIS, Nguyen et al. 2024): in each frame, a piece is *in* a 2D thing
+   segment when most of its visible voxels fall in it; two pieces in one segment count a *together*,
    in two segments an *apart*. Same-class groups merge greedily, best ratio first, while
    together / (together + apart) exceeds ``merge_ratio`` (and together >= ``min_together``).
    An object cut by a thin part the TSDF does not keep (a chair's post) is re-joined, because
@@ -24,10 +24,10 @@ the other way round, from evidence that averages out over frames:
    so books a segmenter often covers together, or chairs seen one behind the other, stay apart.
    An object the segmenter calls by two names (half a chair "sofa") is two groups of two classes
    that masks keep covering together: near groups of different classes merge above
-   ``cross_class_ratio`` when the smaller holds at least ``cross_class_share`` of the larger's
+   ``cross_ratio`` when the smaller holds at least ``cross_share`` of the larger's
    points, and the merged group takes the class most of its points have. A book on a shelf that
    masks often miss is far smaller than the shelf and stays a book.
-4. **Fragments**: an instance under ``min_class_share`` of the typical size of its class's
+4. **Misfires**: an instance under ``min_class_share`` of the typical size of its class's
    instances in the map (a chair of 90 points beside chairs of 5,000) is a misfire and is dropped;
    typical is the size of the instance the class's median point lies in, which a crowd of
    misfires does not pull down as it does the median instance (``fragment_reference``).
@@ -53,7 +53,8 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
@@ -61,8 +62,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from stratamap.core.map.priors import NOT_STACKED, class_max_lengths
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS, cell_keys
+from stratamap.core.map.priors import NOT_STACKED, class_max_lengths
 from stratamap.core.map.vocabulary import Vocabulary
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
@@ -119,7 +120,9 @@ class MaskObservations:
 @dataclass
 class MaskInstanceParams:
     min_points: int = 60
-    min_points_by_class: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS))  # class -> points instead of min_points
+    min_points_by_class: dict[str, int] = field(
+        default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS)
+    )  # class -> points instead of min_points
     merge_ratio: float = 0.5
     min_together: int = 2
     in_share: float = 0.5  # a piece is in a frame's segment when this share of its voxels seen in that frame fall in it
@@ -127,13 +130,32 @@ class MaskInstanceParams:
     near_gap: float = 0.2  # m; 0: no limit on how far apart merged groups may be
     far_ratio: float = 0.9  # the together share groups farther apart than near_gap need
     min_class_share: float = 0.1  # 0: keep every instance of min_points or more
-    fragment_reference: str = "point_median"  # "median": the class's median instance; "point_median": the instance its median point is in
-    cross_class_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
-    cross_class_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
+    fragment_reference: str = (
+        "point_median"  # "median": the class's median instance; "point_median": the instance its median point is in
+    )
+    cross_ratio: float = 0.8  # near groups of two classes merge above this together share; 0: never
+    cross_share: float = 0.1  # ... if the smaller has at least this share of the larger's points
     stacked_classes: tuple[str, ...] = DEFAULT_STACKED_CLASSES  # (): no stacked-piece merging
     stack_overlap: float = 0.5  # share of the smaller piece's footprint cells inside the larger's
-    max_length: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_MAX_LENGTH))  # class -> m; {}: no size prior
+    max_length: dict[str, float] = field(
+        default_factory=lambda: dict(DEFAULT_MAX_LENGTH)
+    )  # class -> m; {}: no size prior
     split_balance: float = 0.35  # parts of an over-long instance must each hold this share of the largest part's points
+
+    def __post_init__(self) -> None:
+        self.stacked_classes = tuple(self.stacked_classes)
+
+    @classmethod
+    def from_settings(cls, settings: dict[str, Any], prefix: str = "piece_") -> MaskInstanceParams:
+        """The parameters a stage config holds as ``<prefix><name>`` fields (``piece_merge_ratio``, ...)."""
+        names = {f.name for f in fields(cls)}
+        return cls(
+            **{
+                key[len(prefix) :]: value
+                for key, value in settings.items()
+                if key.startswith(prefix) and key[len(prefix) :] in names
+            }
+        )
 
 
 def point_class_votes(
@@ -159,7 +181,9 @@ def point_class_votes(
     return out
 
 
-def atoms(points: np.ndarray, point_class: np.ndarray, group: np.ndarray, link: float, min_points: int | np.ndarray) -> np.ndarray:
+def connected_pieces(
+    points: np.ndarray, point_class: np.ndarray, group: np.ndarray, link: float, min_points: int | np.ndarray
+) -> np.ndarray:
     """Connected pieces of same-class, same-``group`` points (ids from 0); pieces under
     ``min_points`` (one number, or one per class id) join (with their class) the neighbouring
     piece they share most links with."""
@@ -282,8 +306,8 @@ def agglomerate(
     """Greedy agglomeration: merge the same-class pair of groups with the highest
     together / (together + apart) while it exceeds ``merge_ratio`` (``far_ratio`` for groups that
     ``near`` does not mark as neighbours, when given). With ``near`` and ``sizes`` (points per
-    piece), near groups of two classes merge above ``cross_class_ratio`` if the smaller has
-    ``cross_class_share`` of the larger's points; a merged group goes on with the larger one's
+    piece), near groups of two classes merge above ``cross_ratio`` if the smaller has
+    ``cross_share`` of the larger's points; a merged group goes on with the larger one's
     class. Returns a group per piece."""
     together, apart = together.copy(), apart.copy()
     near = None if near is None else near.copy()
@@ -292,7 +316,7 @@ def agglomerate(
     alive = np.ones(count, bool)
     group_class = np.asarray(piece_class).copy()
     size = None if sizes is None else np.asarray(sizes, np.float64).copy()
-    cross_class = near is not None and size is not None and params.cross_class_ratio > 0
+    cross_class = near is not None and size is not None and params.cross_ratio > 0
     while True:
         total = together + apart
         score = np.where(total > 0, together / np.maximum(total, 1), 0.0)
@@ -303,7 +327,7 @@ def agglomerate(
             ok &= near | (score > params.far_ratio)
         if cross_class:
             small, large = np.minimum(size[:, None], size[None, :]), np.maximum(size[:, None], size[None, :])
-            ok |= ~same_class & pair_ok & near & (score > params.cross_class_ratio) & (small >= params.cross_class_share * large)
+            ok |= ~same_class & pair_ok & near & (score > params.cross_ratio) & (small >= params.cross_share * large)
         np.fill_diagonal(ok, False)
         if not ok.any():
             break
@@ -339,7 +363,7 @@ def mask_instances(
     voxel_size: float,
     params: MaskInstanceParams | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(class, instance) per map point: voxel class votes, atoms, agglomeration by masks."""
+    """(class, instance) per map point: voxel class votes, pieces, agglomeration by masks."""
     params = params or MaskInstanceParams()
     is_thing = np.asarray(vocabulary.is_thing)
     if len(points) == 0 or len(obs) == 0:
@@ -349,7 +373,7 @@ def mask_instances(
     point_class = np.where(votes.sum(1) > 0, votes.argmax(1), fused_class).astype(np.int64)
     group = np.where(point_class == fused_class, fused_instance, -1)
     bar = class_min_points(vocabulary, params.min_points, params.min_points_by_class)
-    piece = atoms(points, point_class, group, 1.5 * voxel_size, bar)
+    piece = connected_pieces(points, point_class, group, 1.5 * voxel_size, bar)
     count = int(piece.max()) + 1
     piece_class = piece_majority(piece, point_class)
     piece_thing = is_thing[piece_class]
@@ -364,7 +388,7 @@ def mask_instances(
     merged[things] = things[agglomerate(together, apart, piece_class[things], params, near, thing_sizes)]
     owner = merged[piece]
     thing_point = piece_thing[piece]
-    if params.cross_class_ratio > 0 and thing_point.any():  # a group merged across classes takes its points' majority class
+    if params.cross_ratio > 0 and thing_point.any():  # a group merged across classes takes its points' majority class
         point_class[thing_point] = piece_majority(owner[thing_point], point_class[thing_point])[owner[thing_point]]
         piece_class = piece_majority(piece, point_class)
     sizes = np.bincount(owner, minlength=count)
@@ -392,9 +416,15 @@ def mask_instances(
         sizes = np.bincount(owner, minlength=count)
     instance = np.where(thing_point & (sizes[owner] >= bar[point_class]), owner + 1, 0)
     if params.min_class_share > 0:
-        instance[np.isin(instance, class_fragments(instance, point_class, params.min_class_share, params.fragment_reference))] = 0
+        instance[
+            np.isin(
+                instance, misfire_instances(instance, point_class, params.min_class_share, params.fragment_reference)
+            )
+        ] = 0
     if params.stacked_classes:
-        instance = merge_stacked(points, point_class, instance, vocabulary, params.stacked_classes, params.stack_overlap)
+        instance = merge_stacked(
+            points, point_class, instance, vocabulary, params.stacked_classes, params.stack_overlap
+        )
     if params.max_length:
         instance = split_oversized(points, point_class, instance, vocabulary, params.max_length, params.split_balance)
     # Thing points left without an instance (a piece too small to stand alone) carry no class.
@@ -402,10 +432,12 @@ def mask_instances(
     return point_class.astype(fused_class.dtype), instance.astype(fused_instance.dtype)
 
 
-def class_fragments(instance: np.ndarray, point_class: np.ndarray, share: float, reference: str = "median") -> np.ndarray:
+def misfire_instances(
+    instance: np.ndarray, point_class: np.ndarray, share: float, reference: str = "median"
+) -> np.ndarray:
     """Instance ids (> 0) with fewer points than ``share`` of the reference size of their class:
     its median instance (``"median"``), or the instance its median point is in (``"point_median"``,
-    the size-weighted median: many fragments beside a few real objects do not drag it down)."""
+    the size-weighted median: many misfires beside a few real objects do not drag it down)."""
     if reference not in ("median", "point_median"):
         raise ValueError(f"reference must be 'median' or 'point_median', not {reference!r}")
     ids, first, sizes = np.unique(instance, return_index=True, return_counts=True)
@@ -426,7 +458,9 @@ def require_classes(names: Iterable[str], vocabulary: Vocabulary, setting: str) 
     """Raise ValueError naming ``setting`` and every name in ``names`` that is not a class of ``vocabulary``."""
     unknown = sorted(set(names) - set(vocabulary.names))
     if unknown:
-        raise ValueError(f"{setting} names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})")
+        raise ValueError(
+            f"{setting} names classes not in the vocabulary: {unknown} (vocabulary: {list(vocabulary.names)})"
+        )
 
 
 def class_min_points(vocabulary: Vocabulary, min_points: int, by_class: dict[str, int]) -> np.ndarray:
@@ -445,8 +479,13 @@ def members_by_instance(instance: np.ndarray) -> tuple[np.ndarray, list[np.ndarr
 
 
 def merge_stacked(
-    points: np.ndarray, point_class: np.ndarray, instance: np.ndarray, vocabulary: Vocabulary, classes: tuple[str, ...] | list[str],
-    overlap: float = 0.5, cell: float = FOOTPRINT_CELL,
+    points: np.ndarray,
+    point_class: np.ndarray,
+    instance: np.ndarray,
+    vocabulary: Vocabulary,
+    classes: tuple[str, ...] | list[str],
+    overlap: float = 0.5,
+    cell: float = FOOTPRINT_CELL,
 ) -> np.ndarray:
     """Instance ids with same-class instances of ``classes`` one above the other merged: smallest
     first, an instance joins the larger one of its class holding the biggest share (at least
@@ -494,7 +533,12 @@ def horizontal_length(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def split_oversized(
-    points: np.ndarray, point_class: np.ndarray, instance: np.ndarray, vocabulary: Vocabulary, max_length: dict[str, float], balance: float = 0.35
+    points: np.ndarray,
+    point_class: np.ndarray,
+    instance: np.ndarray,
+    vocabulary: Vocabulary,
+    max_length: dict[str, float],
+    balance: float = 0.35,
 ) -> np.ndarray:
     """Instance ids with every instance longer than its class's ``max_length`` (longest horizontal
     span, m; z is up) cut into ``ceil(length / max_length)`` parts by k-means along that span,

@@ -3,27 +3,27 @@ functional-scenes paper (Han et al. 2021, section 3).
 
 State, kept inside the TSDF's own voxel blocks (extra attributes ``label`` and ``conf``):
 
-* every voxel holds a *segment label* l and a confidence count;
-* every label l holds a count Phi(l, c, p) of how often it was observed as semantic class c of
+* every voxel holds a *segment label* lab and a confidence count;
+* every label lab holds a count Phi(lab, c, p) of how often it was observed as semantic class c of
   global instance p.
 
 Per frame:
 
 1. The segmenter's per-pixel (class, instance) pairs define the frame's segments s.
-2. Association: pixels of s fall in voxels; the overlap Pi(s, l) counts those carrying label l.
-   Pairs are assigned greedily by decreasing overlap score max(Pi / |s|, Pi / |l in view|) (each
-   s and l at most once per frame) when it reaches ``associate_ratio``, except across a stuff
+2. Association: pixels of s fall in voxels; the overlap Pi(s, lab) counts those carrying label lab.
+   Pairs are assigned greedily by decreasing overlap score max(Pi / |s|, Pi / |lab in view|) (each
+   s and lab at most once per frame) when it reaches ``associate_ratio``, except across a stuff
    class (floor, wall, ceiling: layout never changes class); an unassigned segment starts a new label.
 3. Label merging: when a segment also covers most of another label's voxels in view
    (shared-voxel ratio >= ``merge_ratio``) in ``merge_votes`` frames, the two labels merge
    (only when that label stands for the segment's class, or for none yet).
 4. Voxels take the segment's label (Voxblox++'s confidence rule: agree +1, disagree -1, replace at 0).
 5. Instances: a thing segment's global instance is the one the labels it overlaps stand for,
-   weighted by overlap (each label stands for argmax_p sum_c Phi(l, c, p)), unless another segment
-   of the frame claimed it first; else a new one. Then Phi(l, c_s, p_s) += 1.
+   weighted by overlap (each label stands for argmax_p sum_c Phi(lab, c, p)), unless another segment
+   of the frame claimed it first; else a new one. Then Phi(lab, c_s, p_s) += 1.
 6. Instance merging (eq. 5): two instances merge when one label's votes are split between them,
    each holding at least ``instance_merge_ratio`` of that label's votes.
-7. Extraction (eq. 6): every label takes (c*, p*) = argmax Phi(l, c, p); voxels, hence map points,
+7. Extraction (eq. 6): every label takes (c*, p*) = argmax Phi(lab, c, p); voxels, hence map points,
    take their label's class and instance; stuff classes get instance 0.
 
 The ``tsdf`` mapper's default (``instances: masks``) builds the map's instances from these labels
@@ -105,42 +105,44 @@ class PanopticState:
         pairs, counts = np.unique(pair, return_counts=True)
         pair_seg = (pairs // SEGMENT_SHIFT).astype(np.int64)
         pair_label = (pairs % SEGMENT_SHIFT).astype(np.int64)
-        visible = Counter(dict(zip(*np.unique(current[has], return_counts=True), strict=True))) if has.any() else Counter()
+        visible = (
+            Counter(dict(zip(*np.unique(current[has], return_counts=True), strict=True))) if has.any() else Counter()
+        )
 
         # Overlap normalised both ways: a big object's new view may mostly cover unseen voxels
         # (small Pi/|s|) while still covering most of the label's voxels in view (large Pi/|l|).
-        vis = np.array([visible[int(l)] for l in pair_label], dtype=np.float64)
+        vis = np.array([visible[int(lab)] for lab in pair_label], dtype=np.float64)
         score = np.maximum(counts / seg_sizes[pair_seg], counts / np.maximum(vis, 1))
         assigned: dict[int, int] = {}
         used_labels: set[int] = set()
         is_thing = self.vocabulary.is_thing
         for idx in np.lexsort((-counts, -score)):
-            s, l, n = int(pair_seg[idx]), int(pair_label[idx]), int(counts[idx])
-            if s in assigned or l in used_labels or score[idx] < p.associate_ratio or n < 3:
+            s, lab, n = int(pair_seg[idx]), int(pair_label[idx]), int(counts[idx])
+            if s in assigned or lab in used_labels or score[idx] < p.associate_ratio or n < 3:
                 continue
             # Layout (stuff) segments and labels pair only with their own class: a wall's label
             # must not become the floor's because a segmenter calls the foot of the wall floor.
-            c_seg, c_label = int(seg_codes[s] >> 32), self.label_class(l)
+            c_seg, c_label = int(seg_codes[s] >> 32), self.label_class(lab)
             if c_label and c_seg and c_seg != c_label and not (is_thing[c_seg] and is_thing[c_label]):
                 continue
-            assigned[s] = l
-            used_labels.add(l)
+            assigned[s] = lab
+            used_labels.add(lab)
         # Shared-voxel ratio: a segment covering most of another label's visible voxels votes to
         # merge them, if that label stands for the segment's class (a floor segment spilling over
         # the foot of a wall whose label is mostly out of view must not swallow the wall).
         for idx in range(len(pairs)):
-            s, l = int(pair_seg[idx]), int(pair_label[idx])
+            s, lab = int(pair_seg[idx]), int(pair_label[idx])
             keep = assigned.get(s)
-            if keep is None or keep == l:
+            if keep is None or keep == lab:
                 continue
-            other = self.label_class(l)
+            other = self.label_class(lab)
             if other not in (0, int(seg_codes[s] >> 32)):
                 continue
-            if counts[idx] >= p.merge_ratio * visible[l] and counts[idx] >= 3:
-                key = (keep, l)
+            if counts[idx] >= p.merge_ratio * visible[lab] and counts[idx] >= 3:
+                key = (keep, lab)
                 self.merge_votes[key] += 1
                 if self.merge_votes[key] >= p.merge_votes:
-                    self._merge_labels(keep, l, voxel_labels)
+                    self._merge_labels(keep, lab, voxel_labels)
         for s in range(len(seg_codes)):
             if s not in assigned:
                 assigned[s] = self.new_label()
@@ -163,8 +165,8 @@ class PanopticState:
         # chair's voxels must not take the chair's instance (a segmenter's noisy class borders
         # would otherwise chain neighbouring objects of different classes into one instance).
         label_best: dict[int, tuple[int, int]] = {}
-        for l in set(pair_label.tolist()):
-            label_best[l] = (self.label_class(l), self.best_instance(l))
+        for lab in set(pair_label.tolist()):
+            label_best[lab] = (self.label_class(lab), self.best_instance(lab))
         seg_votes: dict[int, Counter] = defaultdict(Counter)
         for idx in range(len(pairs)):
             c_label, best = label_best[int(pair_label[idx])]
@@ -258,7 +260,9 @@ class PanopticState:
                 self.phi[label] = merged
         return mapping
 
-    def merge_fragments(self, point_class: np.ndarray, point_instance: np.ndarray, points: np.ndarray, touch: float) -> dict[int, int]:
+    def merge_fragments(
+        self, point_class: np.ndarray, point_instance: np.ndarray, points: np.ndarray, touch: float
+    ) -> dict[int, int]:
         """Merge same-class instances whose points touch (within ``touch`` metres) and that no frame
         ever segmented as two objects: the pieces of an object first seen from views that did not
         overlap. Returns the mapping applied to ``point_instance`` (in place)."""
@@ -285,7 +289,13 @@ class PanopticState:
 
         for k, a in enumerate(ids):
             for b in ids[k + 1 :]:
-                if cls[a] != cls[b] or np.any(lo[a] > hi[b]) or np.any(lo[b] > hi[a]) or find(a) == find(b) or apart(a, b):
+                if (
+                    cls[a] != cls[b]
+                    or np.any(lo[a] > hi[b])
+                    or np.any(lo[b] > hi[a])
+                    or find(a) == find(b)
+                    or apart(a, b)
+                ):
                     continue
                 if trees[a].sparse_distance_matrix(trees[b], touch, output_type="ndarray").size == 0:
                     continue

@@ -36,39 +36,76 @@ COCO = (
     "cell_phone microwave oven toaster sink refrigerator book clock vase scissors teddy_bear hair_drier toothbrush"
 ).split()
 #: COCO names that are map classes under another name.
-COCO_TO_MAP = {"couch": "sofa", "potted_plant": "plant", "dining_table": "table", "tv": "monitor", "refrigerator": "fridge"}
+COCO_TO_MAP = {
+    "couch": "sofa",
+    "potted_plant": "plant",
+    "dining_table": "table",
+    "tv": "monitor",
+    "refrigerator": "fridge",
+}
 
 
 class ONNXPanopticConfig(StageConfig):
-    model: str | None = Field(default=None, description="ONNX file; default: the shipped panoptic_small.onnx (synthetic-trained).")
+    model: str | None = Field(
+        default=None, description="ONNX file; default: the shipped panoptic_small.onnx (synthetic-trained)."
+    )
     layout: Literal["auto", "maskrcnn", "yolo_seg", "semantic_boundary"] = Field(
-        default="auto", description="Output layout; auto reads it from the model's JSON sidecar (MODEL.json), else from its outputs."
+        default="auto",
+        description="Output layout; auto reads it from the model's JSON sidecar (MODEL.json), else from its outputs.",
     )
     classes: list[str] | None = Field(
-        default=None, description="Network class names by output index (default: the sidecar's, else COCO with background first for maskrcnn)."
+        default=None,
+        description="Network class names by output index (default: the sidecar's, else COCO with background first for maskrcnn).",
     )
-    class_map: dict[str, str] = Field(default_factory=dict, description="Rename network classes to map classes, e.g. {'dining table': 'table'}.")
-    input_size: tuple[int, int] | None = Field(default=None, description="Network input (width, height); default: from the model's input shape.")
-    resize: Literal["stretch", "letterbox"] = Field(default="stretch", description="letterbox keeps the aspect ratio and pads (YOLO exports expect it).")
+    class_map: dict[str, str] = Field(
+        default_factory=dict, description="Rename network classes to map classes, e.g. {'dining table': 'table'}."
+    )
+    input_size: tuple[int, int] | None = Field(
+        default=None, description="Network input (width, height); default: from the model's input shape."
+    )
+    resize: Literal["stretch", "letterbox"] = Field(
+        default="stretch", description="letterbox keeps the aspect ratio and pads (YOLO exports expect it)."
+    )
     channel_order: Literal["rgb", "bgr"] = Field(default="rgb", description="Colour channel order the network expects.")
-    scale: float = Field(default=1.0 / 255.0, gt=0.0, description="Pixel values are multiplied by this before mean and std.")
-    mean: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0), description="Subtracted per channel after scaling.")
+    scale: float = Field(
+        default=1.0 / 255.0, gt=0.0, description="Pixel values are multiplied by this before mean and std."
+    )
+    mean: tuple[float, float, float] = Field(
+        default=(0.0, 0.0, 0.0), description="Subtracted per channel after scaling."
+    )
     std: tuple[float, float, float] = Field(default=(1.0, 1.0, 1.0), description="Divided per channel after the mean.")
-    depth_channel: bool | None = Field(default=None, description="Append depth (metres / depth_scale) as a 4th channel; default: when the model has 4 input channels.")
+    depth_channel: bool | None = Field(
+        default=None,
+        description="Append depth (metres / depth_scale) as a 4th channel; default: when the model has 4 input channels.",
+    )
     depth_scale: float = Field(default=5.0, gt=0.0, description="Depth is divided by this for the depth channel.")
-    score_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Detections scoring less are dropped (maskrcnn, yolo_seg).")
-    mask_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Mask probability above which a pixel belongs to the detection.")
+    score_threshold: float = Field(
+        default=0.5, ge=0.0, le=1.0, description="Detections scoring less are dropped (maskrcnn, yolo_seg)."
+    )
+    mask_threshold: float = Field(
+        default=0.5, ge=0.0, le=1.0, description="Mask probability above which a pixel belongs to the detection."
+    )
     iou_threshold: float = Field(default=0.7, ge=0.0, le=1.0, description="Non-maximum suppression IoU (yolo_seg).")
-    boundary_threshold: float = Field(default=0.5, ge=0.0, le=1.0, description="Boundary probability above which a pixel separates instances (semantic_boundary).")
+    boundary_threshold: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description="Boundary probability above which a pixel separates instances (semantic_boundary).",
+    )
     min_pixels: int = Field(
-        default=12, ge=1,
+        default=12,
+        ge=1,
         description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary; 12 chosen on held-out walks: a cup is ~20).",
     )
     speckle_pixels: int = Field(
-        default=0, ge=0, description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x 120; 60 suits frame-level use)."
+        default=0,
+        ge=0,
+        description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x 120; 60 suits frame-level use).",
     )
     merge_depth_gap: float = Field(
-        default=0.06, ge=0.0, le=0.5,
+        default=0.06,
+        ge=0.0,
+        le=0.5,
         description=(
             "Instances whose seam is continuous in depth (steps under this fraction of the depth) merge into one "
             "(semantic_boundary; 0: off; 0.06 chosen on held-out synthetic walks)."
@@ -82,7 +119,9 @@ class ONNXPanopticConfig(StageConfig):
         ),
     )
     min_region_score: float = Field(
-        default=0.8, ge=0.0, le=1.0,
+        default=0.8,
+        ge=0.0,
+        le=1.0,
         description=(
             "Class regions whose mean top class probability is below this are left unknown (semantic_boundary; 0: off; "
             "0.8 chosen on held-out synthetic walks)."
@@ -109,7 +148,7 @@ LAYOUT_OUTPUTS = {
 }
 
 
-class ONNXPanopticSegmenter(Segmenter):
+class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
     """Per-frame classes and instances from an ONNX network (Mask R-CNN, YOLO-seg, or semantic + boundary)."""
 
     name = "onnx_panoptic"
@@ -121,7 +160,7 @@ class ONNXPanopticSegmenter(Segmenter):
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = self.config.threads  # type: ignore[attr-defined]
+        opts.intra_op_num_threads = self.config.threads
         opts.inter_op_num_threads = 1
         try:
             return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
@@ -129,7 +168,7 @@ class ONNXPanopticSegmenter(Segmenter):
             raise DataError(f"onnx_panoptic: {path} cannot be loaded by onnxruntime ({exc})") from exc
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        cfg: ONNXPanopticConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         path = Path(cfg.model).expanduser() if cfg.model else SHIPPED
         if not path.is_file():
             raise DataError(f"onnx_panoptic: model file not found: {path}")
@@ -143,12 +182,16 @@ class ONNXPanopticSegmenter(Segmenter):
         elif isinstance(shape[2], int) and isinstance(shape[3], int):
             height, width = shape[2], shape[3]
         else:
-            raise DataError(f"onnx_panoptic: {path.name} has a dynamic input size {shape}; set input_size: [width, height]")
+            raise DataError(
+                f"onnx_panoptic: {path.name} has a dynamic input size {shape}; set input_size: [width, height]"
+            )
         depth_channel = cfg.depth_channel if cfg.depth_channel is not None else channels == 4
         outputs = [o.name for o in session.get_outputs()]
         layout = cfg.layout if cfg.layout != "auto" else side.get("layout") or self._guess_layout(outputs)
         if layout not in LAYOUT_OUTPUTS:
-            raise DataError(f"onnx_panoptic: {path.with_suffix('.json').name} names layout {layout!r}; expected one of {sorted(LAYOUT_OUTPUTS)}")
+            raise DataError(
+                f"onnx_panoptic: {path.with_suffix('.json').name} names layout {layout!r}; expected one of {sorted(LAYOUT_OUTPUTS)}"
+            )
         if len(outputs) < LAYOUT_OUTPUTS[layout][0]:
             raise DataError(
                 f"onnx_panoptic: {path.name} has outputs {outputs}, but the {layout!r} layout reads {LAYOUT_OUTPUTS[layout][1]}; "
@@ -161,46 +204,83 @@ class ONNXPanopticSegmenter(Segmenter):
             vocab = Vocabulary.default()
         names = cfg.classes or side.get("classes") or (["background", *COCO] if layout == "maskrcnn" else COCO)
         renames = {**COCO_TO_MAP, **cfg.class_map}
-        class_map = np.array([vocab.id(renames.get(n, n)) if renames.get(n, n) in vocab else 0 for n in names], np.int64)
+        class_map = np.array(
+            [vocab.id(renames.get(n, n)) if renames.get(n, n) in vocab else 0 for n in names], np.int64
+        )
         is_thing = np.array(vocab.is_thing)
         stream = data.stream
         assert stream is not None
         if not stream.frames:
-            raise DataError("onnx_panoptic: the stream has no RGB-D frames (point clouds need a 3D segmenter such as `clusters`)")
+            raise DataError(
+                "onnx_panoptic: the stream has no RGB-D frames (point clouds need a 3D segmenter such as `clusters`)"
+            )
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         for frame in self.progress(stream.frames, description="onnx_panoptic"):
             rgb = np.asarray(frame.rgb)
             if depth_channel and frame.depth is None:
-                raise DataError(f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} takes RGB-D input")
-            tensor, undo, depth_in = self._prepare(rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel)
+                raise DataError(
+                    f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} takes RGB-D input"
+                )
+            tensor, undo, depth_in = self._prepare(
+                rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel
+            )
             result = session.run(None, {inp.name: tensor})
             try:
                 cls, ins = self._decode(layout, result, class_map, is_thing, depth_in, width, height, cfg)
             except (ValueError, IndexError) as exc:  # outputs of the right number but the wrong shapes
-                raise DataError(f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} layout ({exc})") from exc
+                raise DataError(
+                    f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} layout ({exc})"
+                ) from exc
             cls, ins = undo(cls), undo(ins)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
-        self.note("model", {"path": str(path), "layout": layout, "input": [width, height], "depth_channel": depth_channel})
+        self.note(
+            "model", {"path": str(path), "layout": layout, "input": [width, height], "depth_channel": depth_channel}
+        )
         return {"frame_labels": out}
 
     @staticmethod
     def _decode(
-        layout: str, result: list, class_map: np.ndarray, is_thing: np.ndarray, depth_in: Any, width: int, height: int, cfg: ONNXPanopticConfig
+        layout: str,
+        result: list,
+        class_map: np.ndarray,
+        is_thing: np.ndarray,
+        depth_in: Any,
+        width: int,
+        height: int,
+        cfg: ONNXPanopticConfig,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(class image, instance image) at the network's resolution from one frame's outputs."""
         from stratamap.plugins.segmenters.onnx_panoptic import adapters as adapters
 
         if layout == "semantic_boundary":
             cls, ins, _ = adapters.semantic_boundary(
-                result[0], result[1], class_map, is_thing, cfg.boundary_threshold, cfg.min_pixels, cfg.speckle_pixels,
-                depth=depth_in, merge_depth_gap=cfg.merge_depth_gap, min_region_score=cfg.min_region_score,
+                result[0],
+                result[1],
+                class_map,
+                is_thing,
+                cfg.boundary_threshold,
+                cfg.min_pixels,
+                cfg.speckle_pixels,
+                depth=depth_in,
+                merge_depth_gap=cfg.merge_depth_gap,
+                min_region_score=cfg.min_region_score,
                 merge_bridges=cfg.merge_bridges,
             )
         elif layout == "maskrcnn":
             boxes, labels, scores, masks = result[:4]
-            cls, ins, _ = adapters.maskrcnn(boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold)
+            cls, ins, _ = adapters.maskrcnn(
+                boxes, labels, scores, masks, (height, width), class_map, cfg.score_threshold, cfg.mask_threshold
+            )
         else:
-            cls, ins, _ = adapters.yolo_seg(result[0], result[1], (height, width), class_map, cfg.score_threshold, cfg.mask_threshold, cfg.iou_threshold)
+            cls, ins, _ = adapters.yolo_seg(
+                result[0],
+                result[1],
+                (height, width),
+                class_map,
+                cfg.score_threshold,
+                cfg.mask_threshold,
+                cfg.iou_threshold,
+            )
         return cls, ins
 
     @staticmethod
@@ -212,7 +292,14 @@ class ONNXPanopticSegmenter(Segmenter):
         return "yolo_seg"
 
     @staticmethod
-    def _prepare(rgb: np.ndarray, depth: np.ndarray | None, width: int, height: int, cfg: ONNXPanopticConfig, depth_channel: bool = True):
+    def _prepare(
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        width: int,
+        height: int,
+        cfg: ONNXPanopticConfig,
+        depth_channel: bool = True,
+    ):
         """The network input (1, C, H, W) float32 (depth as a 4th channel if ``depth_channel``), a
         function taking label images back to the frame, and the depth at the network's resolution
         (metres, 0 where unknown or padded; None without depth)."""
@@ -232,13 +319,20 @@ class ONNXPanopticSegmenter(Segmenter):
         planes = [img]
         net_depth = None
         if depth is not None:
-            d = np.asarray(Image.fromarray(np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)).resize((nw, nh), Image.NEAREST), np.float32)
+            d = np.asarray(
+                Image.fromarray(np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)).resize(
+                    (nw, nh), Image.NEAREST
+                ),
+                np.float32,
+            )
             net_depth = np.zeros((height, width), np.float32)
             net_depth[oy : oy + nh, ox : ox + nw] = d
             if depth_channel:
                 planes.append((d / cfg.depth_scale)[..., None])
         stacked = np.concatenate(planes, axis=2)
-        canvas = np.full((height, width, stacked.shape[2]), 0.0 if cfg.resize == "stretch" else 114.0 * cfg.scale, np.float32)
+        canvas = np.full(
+            (height, width, stacked.shape[2]), 0.0 if cfg.resize == "stretch" else 114.0 * cfg.scale, np.float32
+        )
         canvas[oy : oy + nh, ox : ox + nw] = stacked
         tensor = canvas.transpose(2, 0, 1)[None].copy()
 

@@ -43,8 +43,14 @@ def _empty(shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def maskrcnn(
-    boxes: np.ndarray, labels: np.ndarray, scores: np.ndarray, masks: np.ndarray, shape: tuple[int, int],
-    class_map: np.ndarray, score_threshold: float = 0.5, mask_threshold: float = 0.5,
+    boxes: np.ndarray,
+    labels: np.ndarray,
+    scores: np.ndarray,
+    masks: np.ndarray,
+    shape: tuple[int, int],
+    class_map: np.ndarray,
+    score_threshold: float = 0.5,
+    mask_threshold: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     h, w = shape
     out = _empty(shape)
@@ -66,7 +72,7 @@ def maskrcnn(
             zoom = ((y2 - y1) / m.shape[0], (x2 - x1) / m.shape[1])
             canvas[y1:y2, x1:x2] = ndimage.zoom(m, zoom, order=1)[: y2 - y1, : x2 - x1] >= mask_threshold
         full.append(canvas)
-    mapped = np.array([class_map[l] if 0 <= l < len(class_map) else 0 for l in labels[keep]], np.int64)
+    mapped = np.array([class_map[lab] if 0 <= lab < len(class_map) else 0 for lab in labels[keep]], np.int64)
     _paste(*out, full, mapped, scores[keep])
     return out
 
@@ -88,8 +94,13 @@ def _nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> list[int]:
 
 
 def yolo_seg(
-    detections: np.ndarray, prototypes: np.ndarray, shape: tuple[int, int], class_map: np.ndarray,
-    score_threshold: float = 0.25, mask_threshold: float = 0.5, iou_threshold: float = 0.7,
+    detections: np.ndarray,
+    prototypes: np.ndarray,
+    shape: tuple[int, int],
+    class_map: np.ndarray,
+    score_threshold: float = 0.25,
+    mask_threshold: float = 0.5,
+    iou_threshold: float = 0.7,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     h, w = shape
     out = _empty(shape)
@@ -98,7 +109,9 @@ def yolo_seg(
     k = protos.shape[0]
     nc = det.shape[0] - 4 - k
     if nc <= 0:
-        raise ValueError(f"yolo_seg: detections have {det.shape[0]} rows, fewer than 4 + classes + {k} mask coefficients")
+        raise ValueError(
+            f"yolo_seg: detections have {det.shape[0]} rows, fewer than 4 + classes + {k} mask coefficients"
+        )
     cls_scores = det[4 : 4 + nc].T
     label = cls_scores.argmax(axis=1)
     score = cls_scores.max(axis=1)
@@ -122,15 +135,22 @@ def yolo_seg(
         full = ndimage.zoom(m, zoom, order=1)[:h, :w] >= mask_threshold
         inside = (xs >= box[0]) & (xs < box[2]) & (ys >= box[1]) & (ys < box[3])
         masks.append(full & inside)
-    mapped = np.array([class_map[l] if l < len(class_map) else 0 for l in label[keep][chosen]], np.int64)
+    mapped = np.array([class_map[lab] if lab < len(class_map) else 0 for lab in label[keep][chosen]], np.int64)
     _paste(*out, masks, mapped, score[keep][chosen])
     return out
 
 
 def semantic_boundary(
-    class_logits: np.ndarray, boundary_logits: np.ndarray, class_map: np.ndarray, is_thing: np.ndarray,
-    boundary_threshold: float = 0.5, min_pixels: int = 20, speckle_pixels: int = 0,
-    depth: np.ndarray | None = None, merge_depth_gap: float = 0.0, min_region_score: float = 0.0,
+    class_logits: np.ndarray,
+    boundary_logits: np.ndarray,
+    class_map: np.ndarray,
+    is_thing: np.ndarray,
+    boundary_threshold: float = 0.5,
+    min_pixels: int = 20,
+    speckle_pixels: int = 0,
+    depth: np.ndarray | None = None,
+    merge_depth_gap: float = 0.0,
+    min_region_score: float = 0.0,
     merge_bridges: str = "any",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     logits = np.asarray(class_logits, np.float32)[0]
@@ -186,13 +206,19 @@ def semantic_boundary(
         instance_ids[region] = remap[nearest[region]]
         next_id += len(big)
     if depth is not None and merge_depth_gap > 0:
-        instance_ids = merge_depth_continuous(instance_ids, depth, merge_depth_gap, class_ids=class_ids, bridges=merge_bridges)
+        instance_ids = merge_depth_continuous(
+            instance_ids, depth, merge_depth_gap, class_ids=class_ids, bridges=merge_bridges
+        )
     return class_ids, instance_ids, score
 
 
 def merge_depth_continuous(
-    instance_ids: np.ndarray, depth: np.ndarray, relative_gap: float, min_share: float = 0.5,
-    class_ids: np.ndarray | None = None, bridges: str = "any",
+    instance_ids: np.ndarray,
+    depth: np.ndarray,
+    relative_gap: float,
+    min_share: float = 0.5,
+    class_ids: np.ndarray | None = None,
+    bridges: str = "any",
 ) -> np.ndarray:
     """Merge instances whose shared seam is continuous in depth.
 

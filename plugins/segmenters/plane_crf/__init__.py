@@ -27,21 +27,30 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.simulation.virtual_scan import LEVEL1_CLASS, LEVEL2_CLASS
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, OrientedBox, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.simulation.virtual_scan import LEVEL1_CLASS, LEVEL2_CLASS
 
 SHIPPED = Path(__file__).resolve().parent / "models" / "plane_crf.json"
 
 
 class PlaneCRFConfig(StageConfig):
-    model: str | None = Field(default=None, description="CRF weights (JSON); default: the shipped models/plane_crf.json.")
-    viewpoints: list[tuple[float, float, float]] | None = Field(
-        default=None, description="Scanner positions [x, y, z]; default: the source's (stream metadata), else 1.4 m above the cloud's centre."
+    model: str | None = Field(
+        default=None, description="CRF weights (JSON); default: the shipped models/plane_crf.json."
     )
-    voxel_size: float | None = Field(default=None, gt=0.0, description="Working resolution, metres; default: the one the CRFs were trained at.")
-    plane_threshold: float | None = Field(default=None, gt=0.0, description="MSAC inlier distance, metres; default: as trained.")
-    min_area: float | None = Field(default=None, gt=0.0, description="Smallest planar region kept, square metres; default: as trained.")
+    viewpoints: list[tuple[float, float, float]] | None = Field(
+        default=None,
+        description="Scanner positions [x, y, z]; default: the source's (stream metadata), else 1.4 m above the cloud's centre.",
+    )
+    voxel_size: float | None = Field(
+        default=None, gt=0.0, description="Working resolution, metres; default: the one the CRFs were trained at."
+    )
+    plane_threshold: float | None = Field(
+        default=None, gt=0.0, description="MSAC inlier distance, metres; default: as trained."
+    )
+    min_area: float | None = Field(
+        default=None, gt=0.0, description="Smallest planar region kept, square metres; default: as trained."
+    )
     seed: int = Field(default=0, description="Seed of the MSAC sampling.")
 
 
@@ -52,12 +61,16 @@ def load_model(path: Path) -> dict[str, Any]:
         raise DataError(f"plane_crf: model file not found: {path} (train one with scripts/train_plane_crf.py)")
     try:
         doc = json.loads(path.read_text())
-        return {"level1": CRF.from_dict(doc["level1"]), "level2": CRF.from_dict(doc["level2"]), "params": doc.get("params", {})}
+        return {
+            "level1": CRF.from_dict(doc["level1"]),
+            "level2": CRF.from_dict(doc["level2"]),
+            "params": doc.get("params", {}),
+        }
     except (ValueError, KeyError, TypeError) as exc:
         raise DataError(f"plane_crf: {path} is not a plane_crf model ({exc})") from exc
 
 
-class PlaneCRFSegmenter(Segmenter):
+class PlaneCRFSegmenter(Segmenter[PlaneCRFConfig]):
     """Planes labelled by a CRF, furniture fronts with handles, knobs and hinge sides."""
 
     name = "plane_crf"
@@ -66,17 +79,26 @@ class PlaneCRFSegmenter(Segmenter):
     provides = frozenset({"semantics", "instances"})
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        from stratamap.plugins.segmenters.plane_crf.fronts import FurnitureParams, analyse, level1_feature_count, level2_feature_count
+        from stratamap.plugins.segmenters.plane_crf.fronts import (
+            FurnitureParams,
+            analyse,
+            level1_feature_count,
+            level2_feature_count,
+        )
 
-        cfg: PlaneCRFConfig = self.config  # type: ignore[assignment]
+        cfg = self.config
         geometry = data.map.geometry
         if geometry is None or len(geometry.points) == 0:
             raise DataError("plane_crf: the geometry layer has no points")
         model = load_model(Path(cfg.model).expanduser() if cfg.model else SHIPPED)
         if model["level1"].n_features != level1_feature_count() or model["level2"].n_features != level2_feature_count():
-            raise DataError("plane_crf: the model's feature sizes do not match this version's features; retrain it (scripts/train_plane_crf.py)")
+            raise DataError(
+                "plane_crf: the model's feature sizes do not match this version's features; retrain it (scripts/train_plane_crf.py)"
+            )
         known = FurnitureParams.__dataclass_fields__
-        params = FurnitureParams(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in model["params"].items() if k in known})
+        params = FurnitureParams(
+            **{k: (tuple(v) if isinstance(v, list) else v) for k, v in model["params"].items() if k in known}
+        )
         for key in ("voxel_size", "plane_threshold", "min_area"):
             if getattr(cfg, key) is not None:
                 setattr(params, key, getattr(cfg, key))
@@ -86,9 +108,13 @@ class PlaneCRFSegmenter(Segmenter):
         views = cfg.viewpoints or (stream.metadata.get("viewpoints") if stream is not None else None)
         if not views:
             views = [tuple(points.mean(0)[:2]) + (float(np.percentile(points[:, 2], 5)) + 1.4,)]
-            self.warn("plane_crf: no scanner positions given; assuming one 1.4 m above the cloud's centre (set viewpoints)")
+            self.warn(
+                "plane_crf: no scanner positions given; assuming one 1.4 m above the cloud's centre (set viewpoints)"
+            )
         res = analyse(points, np.asarray(views, float), model["level1"], model["level2"], params)
-        vocab = data.map.vocabulary or (data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default())
+        vocab = data.map.vocabulary or (
+            data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default()
+        )
         missing = [c for c in list(LEVEL1_CLASS.values()) + list(LEVEL2_CLASS.values()) if c not in vocab]
         if missing:
             raise DataError(f"plane_crf: the map's vocabulary lacks {sorted(set(missing))}")
@@ -115,21 +141,50 @@ class PlaneCRFSegmenter(Segmenter):
             front_ids[f.id] = next_id
             if f.label in ("cupboard", "drawer", "appliance"):
                 u = np.cross([0.0, 0.0, 1.0], f.normal)
-                box = OrientedBox(f.center() - 0.01 * f.normal, float(np.arctan2(u[1], u[0])), np.array([f.width, 0.02, f.height]))
-                instances.add(ObjectInstance(next_id, cname, points[front_of_point == f.id], box, attributes={
-                    "hinge": f.hinge if f.label != "drawer" else None,
-                    "joint": "prismatic" if f.label == "drawer" else "revolute",
-                    "plane_id": int(f.region),
-                    "normal": f.normal.tolist(),
-                    "handles": [{"center": x.center.tolist(), "direction": x.direction.tolist(), "length": x.length} for x in f.fixtures if x.kind == "handle" and x.direction is not None],
-                    "knobs": [{"center": x.center.tolist(), "radius": x.radius} for x in f.fixtures if x.kind == "knob"],
-                }))
+                box = OrientedBox(
+                    f.center() - 0.01 * f.normal, float(np.arctan2(u[1], u[0])), np.array([f.width, 0.02, f.height])
+                )
+                instances.add(
+                    ObjectInstance(
+                        next_id,
+                        cname,
+                        points[front_of_point == f.id],
+                        box,
+                        attributes={
+                            "hinge": f.hinge if f.label != "drawer" else None,
+                            "joint": "prismatic" if f.label == "drawer" else "revolute",
+                            "plane_id": int(f.region),
+                            "normal": f.normal.tolist(),
+                            "handles": [
+                                {"center": x.center.tolist(), "direction": x.direction.tolist(), "length": x.length}
+                                for x in f.fixtures
+                                if x.kind == "handle" and x.direction is not None
+                            ],
+                            "knobs": [
+                                {"center": x.center.tolist(), "radius": x.radius}
+                                for x in f.fixtures
+                                if x.kind == "knob"
+                            ],
+                        },
+                    )
+                )
             next_id += 1
         per_point = res.cell_of_point
         semantics = Semantics(cell_class[per_point], cell_inst[per_point], vocab, cell_plane[per_point])
         counts = {lab: int((res.level1 == k).sum()) for k, lab in enumerate(labels)}
-        self.note("planes", {"regions": len(res.regions), "by_label": counts, "floor_z": res.floor_z, "ceiling_z": res.ceiling_z})
-        self.note("fronts", {"count": len(res.fronts), "by_label": {lab: sum(f.label == lab for f in res.fronts) for lab in ("cupboard", "drawer", "appliance", "panel")}})
+        self.note(
+            "planes",
+            {"regions": len(res.regions), "by_label": counts, "floor_z": res.floor_z, "ceiling_z": res.ceiling_z},
+        )
+        self.note(
+            "fronts",
+            {
+                "count": len(res.fronts),
+                "by_label": {
+                    lab: sum(f.label == lab for f in res.fronts) for lab in ("cupboard", "drawer", "appliance", "panel")
+                },
+            },
+        )
         return {"semantics": semantics, "instances": instances}
 
     @classmethod

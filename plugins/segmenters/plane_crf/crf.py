@@ -44,7 +44,9 @@ class CRF:
         self.edge_weights = np.asarray(self.edge_weights, float).reshape(self.n_relations, L, L)
 
     # graphs: (features (N, F), undirected edges (E, 2) listed once, relation of the ordered pair (E,), labels (N,))
-    def fit(self, graphs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], l2: float = 1.0, edge_l2: float = 1.0) -> CRF:
+    def fit(
+        self, graphs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], l2: float = 1.0, edge_l2: float = 1.0
+    ) -> CRF:
         """Maximum pseudo-likelihood with L2 priors (L-BFGS). Nodes labelled < 0 are left out,
         and so are their edges."""
         from scipy.optimize import minimize
@@ -95,7 +97,9 @@ class CRF:
     def node_scores(self, X: np.ndarray) -> np.ndarray:
         return X @ self.node_weights.T
 
-    def predict(self, X: np.ndarray, E: np.ndarray, rel: np.ndarray, iterations: int = 30, damping: float = 0.5) -> np.ndarray:
+    def predict(
+        self, X: np.ndarray, E: np.ndarray, rel: np.ndarray, iterations: int = 30, damping: float = 0.5
+    ) -> np.ndarray:
         """Loopy max-product belief propagation (log domain, damped); exact on trees."""
         unary = self.node_scores(X)
         E = np.asarray(E, np.int64).reshape(-1, 2)
@@ -119,9 +123,20 @@ class CRF:
         return (unary + incoming).argmax(1)
 
     def to_dict(self) -> dict:
-        return {"labels": list(self.labels), "n_features": self.n_features, "n_relations": self.n_relations,
-                "node_weights": self.node_weights.round(6).tolist(), "edge_weights": self.edge_weights.round(6).tolist()}
+        return {
+            "labels": list(self.labels),
+            "n_features": self.n_features,
+            "n_relations": self.n_relations,
+            "node_weights": self.node_weights.round(6).tolist(),
+            "edge_weights": self.edge_weights.round(6).tolist(),
+        }
 
     @classmethod
     def from_dict(cls, doc: dict) -> CRF:
-        return cls(tuple(doc["labels"]), int(doc["n_features"]), int(doc["n_relations"]), np.asarray(doc["node_weights"]), np.asarray(doc["edge_weights"]))
+        return cls(
+            tuple(doc["labels"]),
+            int(doc["n_features"]),
+            int(doc["n_relations"]),
+            np.asarray(doc["node_weights"]),
+            np.asarray(doc["edge_weights"]),
+        )

@@ -11,7 +11,6 @@ from scipy.spatial import cKDTree
 from stratamap.plugins.segmenters.plane_crf.planes import plane_axes, radius_components
 
 
-
 @dataclass
 class Fixture:
     kind: str  # handle | knob
@@ -22,7 +21,9 @@ class Fixture:
     points: int = 0
 
 
-def fit_line(points: np.ndarray, threshold: float = 0.01, iterations: int = 100, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fit_line(
+    points: np.ndarray, threshold: float = 0.01, iterations: int = 100, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """3D line by RANSAC then LM on the orthogonal distances: (point on the line, unit direction, inlier mask)."""
     from scipy.optimize import least_squares
 
@@ -76,8 +77,15 @@ def fit_circle(uv: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def find_fixtures(
-    face_points: np.ndarray, normal: np.ndarray, d: float, cloud: np.ndarray, tree: cKDTree,
-    standoff: tuple[float, float] = (0.012, 0.07), cluster_radius: float = 0.02, min_points: int = 8, max_handle: float = 0.6,
+    face_points: np.ndarray,
+    normal: np.ndarray,
+    d: float,
+    cloud: np.ndarray,
+    tree: cKDTree,
+    standoff: tuple[float, float] = (0.012, 0.07),
+    cluster_radius: float = 0.02,
+    min_points: int = 8,
+    max_handle: float = 0.6,
 ) -> list[Fixture]:
     """Handles and knobs standing off a vertical face: points of ``cloud`` in front of the plane
     (``standoff`` metres along its normal) inside the face's outline, clustered; elongated

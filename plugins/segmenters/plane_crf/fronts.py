@@ -131,7 +131,9 @@ def orient_to_viewpoints(points: np.ndarray, normals: np.ndarray, viewpoints: np
     return normals
 
 
-def extract_regions(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, p: FurnitureParams) -> tuple[list[Region], np.ndarray]:
+def extract_regions(
+    points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, p: FurnitureParams
+) -> tuple[list[Region], np.ndarray]:
     planes = multilod_planes(points, normals, threshold=p.plane_threshold, adjacency=p.region_radius, seed=p.seed)
     regions: list[Region] = []
     region_of = np.full(len(points), -1, np.int64)
@@ -148,7 +150,9 @@ def extract_regions(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndar
                 continue
             n = plane.normal.copy()
             nz = abs(n[2])
-            orientation = "horizontal" if nz >= cos_h else "vertical" if nz <= np.sin(np.radians(HORIZONTAL_DEG)) else "other"
+            orientation = (
+                "horizontal" if nz >= cos_h else "vertical" if nz <= np.sin(np.radians(HORIZONTAL_DEG)) else "other"
+            )
             if orientation == "other":  # slanted or edge-on strips: neither level-1 kind, left out
                 continue
             c = points[ridx].mean(0)
@@ -167,8 +171,21 @@ def extract_regions(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndar
                 proj = (uv - uv.mean(0)) @ vec
                 length, width = float(np.ptp(proj[:, 1])), float(np.ptp(proj[:, 0]))
             region_of[ridx] = len(regions)
-            regions.append(Region(len(regions), ridx, n, float(d), orientation, c, float(points[ridx, 2].min()), float(points[ridx, 2].max()),
-                                  length, width, len(ridx) * p.voxel_size**2))
+            regions.append(
+                Region(
+                    len(regions),
+                    ridx,
+                    n,
+                    float(d),
+                    orientation,
+                    c,
+                    float(points[ridx, 2].min()),
+                    float(points[ridx, 2].max()),
+                    length,
+                    width,
+                    len(ridx) * p.voxel_size**2,
+                )
+            )
     return regions, region_of
 
 
@@ -200,17 +217,34 @@ def level1_features(regions: list[Region], floor_z: float, ceiling_z: float) -> 
         z = r.center[2]
         f = [
             [h, v, 1.0],
-            h * binned([z - floor_z], _H_Z)[0], h * binned([ceiling_z - z], _H_CEIL)[0],
-            h * binned([np.log10(max(r.area, 1e-3))], _LOG_AREA)[0], h * binned([r.length], _LEN)[0], h * binned([r.width], _LEN)[0],
-            v * binned([r.zmax - r.zmin], _V_H)[0], v * binned([r.zmin - floor_z], _V_FLOOR)[0], v * binned([ceiling_z - r.zmax], _V_CEIL)[0],
-            v * binned([r.length], _LEN)[0], v * binned([np.log10(max(r.area, 1e-3))], _LOG_AREA)[0],
+            h * binned([z - floor_z], _H_Z)[0],
+            h * binned([ceiling_z - z], _H_CEIL)[0],
+            h * binned([np.log10(max(r.area, 1e-3))], _LOG_AREA)[0],
+            h * binned([r.length], _LEN)[0],
+            h * binned([r.width], _LEN)[0],
+            v * binned([r.zmax - r.zmin], _V_H)[0],
+            v * binned([r.zmin - floor_z], _V_FLOOR)[0],
+            v * binned([ceiling_z - r.zmax], _V_CEIL)[0],
+            v * binned([r.length], _LEN)[0],
+            v * binned([np.log10(max(r.area, 1e-3))], _LOG_AREA)[0],
         ]
         rows.append(np.concatenate([np.asarray(x, float).ravel() for x in f]))
     return np.array(rows).reshape(len(regions), -1) if rows else np.zeros((0, level1_feature_count()))
 
 
 def level1_feature_count() -> int:
-    return 3 + len(_H_Z) + len(_H_CEIL) + len(_LOG_AREA) + 2 * len(_LEN) + len(_V_H) + len(_V_FLOOR) + len(_V_CEIL) + len(_LEN) + len(_LOG_AREA)
+    return (
+        3
+        + len(_H_Z)
+        + len(_H_CEIL)
+        + len(_LOG_AREA)
+        + 2 * len(_LEN)
+        + len(_V_H)
+        + len(_V_FLOOR)
+        + len(_V_CEIL)
+        + len(_LEN)
+        + len(_LOG_AREA)
+    )
 
 
 #: Relations of an ordered pair of touching regions (a, b).
@@ -250,7 +284,17 @@ def _face_coords(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.stack([points @ u, points[:, 2]], 1)
 
 
-def gap_cuts(uz: np.ndarray, recessed_uz: np.ndarray, axis: int, lo: float, hi: float, other_lo: float, other_hi: float, coverage: float = 0.5, bin_size: float = 0.01) -> list[float]:
+def gap_cuts(
+    uz: np.ndarray,
+    recessed_uz: np.ndarray,
+    axis: int,
+    lo: float,
+    hi: float,
+    other_lo: float,
+    other_hi: float,
+    coverage: float = 0.5,
+    bin_size: float = 0.01,
+) -> list[float]:
     """Lines (constant coordinate ``axis``) along which recessed points run across most of the
     rectangle: the gaps between neighbouring fronts."""
     if len(recessed_uz) < 5 or hi - lo < 0.15:
@@ -298,8 +342,11 @@ def _fixture_groups(fixtures: list[Fixture], u_axis: np.ndarray) -> list[dict]:
                 overlap_u = min(a["u"][1], b["u"][1]) - max(a["u"][0], b["u"][0]) > -0.05
                 close_z = max(a["z"][0], b["z"][0]) - min(a["z"][1], b["z"][1]) < (0.15 if knobs else -1.0)
                 if overlap_u and close_z:
-                    items[i] = {"u": (min(a["u"][0], b["u"][0]), max(a["u"][1], b["u"][1])),
-                                "z": (min(a["z"][0], b["z"][0]), max(a["z"][1], b["z"][1])), "fixtures": a["fixtures"] + b["fixtures"]}
+                    items[i] = {
+                        "u": (min(a["u"][0], b["u"][0]), max(a["u"][1], b["u"][1])),
+                        "z": (min(a["z"][0], b["z"][0]), max(a["z"][1], b["z"][1])),
+                        "fixtures": a["fixtures"] + b["fixtures"],
+                    }
                     items.pop(j)
                     merged = True
                     break
@@ -313,7 +360,9 @@ def _fixture_groups(fixtures: list[Fixture], u_axis: np.ndarray) -> list[dict]:
 MIN_BAND = 0.08
 
 
-def split_face(rect: tuple[float, float, float, float], groups: list[dict], recessed_uz: np.ndarray, uz: np.ndarray, depth: int = 0) -> list[tuple[float, float, float, float]]:
+def split_face(
+    rect: tuple[float, float, float, float], groups: list[dict], recessed_uz: np.ndarray, uz: np.ndarray, depth: int = 0
+) -> list[tuple[float, float, float, float]]:
     """Guillotine cuts of the face rectangle (u0, u1, z0, z1): at gap lines first, then between
     fixture groups (a vertical cut where the groups leave a free band across u, else a
     horizontal one just above the lower group, as a drawer's handle sits in its upper part)."""
@@ -405,12 +454,28 @@ def level2_features(fronts: list[FrontCandidate], floor_z: float) -> np.ndarray:
             has = 1.0
         else:
             du = dz = dist = vert = has = 0.0
-        row = np.concatenate([
-            [1.0, has, vert, float(nh == 0), float(nh == 1), float(nh >= 2), float(nk == 0), float(1 <= nk <= 2), float(nk >= 3)],
-            binned([fr.height], _F_H)[0], binned([fr.width], _F_W)[0], binned([fr.z_range[0] - floor_z], _F_FLOOR)[0],
-            has * binned([abs(du)], _F_REL)[0], has * binned([dz], _F_REL)[0], has * binned([dist], _F_H)[0],
-            binned([np.log(max(fr.height, 0.01) / max(fr.width, 0.01))], _F_ASPECT)[0],
-        ])
+        row = np.concatenate(
+            [
+                [
+                    1.0,
+                    has,
+                    vert,
+                    float(nh == 0),
+                    float(nh == 1),
+                    float(nh >= 2),
+                    float(nk == 0),
+                    float(1 <= nk <= 2),
+                    float(nk >= 3),
+                ],
+                binned([fr.height], _F_H)[0],
+                binned([fr.width], _F_W)[0],
+                binned([fr.z_range[0] - floor_z], _F_FLOOR)[0],
+                has * binned([abs(du)], _F_REL)[0],
+                has * binned([dz], _F_REL)[0],
+                has * binned([dist], _F_H)[0],
+                binned([np.log(max(fr.height, 0.01) / max(fr.width, 0.01))], _F_ASPECT)[0],
+            ]
+        )
         rows.append(row)
     return np.array(rows).reshape(len(fronts), -1) if rows else np.zeros((0, level2_feature_count()))
 
@@ -433,7 +498,11 @@ def front_graph(fronts: list[FrontCandidate], touch: float = 0.06) -> tuple[np.n
             za, zb = fa.z_range, fb.z_range
             ov_u = min(ua[1], ub[1]) - max(ua[0], ub[0])
             ov_z = min(za[1], zb[1]) - max(za[0], zb[0])
-            if ov_z > 0.05 and -touch < ov_u < 0.05 and abs(fa.d - fb.d * (1 if fa.normal @ fb.normal > 0 else -1)) < 0.2:
+            if (
+                ov_z > 0.05
+                and -touch < ov_u < 0.05
+                and abs(fa.d - fb.d * (1 if fa.normal @ fb.normal > 0 else -1)) < 0.2
+            ):
                 rel = 0
             elif ov_u > 0.05 and -touch < ov_z < 0.05 and fa.region == fb.region:
                 rel = 1 if za[0] >= zb[1] - 0.05 else 2
@@ -444,7 +513,14 @@ def front_graph(fronts: list[FrontCandidate], touch: float = 0.06) -> tuple[np.n
     return np.array(edges, np.int64).reshape(-1, 2), np.array(rels, np.int64)
 
 
-def find_fronts(points: np.ndarray, regions: list[Region], furniture: list[int], cloud: np.ndarray, tree: cKDTree, p: FurnitureParams) -> list[FrontCandidate]:
+def find_fronts(
+    points: np.ndarray,
+    regions: list[Region],
+    furniture: list[int],
+    cloud: np.ndarray,
+    tree: cKDTree,
+    p: FurnitureParams,
+) -> list[FrontCandidate]:
     fronts: list[FrontCandidate] = []
     for rid in furniture:
         r = regions[rid]
@@ -468,8 +544,19 @@ def find_fronts(points: np.ndarray, regions: list[Region], furniture: list[int],
             idx = r.indices[inside]
             fu, fz = uz[inside, 0], uz[inside, 1]
             mine = [g for g in _inside(groups, part) for g in g["fixtures"]]
-            fronts.append(FrontCandidate(len(fronts), rid, idx, r.normal, r.d, (float(fu.min()), float(fu.max())), (float(fz.min()), float(fz.max())),
-                                         (rect[0], rect[1]), mine))
+            fronts.append(
+                FrontCandidate(
+                    len(fronts),
+                    rid,
+                    idx,
+                    r.normal,
+                    r.d,
+                    (float(fu.min()), float(fu.max())),
+                    (float(fz.min()), float(fz.max())),
+                    (rect[0], rect[1]),
+                    mine,
+                )
+            )
     return fronts
 
 
@@ -489,11 +576,27 @@ def find_regions(cloud: np.ndarray, viewpoints: np.ndarray, p: FurnitureParams |
     normals = orient_to_viewpoints(points, np.asarray(pcd.normals), viewpoints)
     regions, region_of = extract_regions(points, normals, viewpoints, p)
     floor_z, ceiling_z = floor_and_ceiling(regions, points)
-    return FurnitureResult(points, cell_of_point, regions, region_of, np.full(len(regions), -1, np.int64), [], np.full(len(points), -1, np.int64), floor_z, ceiling_z)
+    return FurnitureResult(
+        points,
+        cell_of_point,
+        regions,
+        region_of,
+        np.full(len(regions), -1, np.int64),
+        [],
+        np.full(len(points), -1, np.int64),
+        floor_z,
+        ceiling_z,
+    )
 
 
-def label_regions(res: FurnitureResult, cloud: np.ndarray, level1_crf: CRF | None, level2_crf: CRF | None, p: FurnitureParams | None = None,
-                  level1_override: np.ndarray | None = None) -> FurnitureResult:
+def label_regions(
+    res: FurnitureResult,
+    cloud: np.ndarray,
+    level1_crf: CRF | None,
+    level2_crf: CRF | None,
+    p: FurnitureParams | None = None,
+    level1_override: np.ndarray | None = None,
+) -> FurnitureResult:
     """Steps 2-6 on the regions of ``res`` (in place). Without CRFs (training) fronts are found
     but not labelled; ``level1_override`` gives level-1 labels per region (ground truth, when
     training the second CRF)."""
@@ -505,7 +608,11 @@ def label_regions(res: FurnitureResult, cloud: np.ndarray, level1_crf: CRF | Non
         X = level1_features(regions, res.floor_z, res.ceiling_z)
         E, rel = region_graph(points, regions)
         res.level1 = level1_crf.predict(X, E, rel).astype(np.int64)
-    furniture = [i for i in range(len(regions)) if res.level1[i] == LEVEL1.index("furniture") and regions[i].orientation == "vertical"]
+    furniture = [
+        i
+        for i in range(len(regions))
+        if res.level1[i] == LEVEL1.index("furniture") and regions[i].orientation == "vertical"
+    ]
     cloud = np.asarray(cloud, float)
     res.fronts = find_fronts(points, regions, furniture, cloud, cKDTree(cloud), p)
     res.front_of[:] = -1
@@ -521,8 +628,14 @@ def label_regions(res: FurnitureResult, cloud: np.ndarray, level1_crf: CRF | Non
     return res
 
 
-def analyse(cloud: np.ndarray, viewpoints: np.ndarray, level1_crf: CRF | None, level2_crf: CRF | None, p: FurnitureParams | None = None,
-            level1_override: np.ndarray | None = None) -> FurnitureResult:
+def analyse(
+    cloud: np.ndarray,
+    viewpoints: np.ndarray,
+    level1_crf: CRF | None,
+    level2_crf: CRF | None,
+    p: FurnitureParams | None = None,
+    level1_override: np.ndarray | None = None,
+) -> FurnitureResult:
     """Steps 1-6 on ``cloud`` (N, 3) scanned from ``viewpoints``."""
     return label_regions(find_regions(cloud, viewpoints, p), cloud, level1_crf, level2_crf, p, level1_override)
 

@@ -17,7 +17,6 @@ from scipy.spatial import cKDTree
 
 from stratamap.core.geometry.points import cell_keys
 
-
 # --------------------------------------------------------------------------------------------
 # Planes
 
@@ -38,7 +37,15 @@ def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     return n, float(-n @ c)
 
 
-def _msac(points: np.ndarray, normals: np.ndarray, threshold: float, normal_cos: float, iterations: int, rng: np.random.Generator, chunk: int = 32) -> tuple[np.ndarray, float, np.ndarray] | None:
+def _msac(
+    points: np.ndarray,
+    normals: np.ndarray,
+    threshold: float,
+    normal_cos: float,
+    iterations: int,
+    rng: np.random.Generator,
+    chunk: int = 32,
+) -> tuple[np.ndarray, float, np.ndarray] | None:
     """MSAC: the plane minimizing the truncated quadratic loss; inliers also agree in normal."""
     n_pts = len(points)
     if n_pts < 3:
@@ -98,7 +105,9 @@ def multilod_planes(
             idx_free = np.flatnonzero(free)
             if len(idx_free) < min_points:
                 break
-            _, first, inverse, counts = np.unique(flat[idx_free], return_index=True, return_inverse=True, return_counts=True)
+            _, first, inverse, counts = np.unique(
+                flat[idx_free], return_index=True, return_inverse=True, return_counts=True
+            )
             cells = keys[idx_free[first]]
             inverse = inverse.reshape(-1)
             order = np.lexsort((np.arange(len(cells)), -counts))  # fullest cells first (deterministic)
@@ -145,11 +154,17 @@ def radius_components(points: np.ndarray, radius: float) -> np.ndarray:
 
     pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
     n = len(points)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) if len(pairs) else coo_matrix((n, n))
+    graph = (
+        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        if len(pairs)
+        else coo_matrix((n, n))
+    )
     return connected_components(graph, directed=False)[1]
 
 
-def merge_planes(points: np.ndarray, planes: list[Plane], merge_deg: float, merge_offset: float, adjacency: float) -> list[Plane]:
+def merge_planes(
+    points: np.ndarray, planes: list[Plane], merge_deg: float, merge_offset: float, adjacency: float
+) -> list[Plane]:
     """Union of planes that are parallel (``merge_deg``), at the same offset and touching."""
     if len(planes) < 2:
         return planes
@@ -198,7 +213,9 @@ def plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(n, u)
 
 
-def boundary_points(points: np.ndarray, normal: np.ndarray, radius: float, k: int = 12, gap_deg: float = 90.0) -> np.ndarray:
+def boundary_points(
+    points: np.ndarray, normal: np.ndarray, radius: float, k: int = 12, gap_deg: float = 90.0
+) -> np.ndarray:
     """Points whose in-plane neighbours leave an angular gap wider than ``gap_deg`` (PCL's
     boundary estimation): the rim of a surface, where region growing must stop."""
     n = len(points)

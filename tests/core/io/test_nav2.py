@@ -8,10 +8,9 @@ import yaml
 from PIL import Image
 
 from stratamap.core.errors import DataError
-from stratamap.core.map.layers import OccupancyGrid
 from stratamap.core.io.nav2 import read_map, write_map
-
-from .conftest import shared_data
+from stratamap.core.map.layers import OccupancyGrid
+from tests.conftest import shared_data
 
 
 def test_round_trip_same_grid(tmp_path):

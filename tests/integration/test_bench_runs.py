@@ -1,4 +1,4 @@
-"""`stratamap bench`: records, tables, figures, resuming after a kill, and the Ray executor."""
+"""`stratamap bench` runs: records, tables, figures, resuming after a kill, and the Ray executor."""
 
 from __future__ import annotations
 
@@ -8,50 +8,12 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
-import yaml
 
-from stratamap.core.evaluation.bench import load_bench, run_bench
-from stratamap.core.evaluation.bench_report import lower_is_better, records_equal
-from stratamap.core.errors import ConfigError
-
-REPO = Path(__file__).resolve().parent.parent
-
-
-def tiny_bench(tmp_path: Path, seeds=(3,), frames: int = 12) -> Path:
-    doc = {
-        "name": "tiny",
-        "scenes": [{"synthetic": {"scene_file": str(REPO / "configs/scenes/office.yaml"), "seeds": list(seeds), "frames": frames, "camera": {"width": 160, "height": 120}}}],
-        "pipeline": {
-            "stages": [
-                {"plugin": "oracle"},
-                {"plugin": "tsdf", "params": {"voxel_size": 0.04}},
-                {"plugin": "occupancy", "params": {"robot_height": 1.0}},
-                {"plugin": "contact_graph"},
-                {"plugin": "bbox"},
-            ]
-        },
-        "variants": [{"name": "none", "drop": [4]}, {"name": "bbox"}],
-    }
-    path = tmp_path / "tiny.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
-
-
-def test_bench_file_errors_name_the_key(tmp_path):
-    path = tiny_bench(tmp_path)
-    doc = yaml.safe_load(path.read_text())
-    doc["variants"][0]["sett"] = ["x=1"]
-    path.write_text(yaml.safe_dump(doc))
-    with pytest.raises(ConfigError, match=r"variants\.0\.sett"):
-        load_bench(path)
-    doc["variants"][0].pop("sett")
-    doc["variants"][1]["name"] = "none"
-    path.write_text(yaml.safe_dump(doc))
-    with pytest.raises(ConfigError, match="unique"):
-        load_bench(path)
+from stratamap.core.evaluation.bench import run_bench
+from stratamap.core.evaluation.bench_report import records_equal
+from tests.core.evaluation.test_bench import tiny_bench
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +31,9 @@ def test_bench_writes_records_tables_and_figures_and_skips_done_runs(local_run):
     assert set(results) >= {"versions", "records"} and results["versions"]["numpy"]
     for rec in results["records"]:
         assert {"scene", "variant", "plugins", "seconds", "peak_memory_mb", "metrics"} <= set(rec)
-        assert {"detection", "completion", "panoptic", "instances", "graph", "physics", "navigation"} <= set(rec["metrics"])
+        assert {"detection", "completion", "panoptic", "instances", "graph", "physics", "navigation"} <= set(
+            rec["metrics"]
+        )
         assert {"precision", "recall", "f1"} <= set(rec["metrics"]["detection"])
         assert {"chamfer_l1", "fscore_2cm", "fscore_5cm", "chamfer_l1_by_class"} <= set(rec["metrics"]["completion"])
         assert {"ged", "wrong_support", "missing", "extra"} <= set(rec["metrics"]["graph"])
@@ -77,7 +41,9 @@ def test_bench_writes_records_tables_and_figures_and_skips_done_runs(local_run):
     # The mapping stages ran once: the same timings appear in both records.
     shared = [k for k in by_variant["bbox"]["seconds"] if "tsdf" in k]
     assert shared and by_variant["bbox"]["seconds"][shared[0]] == by_variant["none"]["seconds"][shared[0]]
-    assert any(k.endswith(":bbox") for k in by_variant["bbox"]["seconds"]) and not any(k.endswith(":bbox") for k in by_variant["none"]["seconds"])
+    assert any(k.endswith(":bbox") for k in by_variant["bbox"]["seconds"]) and not any(
+        k.endswith(":bbox") for k in by_variant["none"]["seconds"]
+    )
     md = (out / "results.md").read_text()
     assert "| metric | none | bbox |" in md and "## completion" in md and "**" in md
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
@@ -85,11 +51,6 @@ def test_bench_writes_records_tables_and_figures_and_skips_done_runs(local_run):
     assert len(list(out.glob("*.png"))) >= 2 and (out / "navigation.png").is_file()
     again = run_bench(config, out, progress=False)
     assert again["ran"] == 0 and again["records"] == 2
-
-
-def test_direction_of_better():
-    assert lower_is_better("completion.chamfer_l1") and lower_is_better("graph.ged") and lower_is_better("navigation.colliding_multimap")
-    assert not lower_is_better("detection.f1") and not lower_is_better("completion.fscore_5cm") and not lower_is_better("completion.scan2cad_accuracy")
 
 
 def test_killed_benchmark_resumes_without_redoing_runs(tmp_path):
@@ -120,17 +81,3 @@ def test_ray_executor_gives_the_local_records(local_run, tmp_path):
     a = json.loads((out / "results.json").read_text())["records"]
     b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
     assert records_equal(a, b)
-
-
-@pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "configs" / "bench").glob("*.yaml")))
-def test_shipped_benchmarks_validate_every_run(name):
-    from stratamap.core.evaluation.bench import expand_scenes, variant_document
-    from stratamap.core.config import validate
-
-    spec, path = load_bench(REPO / "configs" / "bench" / name)
-    scenes, _ = expand_scenes(spec, path)
-    assert scenes
-    for scene in scenes:
-        for variant in spec.variants:
-            if scene.get("variants") is None or variant.name in scene["variants"]:
-                validate(variant_document(spec, variant, scene["source"]), origin=name)

@@ -24,8 +24,8 @@ from stratamap.core.map.layers import (
     Part,
     Semantics,
 )
-from stratamap.core.testing import fingerprint
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.testing import fingerprint
 
 
 def full_map(seed: int = 0) -> LayeredMap:
@@ -48,7 +48,15 @@ def full_map(seed: int = 0) -> LayeredMap:
     )
     insts = ObjectInstances(
         [
-            ObjectInstance(3, "cabinet", pts[:50], OrientedBox([1, 2, 0.4], 0.3, [0.5, 0.5, 0.8]), colors=rng.random((50, 3)), completion=completion, attributes={"visibility": 0.4}),
+            ObjectInstance(
+                3,
+                "cabinet",
+                pts[:50],
+                OrientedBox([1, 2, 0.4], 0.3, [0.5, 0.5, 0.8]),
+                colors=rng.random((50, 3)),
+                completion=completion,
+                attributes={"visibility": 0.4},
+            ),
             ObjectInstance(7, "chair", pts[50:90], OrientedBox([0, 0, 0.4], -1.0, [0.5, 0.5, 0.9]), score=0.5),
         ]
     )
@@ -62,7 +70,9 @@ def full_map(seed: int = 0) -> LayeredMap:
     return LayeredMap(
         vocabulary=vocab,
         occupancy=OccupancyMaps(slam=grid, multimap=OccupancyGrid(np.zeros((5, 6), np.int8), 0.1)),
-        geometry=Geometry(points=pts, colors=rng.random((500, 3)), normals=rng.random((500, 3)), mesh=mesh, voxel_size=0.02),
+        geometry=Geometry(
+            points=pts, colors=rng.random((500, 3)), normals=rng.random((500, 3)), mesh=mesh, voxel_size=0.02
+        ),
         semantics=Semantics(rng.integers(0, len(vocab), 500), rng.integers(0, 9, 500), vocab),
         instances=insts,
         contact_graph=graph,

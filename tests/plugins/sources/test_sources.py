@@ -19,15 +19,16 @@ from stratamap.plugins.sources.redwood import RedwoodSource
 from stratamap.plugins.sources.rosbag import RosbagSource
 from stratamap.plugins.sources.scannet import ScanNetSource
 from stratamap.plugins.sources.tum import TUMSource
-
-from .conftest import shared_data
+from tests.conftest import shared_data
 
 SMALL = {"type": "room", "seed": 2, "camera": {"width": 96, "height": 72}, "trajectory": {"type": "orbit", "frames": 5}}
 
 
 @pytest.fixture(scope="module")
 def world():
-    return SyntheticWorld(SceneSpec.model_validate({**SMALL, "lidar": {"enabled": True, "rings": 8, "points_per_ring": 96}}))
+    return SyntheticWorld(
+        SceneSpec.model_validate({**SMALL, "lidar": {"enabled": True, "rings": 8, "points_per_ring": 96}})
+    )
 
 
 @pytest.fixture(scope="module")
@@ -90,13 +91,23 @@ def test_tum_errors_name_the_file(tum_seq, tmp_path):
     with pytest.raises(DataError, match="camera.json"):
         read(TUMSource(path=str(seq)))
     seq = _copy(tum_seq, tmp_path / "e")
-    (seq / "camera.json").write_text('{"width": 64, "height": 48, "fx": 50, "fy": 50, "cx": 32, "cy": 24, "depth_scale": 5000}')
+    (seq / "camera.json").write_text(
+        '{"width": 64, "height": 48, "fx": 50, "fy": 50, "cx": 32, "cy": 24, "depth_scale": 5000}'
+    )
     with pytest.raises(DataError, match="size mismatch"):
         read(TUMSource(path=str(seq)))
 
 
+@pytest.mark.slow
 def test_tum_without_poses_runs_odometry_and_reports_ate(tmp_path):
-    spec = SceneSpec.model_validate({"type": "room", "seed": 4, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 144}})
+    spec = SceneSpec.model_validate(
+        {
+            "type": "room",
+            "seed": 4,
+            "camera": {"width": 160, "height": 120},
+            "trajectory": {"type": "orbit", "frames": 144},
+        }
+    )
     seq = write_sequence(SyntheticWorld(spec), tmp_path / "noposes")
     (seq / "groundtruth.txt").unlink()
     data = PipelineData()
@@ -119,7 +130,9 @@ def test_nan_and_zero_depth_become_no_measurement(tmp_path):
 
 @pytest.mark.parametrize("ros_version", [1, 2])
 def test_rosbag_rgbd_round_trip(world, tmp_path, ros_version):
-    bag = write_rgbd_bag(tmp_path / ("rgbd.bag" if ros_version == 1 else "rgbd"), world.stream(), ros_version=ros_version)
+    bag = write_rgbd_bag(
+        tmp_path / ("rgbd.bag" if ros_version == 1 else "rgbd"), world.stream(), ros_version=ros_version
+    )
     stream = read(RosbagSource(path=str(bag), gravity="off"))["frames"]
     assert len(stream.frames) == 5 and stream.intrinsics == world.intrinsics
     for k in (0, 4):
@@ -131,7 +144,9 @@ def test_rosbag_rgbd_round_trip(world, tmp_path, ros_version):
 
 @pytest.mark.parametrize("ros_version", [1, 2])
 def test_rosbag_pointcloud2_round_trip(world, tmp_path, ros_version):
-    bag = write_lidar_bag(tmp_path / ("lidar.bag" if ros_version == 1 else "lidar"), world.lidar_scans, ros_version=ros_version)
+    bag = write_lidar_bag(
+        tmp_path / ("lidar.bag" if ros_version == 1 else "lidar"), world.lidar_scans, ros_version=ros_version
+    )
     scans = read(RosbagSource(path=str(bag), gravity="off"))["frames"].lidar_scans
     assert len(scans) == len(world.lidar_scans)
     for got, truth in zip(scans, world.lidar_scans, strict=True):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stratamap.core.evaluation.detection import match_boxes, prf
 from stratamap.core.geometry.boxes import box_iou_3d, footprint_overlap, gravity_aligned_box, min_area_rectangle
 from stratamap.core.map.layers import OrientedBox
-from stratamap.core.evaluation.detection import match_boxes, prf
 
 
 @pytest.mark.parametrize("yaw", [0.0, 0.3, -1.2, 1.5])

@@ -13,20 +13,17 @@ import yaml
 
 from stratamap.core.config import load_pipeline
 from stratamap.core.errors import ConfigError
-from stratamap.core.map.layers import Geometry, LayeredMap, Semantics
 from stratamap.core.evaluation.panoptic import panoptic_quality
 from stratamap.core.evaluation.trajectory import ate, rpe, umeyama
+from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.map.layers import Geometry, LayeredMap, Semantics
+from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.pipeline import Pipeline
 from stratamap.core.stages import PipelineData
-from stratamap.core.geometry.transforms import make_pose
-from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.plugins.mappers.instance_clusters import InstanceClustersMapper
 from stratamap.plugins.mappers.tsdf import vote_stride
-
-from .conftest import shared_data
-
-REPO = Path(__file__).resolve().parent.parent
+from tests.conftest import REPO, shared_data
 
 
 def office_pipeline(tmp_path: Path, noise: str, mapper: list[dict]) -> dict:
@@ -35,12 +32,17 @@ def office_pipeline(tmp_path: Path, noise: str, mapper: list[dict]) -> dict:
     spec["camera"].update(width=320, height=240)
     spec["seed"] = 3
     spec["trajectory"]["frames"] = 60
-    doc = {"source": {"plugin": "synthetic", "params": {"scene": spec}}, "stages": [{"plugin": "oracle"}, *mapper], "output": {"save_map": True}}
+    doc = {
+        "source": {"plugin": "synthetic", "params": {"scene": spec}},
+        "stages": [{"plugin": "oracle"}, *mapper],
+        "output": {"save_map": True},
+    }
     path = tmp_path / "pipe.yaml"
     path.write_text(yaml.safe_dump(doc))
     return Pipeline(load_pipeline(path)).run(tmp_path / "out")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("noise", "minimum"), [("none", 0.8), ("kinect", 0.7)])
 def test_panoptic_fusion_quality_with_the_oracle(tmp_path, noise, minimum):
     report = office_pipeline(tmp_path, noise, [{"plugin": "tsdf"}])
@@ -51,6 +53,7 @@ def test_panoptic_fusion_quality_with_the_oracle(tmp_path, noise, minimum):
     assert report["layers"]["instances"]["objects"] >= 15
 
 
+@pytest.mark.slow
 def test_mask_instances_lose_nothing_with_the_oracle(tmp_path):
     """The 'masks' extraction rebuilds the objects from ground-truth masks as 'labels' does."""
     report = office_pipeline(tmp_path, "kinect", [{"plugin": "tsdf", "params": {"instances": "masks"}}])
@@ -59,7 +62,9 @@ def test_mask_instances_lose_nothing_with_the_oracle(tmp_path):
     assert report["layers"]["instances"]["objects"] >= 15
 
 
-@pytest.mark.parametrize(("fx", "voxel_size", "depth_max"), [(532.6, 0.02, 5.0), (525.0, 0.01, 4.0), (1050.0, 0.02, 3.0), (300.0, 0.05, 8.0)])
+@pytest.mark.parametrize(
+    ("fx", "voxel_size", "depth_max"), [(532.6, 0.02, 5.0), (525.0, 0.01, 4.0), (1050.0, 0.02, 3.0), (300.0, 0.05, 8.0)]
+)
 def test_vote_stride_gives_every_voxel_in_range_a_vote(fx, voxel_size, depth_max):
     """'masks' counts one class vote per voxel per frame, so the sampling stride may be as wide as
     the voxels at depth_max allow, and no wider: a wall at that range is sampled in every voxel."""
@@ -86,17 +91,31 @@ def test_vote_stride_gives_every_voxel_in_range_a_vote(fx, voxel_size, depth_max
         assert not inner <= voxels(stride + 1)
 
 
+@pytest.mark.slow
 def test_size_prior_names_a_misspelt_class_before_integrating(tmp_path):
     with pytest.raises(ConfigError, match=r"piece_max_length\.cupp"):
-        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cupp": 0.15}}}])
+        office_pipeline(
+            tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cupp": 0.15}}}]
+        )
     with pytest.raises(ConfigError, match=r"piece_stacked_classes: 'chiar'"):
-        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_stacked_classes": ["chair", "chiar"]}}])
+        office_pipeline(
+            tmp_path,
+            "none",
+            [{"plugin": "tsdf", "params": {"instances": "masks", "piece_stacked_classes": ["chair", "chiar"]}}],
+        )
     with pytest.raises(ConfigError, match=r"piece_min_points_by_class\.cupp"):
-        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_min_points_by_class": {"cupp": 30}}}])
+        office_pipeline(
+            tmp_path,
+            "none",
+            [{"plugin": "tsdf", "params": {"instances": "masks", "piece_min_points_by_class": {"cupp": 30}}}],
+        )
     with pytest.raises(ConfigError, match="piece_max_length"):
-        office_pipeline(tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cup": -0.15}}}])
+        office_pipeline(
+            tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cup": -0.15}}}]
+        )
 
 
+@pytest.mark.slow
 def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):
     report = office_pipeline(tmp_path, "none", [{"plugin": "semantic_tsdf"}, {"plugin": "instance_clusters"}])
     assert report["metrics"]["panoptic"]["pq_stuff"] > 0.9
@@ -107,7 +126,9 @@ def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):
 
 def test_geometry_of_the_real_office_is_gravity_aligned(tmp_path):
     seq = shared_data("align3d_office")
-    report = Pipeline(load_pipeline(REPO / "configs" / "map_geometry.yaml", [f"source.params.path={seq}"])).run(tmp_path)
+    report = Pipeline(load_pipeline(REPO / "configs" / "map_geometry.yaml", [f"source.params.path={seq}"])).run(
+        tmp_path
+    )
     mesh = trimesh.load(tmp_path / "export" / "geometry.ply")
     pts = np.asarray(mesh.vertices)
     low = pts[np.abs(pts[:, 2]) < 0.15]
@@ -122,9 +143,20 @@ def test_geometry_of_the_real_office_is_gravity_aligned(tmp_path):
     assert any("re-aligned" in w for w in report["warnings"])
 
 
+@pytest.mark.slow
 def test_laser_map_misses_seats_the_multimap_has(tmp_path):
     doc = {
-        "source": {"plugin": "synthetic", "params": {"scene": {"type": "room", "seed": 5, "camera": {"width": 160, "height": 120}, "trajectory": {"type": "orbit", "frames": 30}}}},
+        "source": {
+            "plugin": "synthetic",
+            "params": {
+                "scene": {
+                    "type": "room",
+                    "seed": 5,
+                    "camera": {"width": 160, "height": 120},
+                    "trajectory": {"type": "orbit", "frames": 30},
+                }
+            },
+        },
         "stages": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.03}}, {"plugin": "occupancy"}],
         "output": {"save_map": True},
     }
@@ -153,7 +185,11 @@ def test_panoptic_quality_on_hand_made_labels():
     assert res["pq"] == pytest.approx(1.0)
     pred_i[20:30] = 6  # two chairs predicted as one: IoU 0.5 -> no match, 1 FP, 2 FN
     res = panoptic_quality(pred_c, pred_i, gt_c, gt_i, vocab)
-    assert res["by_class"]["chair"]["tp"] == 0 and res["by_class"]["chair"]["fn"] == 2 and res["by_class"]["chair"]["fp"] == 1
+    assert (
+        res["by_class"]["chair"]["tp"] == 0
+        and res["by_class"]["chair"]["fn"] == 2
+        and res["by_class"]["chair"]["fp"] == 1
+    )
     assert res["by_class"]["floor"]["pq"] == pytest.approx(1.0)
     pred_i = gt_i + 5
     pred_i[10:12] = 9  # a sliver split off chair 1: IoU 0.8 still matches; the sliver is a false positive
@@ -199,13 +235,18 @@ def test_shape_filter_rejects_planes_and_wrong_extents():
     assert data.notes["instance_clusters"]["rejected"] == {"planar": 1, "extent": 1}
 
 
+@pytest.mark.slow
 def test_tum_pipeline_reports_panoptic_metrics(tmp_path):
     from stratamap.core.synthetic import SceneSpec, SyntheticWorld
     from stratamap.core.synthetic.writer import write_sequence
 
-    spec = SceneSpec.model_validate({"type": "office", "seed": 2, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 20}})
+    spec = SceneSpec.model_validate(
+        {"type": "office", "seed": 2, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 20}}
+    )
     seq = write_sequence(SyntheticWorld(spec), tmp_path / "seq")
-    report = Pipeline(load_pipeline(REPO / "configs" / "map_tum.yaml", [f"source.params.path={seq}"])).run(tmp_path / "out")
+    report = Pipeline(load_pipeline(REPO / "configs" / "map_tum.yaml", [f"source.params.path={seq}"])).run(
+        tmp_path / "out"
+    )
     assert {"pq", "sq", "rq"} <= set(report["metrics"]["panoptic"])
     assert report["layers"]["instances"]["objects"] > 5
     assert (tmp_path / "out" / "export" / "geometry.ply").is_file()
@@ -213,6 +254,7 @@ def test_tum_pipeline_reports_panoptic_metrics(tmp_path):
     assert saved["metrics"]["panoptic"]["pq"] == report["metrics"]["panoptic"]["pq"]
 
 
+@pytest.mark.slow
 def test_multimap_paths_avoid_what_laser_paths_hit(tmp_path):
     """A* for a 0.4 m robot: on the laser-only map some paths cross chairs' and tables' 3D
     footprints; on the multimap none does (first paper, section V-C)."""
@@ -247,12 +289,16 @@ def test_panoptic_fusion_keeps_instances_of_different_classes_apart():
     state = PanopticState(PanopticParams(), vocab)
     labels, conf = np.zeros(512, np.int32), np.zeros(512, np.int32)
     for _ in range(3):
-        state.fuse_frame(labels, conf, np.arange(40), np.array([chair] * 30 + [table] * 10), np.array([1] * 30 + [2] * 10))
+        state.fuse_frame(
+            labels, conf, np.arange(40), np.array([chair] * 30 + [table] * 10), np.array([1] * 30 + [2] * 10)
+        )
     chair_inst = state.best_instance(int(labels[0]))
     table_inst = state.best_instance(int(labels[35]))
     # A new view: a table segment over ten chair voxels and five unseen voxels. It starts a label
     # of its own or joins the chair's; either way its instance is not the chair's.
-    state.fuse_frame(labels, conf, np.concatenate([np.arange(20, 30), np.arange(100, 105)]), np.full(15, table), np.full(15, 7))
+    state.fuse_frame(
+        labels, conf, np.concatenate([np.arange(20, 30), np.arange(100, 105)]), np.full(15, table), np.full(15, 7)
+    )
     new_label = int(labels[100])
     assert all(pp != chair_inst for (c, pp) in state.phi[state.resolve(new_label)] if c == table)
 

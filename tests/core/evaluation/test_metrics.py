@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stratamap.core.map.layers import ObjectInstance, OrientedBox, Semantics
 from stratamap.core.evaluation.detection import average_precision, box_map
 from stratamap.core.evaluation.panoptic import frame_quality, instance_map
+from stratamap.core.map.layers import ObjectInstance, OrientedBox, Semantics
 from stratamap.core.map.sensors import FrameSegmentation
 from stratamap.core.map.vocabulary import Vocabulary
 
@@ -63,6 +63,8 @@ def test_frame_quality_miou_and_pq():
     assert perfect["miou"] == pytest.approx(1.0) and perfect["pq"] == pytest.approx(1.0)
     wrong_cls = truth_cls.copy()
     wrong_cls[:, 3] = floor  # half the chair called floor
-    half = frame_quality([FrameSegmentation(0, wrong_cls, np.where(wrong_cls == chair, 1, 0).astype(np.int32))], truth, vocab, stride=1)
+    half = frame_quality(
+        [FrameSegmentation(0, wrong_cls, np.where(wrong_cls == chair, 1, 0).astype(np.int32))], truth, vocab, stride=1
+    )
     # IoU floor = 4/6, chair = 2/4.
     assert half["miou"] == pytest.approx((4 / 6 + 2 / 4) / 2)

@@ -1,14 +1,12 @@
-"""The wheel contains every package folder, and built-in plugins are declared as entry points."""
+"""The wheel contains every package folder; built-in plugins are not entry points."""
 
 from __future__ import annotations
 
 import ast
 import tomllib
-from pathlib import Path
 
-from stratamap.core.registry import BUILTIN_PLUGINS, group_name
+from tests.conftest import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 MAPPING = {"core": "stratamap.core", "plugins": "stratamap.plugins"}
 
@@ -34,13 +32,10 @@ def test_every_python_folder_is_a_package():
             assert (py.parent / "__init__.py").exists(), f"{py.parent} has modules but no __init__.py"
 
 
-def test_builtin_plugins_are_declared_as_entry_points():
-    declared = PYPROJECT["project"]["entry-points"]
-    for kind, modules in BUILTIN_PLUGINS.items():
-        group = declared[group_name(kind)]
-        assert sorted(group.values()) == sorted(modules)
-        for name, module in group.items():
-            assert module.rsplit(".", 1)[1] == name
+def test_builtin_plugins_are_not_entry_points():
+    """Built-ins are registered in code from one list; entry points are for third parties."""
+    groups = PYPROJECT["project"].get("entry-points", {})
+    assert not [g for g in groups if g.startswith("stratamap.")], groups
 
 
 def test_no_bare_core_or_plugins_imports():
@@ -58,11 +53,3 @@ def test_no_bare_core_or_plugins_imports():
                     if n.split(".")[0] in ("core", "plugins"):
                         offenders.append(f"{py.relative_to(REPO)}:{node.lineno} imports {n}")
     assert not offenders, offenders
-
-
-def test_one_stage_per_plugin_module():
-    from stratamap.core.registry import build_registry, builtin_entry_points
-
-    registry = build_registry(eps=builtin_entry_points(), extra_modules=[], autoload=True)
-    modules = [info.cls.__module__ for info in registry.all()]
-    assert len(modules) == len(set(modules))

@@ -7,7 +7,13 @@ import pytest
 import trimesh
 
 from stratamap.core.map.layers import Completion, ContactGraph, ObjectInstance, ObjectInstances, OrientedBox
-from stratamap.core.simulation.physics import convex_shell, penetration_depths, penetration_volume, resolve_scene, world_mesh
+from stratamap.core.simulation.physics import (
+    convex_shell,
+    penetration_depths,
+    penetration_volume,
+    resolve_scene,
+    world_mesh,
+)
 
 
 def box_object(iid: int, cls: str, size, at) -> ObjectInstance:
@@ -39,9 +45,13 @@ def test_separating_axis_depth_of_two_cubes():
 
 
 def test_penetration_volume_is_the_exact_overlap():
-    objs = ObjectInstances([box_object(1, "box", (1.0, 1.0, 1.0), (0, 0, 0)), box_object(2, "box", (1.0, 1.0, 1.0), (0.5, 0.5, 0))])
+    objs = ObjectInstances(
+        [box_object(1, "box", (1.0, 1.0, 1.0), (0, 0, 0)), box_object(2, "box", (1.0, 1.0, 1.0), (0.5, 0.5, 0))]
+    )
     assert penetration_volume(objs) == pytest.approx(0.25, rel=1e-6)
-    apart = ObjectInstances([box_object(1, "box", (1.0, 1.0, 1.0), (0, 0, 0)), box_object(2, "box", (1.0, 1.0, 1.0), (1.01, 0, 0))])
+    apart = ObjectInstances(
+        [box_object(1, "box", (1.0, 1.0, 1.0), (0, 0, 0)), box_object(2, "box", (1.0, 1.0, 1.0), (1.01, 0, 0))]
+    )
     assert penetration_volume(apart) == 0.0
 
 
@@ -72,7 +82,9 @@ def test_overlapping_chair_moves_to_the_nearest_free_spot_and_carries_its_load()
     assert shift[1] == pytest.approx(0.1, abs=0.011) and abs(shift[0]) < 0.011
     np.testing.assert_allclose((objs[3].completion.pose[:3, 3] - [0.0, 0.5, 1.0])[:2], shift[:2], atol=1e-9)
     # The input map's completions are untouched when the check runs on a copy.
-    fresh = ObjectInstances([box_object(1, "desk", (1.4, 0.7, 0.75), (0, 0, 0)), box_object(2, "chair", (0.5, 0.5, 1.0), (0.0, 0.5, 0))])
+    fresh = ObjectInstances(
+        [box_object(1, "desk", (1.4, 0.7, 0.75), (0, 0, 0)), box_object(2, "chair", (0.5, 0.5, 1.0), (0.0, 0.5, 0))]
+    )
     copy = fresh.copy()
     resolve_scene(copy, graph_of(copy, {}))
     assert fresh[2].completion.pose[1, 3] == 0.5 and copy[2].completion.pose[1, 3] > 0.59
@@ -93,24 +105,36 @@ def sampled(mesh: trimesh.Trimesh, offset, n: int = 3000) -> np.ndarray:
 def test_contact_graph_planes_hidden_tabletop_wall_support_and_refined_boxes():
     from stratamap.core.geometry.boxes import gravity_aligned_box
     from stratamap.core.map.layers import Geometry, Semantics
-    from stratamap.core.stages import PipelineData
     from stratamap.core.map.vocabulary import Vocabulary
+    from stratamap.core.stages import PipelineData
     from stratamap.plugins.mappers.contact_graph import ContactGraphMapper
 
     table_mesh = trimesh.creation.box(extents=(1.2, 0.8, 0.04))
     table = sampled(table_mesh, (0, 0, 0.73))
     box_pts = sampled(trimesh.creation.box(extents=(0.3, 0.3, 0.2)), (0.1, 0.0, 0.85))
     box_pts = box_pts[box_pts[:, 2] > 0.76]  # its bottom face is hidden by the tabletop
-    table = table[~((np.abs(table[:, 0] - 0.1) < 0.16) & (np.abs(table[:, 1]) < 0.16) & (table[:, 2] > 0.74))]  # and hides it
+    table = table[
+        ~((np.abs(table[:, 0] - 0.1) < 0.16) & (np.abs(table[:, 1]) < 0.16) & (table[:, 2] > 0.74))
+    ]  # and hides it
     cabinet = sampled(trimesh.creation.box(extents=(0.6, 0.35, 0.6)), (3.0, 1.82, 1.6))
     cabinet = cabinet[cabinet[:, 2] > 1.35]  # seen from below only partly: its bottom is missing
     wall = np.stack(np.meshgrid(np.linspace(1, 5, 80), [2.0], np.linspace(0, 2.5, 50)), -1).reshape(-1, 3)
     instances = ObjectInstances(
-        [ObjectInstance(i, c, p, gravity_aligned_box(p)) for i, c, p in ((1, "table", table), (2, "box", box_pts), (3, "cabinet", cabinet))]
+        [
+            ObjectInstance(i, c, p, gravity_aligned_box(p))
+            for i, c, p in ((1, "table", table), (2, "box", box_pts), (3, "cabinet", cabinet))
+        ]
     )
     vocab = Vocabulary.default()
     points = np.concatenate([table, box_pts, cabinet, wall])
-    classes = np.concatenate([np.full(len(table), vocab.id("table")), np.full(len(box_pts), vocab.id("box")), np.full(len(cabinet), vocab.id("cabinet")), np.full(len(wall), vocab.id("wall"))])
+    classes = np.concatenate(
+        [
+            np.full(len(table), vocab.id("table")),
+            np.full(len(box_pts), vocab.id("box")),
+            np.full(len(cabinet), vocab.id("cabinet")),
+            np.full(len(wall), vocab.id("wall")),
+        ]
+    )
     data = PipelineData()
     data.map.instances = instances
     data.map.geometry = Geometry(points=points)

@@ -5,18 +5,17 @@ from __future__ import annotations
 import json
 import sys
 from importlib.metadata import EntryPoint
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from stratamap.core.config import load_pipeline
-from stratamap.core.map.layers import LayeredMap
 from stratamap.core.io.nav2 import read_map
+from stratamap.core.map.layers import LayeredMap
 from stratamap.core.pipeline import Pipeline
-from stratamap.core.registry import build_registry, builtin_entry_points
+from stratamap.core.registry import build_registry
+from tests.conftest import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 SMALL = ["source.params.frames=16", "source.params.scene.camera={width: 320, height: 240}"]
 
 
@@ -105,7 +104,7 @@ def test_template_plugin_swaps_in_for_bbox(tmp_path, monkeypatch):
     """The example third-party package, registered by entry point, replaces bbox in the demo."""
     monkeypatch.syspath_prepend(str(REPO / "examples" / "plugin-template"))
     sys.modules.pop("stratamap_hull", None)
-    eps = builtin_entry_points() + [EntryPoint("hull", "stratamap_hull", "stratamap.completers")]
+    eps = [EntryPoint("hull", "stratamap_hull", "stratamap.completers")]
     registry = build_registry(eps=eps, extra_modules=[], autoload=True)
     validated = load_pipeline(REPO / "configs" / "demo.yaml", [*SMALL, "stages[3].plugin=hull"], registry)
     report = Pipeline(validated, registry).run(tmp_path)

@@ -10,11 +10,10 @@ import numpy as np
 import pytest
 
 from stratamap.core.map.sensors import RGBDFrame, SensorStream
+from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
-from stratamap.core.map.vocabulary import Vocabulary
-
-from .conftest import shared_data
+from tests.conftest import shared_data
 
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
@@ -30,7 +29,9 @@ def graph_model(path: Path, input_shape, outputs: dict[str, np.ndarray], gain_ou
     inp = helper.make_tensor_value_info("images", TensorProto.FLOAT, list(input_shape))
     for name, value in outputs.items():
         const = f"{name}_const"
-        nodes.append(helper.make_node("Constant", [], [const], value=numpy_helper.from_array(value.astype(np.float32), const)))
+        nodes.append(
+            helper.make_node("Constant", [], [const], value=numpy_helper.from_array(value.astype(np.float32), const))
+        )
         if name == gain_output:
             nodes.append(helper.make_node("ReduceMean", ["images"], ["gain"], keepdims=0))
             nodes.append(helper.make_node("Mul", [const, "gain"], [name]))
@@ -63,7 +64,12 @@ def test_maskrcnn_layout_pastes_box_masks_most_confident_on_top(tmp_path):
     labels = np.array([57, 42, 1], np.float32)  # the zoo's 1-based COCO ids: chair, cup, person
     scores = np.array([0.9, 0.8, 0.2], np.float32)
     masks = np.ones((3, 1, 28, 28), np.float32)
-    model = graph_model(tmp_path / "mrcnn.onnx", (1, 3, H, W), {"boxes": boxes, "labels": labels, "scores": scores, "masks": masks}, gain_output="scores")
+    model = graph_model(
+        tmp_path / "mrcnn.onnx",
+        (1, 3, H, W),
+        {"boxes": boxes, "labels": labels, "scores": scores, "masks": masks},
+        gain_output="scores",
+    )
     out = run(model, frames_data(), layout="maskrcnn")
     seg = out.frames[0]
     assert seg.class_ids.shape == (H * 2, W * 2)
@@ -80,7 +86,9 @@ def test_yolo_seg_layout_decodes_boxes_nms_and_prototype_masks(tmp_path):
     nc, k, anchors = 80, 4, 6
     det = np.zeros((1, 4 + nc + k, anchors), np.float32)
     # Two overlapping chairs (COCO 56) and one cup (41); the second chair is suppressed by NMS.
-    for a, (cx, cy, w, h, c, s, coeff) in enumerate([(16, 24, 24, 40, 56, 0.9, 0), (18, 24, 24, 40, 56, 0.6, 0), (48, 20, 20, 20, 41, 0.8, 1)]):
+    for a, (cx, cy, w, h, c, s, coeff) in enumerate(
+        [(16, 24, 24, 40, 56, 0.9, 0), (18, 24, 24, 40, 56, 0.6, 0), (48, 20, 20, 20, 41, 0.8, 1)]
+    ):
         det[0, :4, a] = (cx, cy, w, h)
         det[0, 4 + c, a] = s
         det[0, 4 + nc + coeff, a] = 8.0
@@ -143,10 +151,17 @@ def test_model_that_does_not_fit_its_layout_is_named(tmp_path):
     logits = np.zeros((1, len(vocab.names), H, W), np.float32)
     boundary = np.zeros((1, 1, H, W), np.float32)
     model = graph_model(tmp_path / "semantic.onnx", (1, 4, H, W), {"class_logits": logits, "boundary_logits": boundary})
-    with pytest.raises(DataError, match=r"semantic\.onnx has outputs \['class_logits', 'boundary_logits'\], but the 'maskrcnn' layout reads 4"):
+    with pytest.raises(
+        DataError,
+        match=r"semantic\.onnx has outputs \['class_logits', 'boundary_logits'\], but the 'maskrcnn' layout reads 4",
+    ):
         run(model, frames_data(), layout="maskrcnn")
     # Two outputs, as YOLO-seg has, but 8 detection rows cannot hold 4 box values, a class and 8 mask coefficients.
-    yolo = graph_model(tmp_path / "short.onnx", (1, 3, H, W), {"output0": np.zeros((1, 8, 6), np.float32), "output1": np.ones((1, 8, 12, 16), np.float32)})
+    yolo = graph_model(
+        tmp_path / "short.onnx",
+        (1, 3, H, W),
+        {"output0": np.zeros((1, 8, 6), np.float32), "output1": np.ones((1, 8, 12, 16), np.float32)},
+    )
     with pytest.raises(DataError, match=r"short\.onnx on frame 0: its outputs do not fit the 'yolo_seg' layout"):
         run(yolo, frames_data(), layout="yolo_seg")
     (tmp_path / "semantic.json").write_text(json.dumps({"layout": "semantic-boundary"}))
@@ -172,16 +187,20 @@ def test_shipped_model_loads_in_plain_onnxruntime_as_documented():
 def test_clusters_separates_objects_on_a_table():
     import trimesh
 
+    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.core.map.groundtruth import GroundTruth
     from stratamap.core.map.layers import Geometry
-    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 
     vocab = Vocabulary.default()
     rng = np.random.default_rng(0)
     table = np.c_[rng.uniform(-0.6, 0.6, (20000, 2)), rng.normal(0, 0.002, 20000)]
     parts, inst = [table], [np.ones(len(table), int)]
-    meshes = [trimesh.creation.box(extents=(0.2, 0.15, 0.1)), trimesh.creation.cylinder(radius=0.05, height=0.15), trimesh.creation.box(extents=(0.1, 0.1, 0.2))]
+    meshes = [
+        trimesh.creation.box(extents=(0.2, 0.15, 0.1)),
+        trimesh.creation.cylinder(radius=0.05, height=0.15),
+        trimesh.creation.box(extents=(0.1, 0.1, 0.2)),
+    ]
     offsets = [(-0.3, 0.0, 0.05), (0.1, 0.1, 0.075), (0.35, -0.2, 0.1)]
     camera = np.array([0.0, -1.2, 0.9])  # one view, as a Kinect scan: only surfaces facing the camera
     for k, (mesh, off) in enumerate(zip(meshes, offsets, strict=True)):
@@ -197,7 +216,10 @@ def test_clusters_separates_objects_on_a_table():
     pose = np.eye(4)
     pose[:3, 3] = camera
     stream = SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
-    data = PipelineData(stream=stream, ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)))
+    data = PipelineData(
+        stream=stream,
+        ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)),
+    )
     data.map.geometry = Geometry(points=points)
     out = ClustersSegmenter(min_points=200).run(data)
     data.map.semantics, data.map.instances = out["semantics"], out["instances"]
@@ -212,9 +234,9 @@ def test_clusters_cuts_a_box_standing_flush_on_another():
     plane, and the cut separates them. Without cuts they stay one."""
     import trimesh
 
+    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.core.map.groundtruth import GroundTruth
     from stratamap.core.map.layers import Geometry
-    from stratamap.core.evaluation.metrics import evaluate
     from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 
     vocab = Vocabulary.default()
@@ -238,7 +260,10 @@ def test_clusters_cuts_a_box_standing_flush_on_another():
     stream = SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
 
     def f1(**params) -> float:
-        data = PipelineData(stream=stream, ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)))
+        data = PipelineData(
+            stream=stream,
+            ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)),
+        )
         data.map.geometry = Geometry(points=points)
         out = ClustersSegmenter(min_points=200, **params).run(data)
         data.map.semantics, data.map.instances = out["semantics"], out["instances"]
@@ -248,6 +273,7 @@ def test_clusters_cuts_a_box_standing_flush_on_another():
     assert f1() == 1.0
 
 
+@pytest.mark.slow
 def test_clusters_on_real_tabletop_scans_reaches_f1_08():
     """mOSD learn split (the test split is kept for reported evaluation)."""
     from stratamap.core.evaluation.metrics import evaluate
@@ -290,9 +316,15 @@ def test_semantic_boundary_merges_instances_split_at_a_depth_continuous_seam():
     ident, thing = np.arange(2), np.array([False, True])
     flat = np.full((20, 20), 2.0, np.float32)
     split, inst_split, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0)
-    step = np.where(inst_split == inst_split[10, 17], 3.0, 2.0).astype(np.float32)  # the right part a metre farther: two objects
-    _, inst_flat, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=flat, merge_depth_gap=0.06)
-    _, inst_step, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=step, merge_depth_gap=0.06)
+    step = np.where(inst_split == inst_split[10, 17], 3.0, 2.0).astype(
+        np.float32
+    )  # the right part a metre farther: two objects
+    _, inst_flat, _ = semantic_boundary(
+        logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=flat, merge_depth_gap=0.06
+    )
+    _, inst_step, _ = semantic_boundary(
+        logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, depth=step, merge_depth_gap=0.06
+    )
     region = split == 1
     assert len(np.unique(inst_split[region])) == 2
     assert len(np.unique(inst_flat[region])) == 1
@@ -336,7 +368,9 @@ def test_depth_continuous_merge_bridges_only_through_smaller_instances():
     chair[0:5, :], ccls[0:5, :] = 1, CHAIR  # seat and back
     chair[5:7, 3:5], ccls[5:7, 3:5] = 2, POST  # the post, called something else
     chair[7:12, :], ccls[7:12, :] = 3, CHAIR  # the base
-    merged = merge_depth_continuous(chair, np.full(chair.shape, 2.0, np.float32), 0.06, class_ids=ccls, bridges="smaller")
+    merged = merge_depth_continuous(
+        chair, np.full(chair.shape, 2.0, np.float32), 0.06, class_ids=ccls, bridges="smaller"
+    )
     assert merged[2, 2] == merged[9, 2]
     with pytest.raises(ValueError, match="class_ids"):
         merge_depth_continuous(chair, np.full(chair.shape, 2.0, np.float32), 0.06, bridges="smaller")
@@ -353,7 +387,14 @@ def test_semantic_boundary_leaves_unsure_regions_unknown():
     bound = np.full((1, 1, 20, 20), -10.0, np.float32)
     ident, thing = np.arange(3), np.array([False, False, True])
     kept, _, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, min_region_score=0.5)
-    dropped, inst, _ = semantic_boundary(logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, min_region_score=0.8)
+    dropped, inst, _ = semantic_boundary(
+        logits, bound, ident, thing, min_pixels=1, speckle_pixels=0, min_region_score=0.8
+    )
     assert (kept == 2).sum() == 36
-    assert (dropped == 0).sum() == 36 and (dropped[~((np.arange(20)[:, None] >= 2) & (np.arange(20)[:, None] < 8) & (np.arange(20) >= 2) & (np.arange(20) < 8))] == 1).all()
+    assert (dropped == 0).sum() == 36 and (
+        dropped[
+            ~((np.arange(20)[:, None] >= 2) & (np.arange(20)[:, None] < 8) & (np.arange(20) >= 2) & (np.arange(20) < 8))
+        ]
+        == 1
+    ).all()
     assert inst.max() == 0

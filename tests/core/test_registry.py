@@ -11,7 +11,7 @@ import pytest
 
 from stratamap.core import Completer, hookimpl
 from stratamap.core.errors import PluginError
-from stratamap.core.registry import build_registry, builtin_entry_points
+from stratamap.core.registry import build_registry
 
 
 class _Dist:
@@ -21,10 +21,6 @@ class _Dist:
 
 def ep(name: str, value: str, group: str, dist: str) -> EntryPoint:
     return EntryPoint(name=name, value=value, group=group)._for(_Dist(dist))
-
-
-def builtin() -> list[EntryPoint]:
-    return [ep(e.name, e.value, e.group, "stratamap") for e in builtin_entry_points()]
 
 
 class FancyCompleter(Completer):
@@ -59,16 +55,44 @@ def third_party_module():
     del sys.modules["acme_fancy"]
 
 
-def test_builtins_register_through_entry_points():
-    reg = build_registry(eps=builtin(), extra_modules=[], autoload=True)
+def test_builtins_register_in_code_without_entry_points():
+    reg = build_registry(eps=[], extra_modules=[], autoload=True)
     kinds = {info.kind for info in reg.all()}
     assert kinds == {"sources", "segmenters", "mappers", "completers", "exporters"}
     assert reg.get("completers", "bbox").distribution == "stratamap"
     assert not reg.failures
 
 
+def test_without_builtins_only_entry_points_register(third_party_module):
+    eps = [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
+    reg = build_registry(eps=eps, extra_modules=[], autoload=True, builtins=False)
+    assert [info.name for info in reg.all()] == ["fancy"]
+
+
+def test_a_third_party_plugin_adds_a_metric_family(tmp_path):
+    from stratamap.core.pipeline import evaluate
+    from stratamap.core.stages import PipelineData
+
+    mod = types.ModuleType("acme_metrics")
+
+    @hookimpl
+    def stratamap_evaluate(data, details):
+        return {"acme": {"frames": 0 if data.stream is None else len(data.stream), "details": details}}
+
+    mod.stratamap_evaluate = stratamap_evaluate
+    sys.modules["acme_metrics"] = mod
+    try:
+        reg = build_registry(
+            eps=[ep("acme", "acme_metrics", "stratamap.mappers", "acme-metrics")], extra_modules=[], autoload=True
+        )
+    finally:
+        del sys.modules["acme_metrics"]
+    metrics = evaluate(reg.hook, PipelineData(), details=True)
+    assert metrics == {"acme": {"frames": 0, "details": True}}  # no ground truth: no built-in family applies
+
+
 def test_third_party_plugin_is_listed_with_its_distribution(third_party_module):
-    eps = builtin() + [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
+    eps = [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
     reg = build_registry(eps=eps, extra_modules=[], autoload=True)
     info = reg.get("completers", "fancy")
     assert info.cls is FancyCompleter and info.distribution == "acme-fancy"
@@ -76,13 +100,13 @@ def test_third_party_plugin_is_listed_with_its_distribution(third_party_module):
 
 
 def test_entry_point_may_name_a_stage_class():
-    eps = builtin() + [ep("fancy", f"{__name__}:FancyCompleter", "stratamap.completers", "acme-fancy")]
+    eps = [ep("fancy", f"{__name__}:FancyCompleter", "stratamap.completers", "acme-fancy")]
     reg = build_registry(eps=eps, extra_modules=[], autoload=True)
     assert reg.get("completers", "fancy").cls is FancyCompleter
 
 
 def test_broken_plugin_is_reported_and_the_rest_loads():
-    eps = builtin() + [ep("broken", "acme_does_not_exist.plugin", "stratamap.mappers", "acme-broken")]
+    eps = [ep("broken", "acme_does_not_exist.plugin", "stratamap.mappers", "acme-broken")]
     reg = build_registry(eps=eps, extra_modules=[], autoload=True)
     assert reg.get("completers", "bbox")
     assert len(reg.failures) == 1
@@ -93,7 +117,7 @@ def test_broken_plugin_is_reported_and_the_rest_loads():
 
 
 def test_duplicate_names_are_an_error_naming_both():
-    eps = builtin() + [ep("bbox2", f"{__name__}:ImpostorCompleter", "stratamap.completers", "acme-impostor")]
+    eps = [ep("bbox2", f"{__name__}:ImpostorCompleter", "stratamap.completers", "acme-impostor")]
     with pytest.raises(PluginError) as exc:
         build_registry(eps=eps, extra_modules=[], autoload=True)
     msg = str(exc.value)
@@ -102,7 +126,7 @@ def test_duplicate_names_are_an_error_naming_both():
 
 
 def test_autoload_off_skips_third_party(third_party_module, monkeypatch):
-    eps = builtin() + [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
+    eps = [ep("fancy", third_party_module, "stratamap.completers", "acme-fancy")]
     monkeypatch.setenv("STRATAMAP_DISABLE_PLUGIN_AUTOLOAD", "1")
     reg = build_registry(eps=eps, extra_modules=[])
     assert "fancy" not in reg.stages["completers"]
@@ -129,7 +153,7 @@ def test_unpackaged_module_from_environment(tmp_path, monkeypatch):
         )
     )
     monkeypatch.setenv("STRATAMAP_PLUGINS", f"{plugin},not_a_module_anywhere")
-    reg = build_registry(eps=builtin())
+    reg = build_registry(eps=[])
     assert reg.get("completers", "local").distribution == "<STRATAMAP_PLUGINS>"
     assert any("not_a_module_anywhere" in str(f) for f in reg.failures)
 

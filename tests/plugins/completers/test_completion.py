@@ -10,15 +10,15 @@ import open3d.core as o3c
 import pytest
 import trimesh
 
-from stratamap.plugins.completers._matching import register_library
-from stratamap.core.map.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
-from stratamap.core.library.models import ModelLibrary, model_to_library
 from stratamap.core.evaluation.completion import evaluate_completion, shape_distances
 from stratamap.core.library.index import ModelIndex
+from stratamap.core.library.models import ModelLibrary, model_to_library
+from stratamap.core.map.layers import LayeredMap, ObjectInstance, ObjectInstances, OrientedBox
 from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
 from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 from stratamap.core.synthetic.models import make_model
+from stratamap.plugins.completers._matching import register_library
 from stratamap.plugins.completers.bbox import BBoxCompleter
 from stratamap.plugins.completers.icp_match import ICPMatchCompleter
 from stratamap.plugins.completers.plane_box_match import ORIENTATIONS, PlaneBoxMatchCompleter
@@ -29,7 +29,9 @@ from stratamap.plugins.segmenters.oracle import OracleSegmenter
 
 @pytest.fixture(scope="module")
 def mapped():
-    spec = SceneSpec.model_validate({"type": "office", "seed": 11, "camera": {"width": 320, "height": 240}, "trajectory": {"frames": 60}})
+    spec = SceneSpec.model_validate(
+        {"type": "office", "seed": 11, "camera": {"width": 320, "height": 240}, "trajectory": {"frames": 60}}
+    )
     world = SyntheticWorld(spec)
     data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
     return run_stages([OracleSegmenter(), TSDFMapper(), ContactGraphMapper()], data)
@@ -70,6 +72,7 @@ def plane_box_matched(mapped):
     return run(PlaneBoxMatchCompleter(), mapped)[0]
 
 
+@pytest.mark.slow
 def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
     boxes, _ = run(BBoxCompleter(), mapped)
     icp, _ = run(ICPMatchCompleter(), mapped)
@@ -83,6 +86,7 @@ def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
     assert np.median([r["yaw_error_deg"] for r in chairs]) < 10
 
 
+@pytest.mark.slow
 def test_augmented_scene_replaces_observed_fragments(mapped):
     data, out = run(ICPMatchCompleter(), mapped)
     aug = out["augmented"]
@@ -155,6 +159,7 @@ def test_index_cache_round_trip(tmp_path):
     assert loaded.shortlist("chair", built.models[library.models[0].id].descriptor, 1) == [library.models[0].id]
 
 
+@pytest.mark.slow
 def test_matching_is_deterministic(mapped, plane_box_matched):
     a = plane_box_matched
     b, _ = run(PlaneBoxMatchCompleter(), mapped)
@@ -194,7 +199,14 @@ def test_articulated_completion_exports_working_joints(tmp_path):
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(paths[0]), useFixedBase=True, physicsClientId=client)
-        found = sorted({0: "revolute", 1: "prismatic"}[info[2]] for info in (pybullet.getJointInfo(body, i, physicsClientId=client) for i in range(pybullet.getNumJoints(body, physicsClientId=client))) if info[2] in (0, 1))
+        found = sorted(
+            {0: "revolute", 1: "prismatic"}[info[2]]
+            for info in (
+                pybullet.getJointInfo(body, i, physicsClientId=client)
+                for i in range(pybullet.getNumJoints(body, physicsClientId=client))
+            )
+            if info[2] in (0, 1)
+        )
     finally:
         pybullet.disconnect(client)
     assert found == kinds and "revolute" in found
@@ -207,7 +219,11 @@ def test_mjcf_export_loads_in_mujoco_with_articulation(tmp_path):
     counter, data = completed_counter("counters-mjcf")
     paths = MJCFExporter().run(data, tmp_path)
     model = mujoco.MjModel.from_xml_path(str(paths[0]))
-    names = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute", int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+    names = {
+        int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
+        int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic",
+        int(mujoco.mjtJoint.mjJNT_FREE): "free",
+    }
     kinds = sorted(names[int(t)] for t in model.jnt_type)
     assert kinds == sorted(j.type for j in counter.joints)  # no free joint: furniture is static
     sim = mujoco.MjData(model)

@@ -10,16 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stratamap.plugins.segmenters.plane_crf import fronts as fu
-from stratamap.core.simulation import virtual_scan as ks
 from stratamap.core.evaluation.classification import kitchen_tables, per_label
+from stratamap.core.io.urdf import read_urdf
+from stratamap.core.simulation import virtual_scan as ks
+from stratamap.core.synthetic.kitchens import generate_kitchen
+from stratamap.plugins.segmenters.plane_crf import fronts as fu
 from stratamap.plugins.segmenters.plane_crf.crf import CRF
 from stratamap.plugins.segmenters.plane_crf.fixtures import Fixture, fit_circle, fit_line
 from stratamap.plugins.segmenters.plane_crf.planes import boundary_points, multilod_planes, region_grow
-from stratamap.core.synthetic.kitchens import generate_kitchen
-from stratamap.core.io.urdf import read_urdf
+from tests.conftest import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 APARTMENT = REPO.parent / "shared" / "data" / "iai_apartment" / "urdf" / "apartment.urdf"
 
 
@@ -178,11 +178,22 @@ def test_table_iv_counts_segments_and_fronts():
     seg = np.r_[np.zeros(n), np.ones(n), np.full(n, 2)].astype(int)
     t2 = np.r_[np.full(2 * n, -1), np.full(n, 1)]
     tf = np.r_[np.full(2 * n, -1), np.zeros(n)].astype(int)
-    tables = kitchen_tables(t1, seg, t2, tf, {0: "left"}, t1, t2, tf, [{"name": "d", "kind": "drawer", "joint_type": "prismatic", "hinge": None}])
+    tables = kitchen_tables(
+        t1,
+        seg,
+        t2,
+        tf,
+        {0: "left"},
+        t1,
+        t2,
+        tf,
+        [{"name": "d", "kind": "drawer", "joint_type": "prismatic", "hinge": None}],
+    )
     assert tables["horizontal"]["floor"]["f1"] == 1.0 and tables["vertical"]["macro_f1"] == 1.0
     assert tables["furniture"]["drawer"]["f1"] == 1.0 and tables["hinge"]["doors"] == 0
 
 
+@pytest.mark.slow
 def test_plane_crf_on_a_held_out_synthetic_kitchen(tmp_path):
     """The shipped CRFs on a kitchen never trained on (seed 3; training used 100+)."""
     from stratamap.core.config import validate
@@ -209,18 +220,25 @@ def test_plane_crf_on_a_held_out_synthetic_kitchen(tmp_path):
 
 
 def test_shipped_plane_crf_model_is_small_and_documented():
-    path = REPO / "plugins" / "segmenters" / "models" / "plane_crf.json"
+    path = REPO / "plugins" / "segmenters" / "plane_crf" / "models" / "plane_crf.json"
     doc = json.loads(path.read_text())
     assert path.stat().st_size < 200_000
     assert doc["trained_on"].startswith("virtual laser scans") and "held_out" in doc
-    assert fu.level1_feature_count() == doc["level1"]["n_features"] and fu.level2_feature_count() == doc["level2"]["n_features"]
+    assert (
+        fu.level1_feature_count() == doc["level1"]["n_features"]
+        and fu.level2_feature_count() == doc["level2"]["n_features"]
+    )
 
 
 @pytest.mark.skipif(not APARTMENT.exists(), reason="../shared/data/iai_apartment not available")
 def test_apartment_kitchen_ground_truth_from_the_urdf():
     scene = ks.kitchen_from_urdf(read_urdf(APARTMENT), root_link="kitchen_root")
     kinds = {f.name: f.kind for f in scene.fronts}
-    assert kinds["cabinet5_drawer_top"] == "drawer" and kinds["cabinet1_door_top_left"] == "cupboard" and kinds["oven"] == "appliance"
+    assert (
+        kinds["cabinet5_drawer_top"] == "drawer"
+        and kinds["cabinet1_door_top_left"] == "cupboard"
+        and kinds["oven"] == "appliance"
+    )
     ks.add_room(scene, (0.0, 0.0, 4.2, 5.0, 2.6))
     scan = ks.virtual_scan(scene, [[1.45, 2.6, 1.4]], resolution_deg=1.0)
     labels = ks.label_points(scene, scan)
@@ -229,13 +247,16 @@ def test_apartment_kitchen_ground_truth_from_the_urdf():
     assert (labels.level2 == ks.LEVEL2.index("drawer")).sum() > 1000
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not APARTMENT.exists(), reason="../shared/data/iai_apartment not available")
 def test_plane_crf_on_the_real_apartment_kitchen(tmp_path):
     """configs/kitchen_planes.yaml as shipped: Table IV against the apartment's URDF."""
     from stratamap.core.config import load_pipeline
     from stratamap.core.pipeline import Pipeline
 
-    report = Pipeline(load_pipeline(REPO / "configs" / "kitchen_planes.yaml", [f"source.params.path={APARTMENT}"])).run(tmp_path)
+    report = Pipeline(load_pipeline(REPO / "configs" / "kitchen_planes.yaml", [f"source.params.path={APARTMENT}"])).run(
+        tmp_path
+    )
     t = report["metrics"]["classification"]
     assert t["horizontal"]["macro_f1"] >= 0.85 and t["vertical"]["macro_f1"] >= 0.85, t
     assert t["furniture"]["macro_f1"] >= 0.7 and t["hinge"]["accuracy"] >= 0.8, (t["furniture"], t["hinge"])

@@ -5,21 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.mappers.tsdf.mask_instances import (
     MaskInstanceParams,
     MaskObservations,
     agglomerate,
-    atoms,
     class_min_points,
-    class_fragments,
+    connected_pieces,
     key_voxels,
     mask_instances,
     merge_stacked,
+    misfire_instances,
     piece_proximity,
     split_oversized,
     voxel_keys,
 )
-from stratamap.core.map.vocabulary import Vocabulary
 
 VOXEL = 0.02
 VOCAB = Vocabulary.default()
@@ -69,7 +69,9 @@ def test_voxel_keys_round_trip():
 def test_masks_split_fused_objects_and_join_pieces():
     voxels, part, fused_class, fused_instance = scene()
     points = voxels * VOXEL
-    cls, inst = mask_instances(points, fused_class, fused_instance, observe(voxels, part, frames_merged=2), VOCAB, VOXEL)
+    cls, inst = mask_instances(
+        points, fused_class, fused_instance, observe(voxels, part, frames_merged=2), VOCAB, VOXEL
+    )
     # Class by the frames' votes: the desk's wrongly fused corner is desk again.
     assert np.all(cls[part == 2] == DESK) and np.all(cls[part == 4] == FLOOR)
     assert np.all(inst[part == 4] == 0)
@@ -83,17 +85,19 @@ def test_masks_split_fused_objects_and_join_pieces():
 
 def test_masks_that_never_split_two_pieces_join_them():
     voxels, part, fused_class, fused_instance = scene()
-    cls, inst = mask_instances(voxels * VOXEL, fused_class, fused_instance, observe(voxels, part, frames_merged=10), VOCAB, VOXEL)
+    cls, inst = mask_instances(
+        voxels * VOXEL, fused_class, fused_instance, observe(voxels, part, frames_merged=10), VOCAB, VOXEL
+    )
     assert len(np.unique(inst[(part == 0) | (part == 1)])) == 1
 
 
 def test_small_pieces_join_the_piece_they_touch():
     voxels = np.concatenate([slab(0, 0, 0, 10, 10, 3), slab(10, 0, 0, 2, 2, 2)])  # 300 + 8 points
     cls = np.array([CHAIR] * 300 + [DESK] * 8)
-    piece = atoms(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=20)
+    piece = connected_pieces(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=20)
     assert len(np.unique(piece)) == 1 and np.all(cls == CHAIR)
     cls = np.array([CHAIR] * 300 + [DESK] * 8)
-    piece = atoms(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=5)
+    piece = connected_pieces(voxels * VOXEL, cls, np.zeros(len(voxels), int), 1.5 * VOXEL, min_points=5)
     assert len(np.unique(piece)) == 2
 
 
@@ -146,7 +150,15 @@ def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
     """Seven frames in ten covering both: enough 10 cm apart, not 1 m apart (a segmenter's masks
     that often run over two books or two chairs), unless the distance limit is off."""
     voxels, obs = two_chairs(gap_voxels, frames_together=7)
-    cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL, MaskInstanceParams(near_gap=near_gap))
+    cls, inst = mask_instances(
+        voxels * VOXEL,
+        np.full(len(voxels), CHAIR),
+        np.ones(len(voxels), int),
+        obs,
+        VOCAB,
+        VOXEL,
+        MaskInstanceParams(near_gap=near_gap),
+    )
     assert np.all(inst > 0)
     assert (len(np.unique(inst)) == 1) == joined
 
@@ -154,13 +166,25 @@ def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
 def test_far_pieces_join_when_every_mask_covers_both():
     """A plant's pot and leaves 1 m apart (the stem lost) that every frame's mask covers as one."""
     voxels, obs = two_chairs(50, frames_together=10)
-    cls, inst = mask_instances(voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL)
+    cls, inst = mask_instances(
+        voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL
+    )
     assert len(np.unique(inst)) == 1 and inst[0] > 0
 
 
 def test_piece_proximity():
     """Near means within about the gap (one point per piece and quarter-gap cell stands in for it)."""
-    points = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(10, 0, 0, 10, 10, 10), slab(25, 0, 0, 10, 10, 10), slab(100, 0, 0, 10, 10, 10)]) * VOXEL
+    points = (
+        np.concatenate(
+            [
+                slab(0, 0, 0, 10, 10, 10),
+                slab(10, 0, 0, 10, 10, 10),
+                slab(25, 0, 0, 10, 10, 10),
+                slab(100, 0, 0, 10, 10, 10),
+            ]
+        )
+        * VOXEL
+    )
     piece = np.repeat([0, 1, 2, 3], 1000)
     piece[:3] = -1  # points that take no part
     near = piece_proximity(points, piece, 4, 0.3)
@@ -171,7 +195,9 @@ def test_piece_proximity():
 
 def test_fragments_of_a_class_are_dropped():
     """A 'chair' of 64 points beside chairs of 1,000 is a misfire; a lone small cup is not."""
-    voxels = np.concatenate([slab(0, 0, 0, 10, 10, 10), slab(30, 0, 0, 10, 10, 10), slab(60, 0, 0, 4, 4, 4), slab(0, 40, 0, 4, 4, 4)])
+    voxels = np.concatenate(
+        [slab(0, 0, 0, 10, 10, 10), slab(30, 0, 0, 10, 10, 10), slab(60, 0, 0, 4, 4, 4), slab(0, 40, 0, 4, 4, 4)]
+    )
     part = np.repeat([0, 1, 2, 3], [1000, 1000, 64, 64])
     cup = VOCAB.id("cup")
     cls = np.array([CHAIR, CHAIR, CHAIR, cup])[part]
@@ -182,7 +208,9 @@ def test_fragments_of_a_class_are_dropped():
     assert all(len(np.unique(out_inst[part == k])) == 1 and out_inst[part == k][0] > 0 for k in (0, 1, 3))
     _, kept = mask_instances(voxels * VOXEL, cls, part + 1, obs, VOCAB, VOXEL, MaskInstanceParams(min_class_share=0.0))
     assert np.all(kept[part == 2] > 0)
-    assert class_fragments(np.array([0, 1, 1, 1, 2, 3, 3, 3]), np.array([0, 4, 4, 4, 4, 4, 4, 4]), 0.5).tolist() == [2]
+    assert misfire_instances(np.array([0, 1, 1, 1, 2, 3, 3, 3]), np.array([0, 4, 4, 4, 4, 4, 4, 4]), 0.5).tolist() == [
+        2
+    ]
 
 
 def test_isolated_small_piece_far_from_its_host_is_dropped():
@@ -214,7 +242,9 @@ def test_an_object_called_by_two_names_is_one_instance(cross_ratio):
     part_b = np.arange(len(voxels)) >= 600
     sofa = VOCAB.id("sofa")
     obs, cls, inst = seen_whole_and_alone(voxels, part_b, (CHAIR, sofa), (CHAIR, sofa))
-    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_class_ratio=cross_ratio))
+    out_cls, out_inst = mask_instances(
+        voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_ratio=cross_ratio)
+    )
     assert np.all(out_inst > 0)
     if cross_ratio:
         assert len(np.unique(out_inst)) == 1 and np.all(out_cls == CHAIR)
@@ -230,7 +260,9 @@ def test_a_small_thing_on_furniture_keeps_its_class(share, kept_apart):
     part_b = np.arange(len(voxels)) >= 1000
     shelf, book = VOCAB.id("shelf"), VOCAB.id("book")
     obs, cls, inst = seen_whole_and_alone(voxels, part_b, (shelf, shelf), (shelf, book))
-    out_cls, out_inst = mask_instances(voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_class_share=share))
+    out_cls, out_inst = mask_instances(
+        voxels * VOXEL, cls, inst, obs, VOCAB, VOXEL, MaskInstanceParams(cross_share=share)
+    )
     assert np.all(out_inst > 0) and np.all(out_cls[~part_b] == shelf)
     assert (out_inst[part_b][0] != out_inst[0]) == kept_apart
     assert np.all(out_cls[part_b] == (book if kept_apart else shelf))
@@ -242,9 +274,8 @@ def test_point_median_fragments_are_not_dragged_down_by_many_fragments():
     sizes = [95, 216, 228, 341, 8023, 10432]
     instance = np.repeat(np.arange(1, 7), sizes)
     point_class = np.full(len(instance), CHAIR)
-    assert class_fragments(instance, point_class, 0.1).tolist() == []
-    assert class_fragments(instance, point_class, 0.1, "point_median").tolist() == [1, 2, 3, 4]
-
+    assert misfire_instances(instance, point_class, 0.1).tolist() == []
+    assert misfire_instances(instance, point_class, 0.1, "point_median").tolist() == [1, 2, 3, 4]
 
 
 def cup(cx: float, cy: float, rng: np.random.Generator, n: int = 400) -> np.ndarray:
@@ -278,7 +309,10 @@ def test_size_prior_keeps_an_object_with_a_scrap_whole():
     points = np.concatenate([screen, scrap])
     cls = np.full(len(points), VOCAB.id("monitor"))
     assert np.all(split_oversized(points, cls, np.ones(len(points), int), VOCAB, {"monitor": 0.8}) == 1)
-    assert len(np.unique(split_oversized(points, cls, np.ones(len(points), int), VOCAB, {"monitor": 0.8}, balance=0.0))) == 2
+    assert (
+        len(np.unique(split_oversized(points, cls, np.ones(len(points), int), VOCAB, {"monitor": 0.8}, balance=0.0)))
+        == 2
+    )
 
 
 def test_size_prior_rejects_unknown_classes_and_bad_lengths():
@@ -337,11 +371,11 @@ def test_small_things_stand_alone_from_fewer_points():
     cls = np.r_[np.full(len(table), table_id), np.full(len(cup_pts), cup_id)]
     group = np.zeros(len(points), int)
     general = cls.copy()
-    atoms(points, general, group, 1.5 * VOXEL, 60)
+    connected_pieces(points, general, group, 1.5 * VOXEL, 60)
     assert np.all(general == table_id)
     per_class = cls.copy()
     bar = class_min_points(VOCAB, 60, {"cup": 30})
-    pieces = atoms(points, per_class, group, 1.5 * VOXEL, bar)
-    assert np.all(per_class[len(table):] == cup_id) and len(np.unique(pieces)) == 2
+    pieces = connected_pieces(points, per_class, group, 1.5 * VOXEL, bar)
+    assert np.all(per_class[len(table) :] == cup_id) and len(np.unique(pieces)) == 2
     with pytest.raises(ValueError, match="'cupp'"):
         class_min_points(VOCAB, 60, {"cupp": 30})

@@ -4,8 +4,6 @@ contact graph against the ground truth over several seeds."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import networkx as nx
 import numpy as np
 import pytest
@@ -14,8 +12,8 @@ import yaml
 from stratamap.core.config import load_pipeline
 from stratamap.core.io.nav2 import read_map
 from stratamap.core.pipeline import Pipeline
+from tests.conftest import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 EXPORTS = [
     "scene.urdf", "scene.xml", "scene.sdf", "scene.glb", "map.yaml", "map.pgm", "multimap.yaml", "multimap.pgm",
     "costmap.yaml", "costmap.pgm", "scene_graph.json",
@@ -34,7 +32,10 @@ def scene_run(request, tmp_path_factory):
     """configs/KIND.yaml as shipped, but for half-resolution images."""
     out = tmp_path_factory.mktemp(request.param)
     config = yaml.safe_load((REPO / "configs" / f"{request.param}.yaml").read_text())
-    config["source"]["params"] = {"scene": half_resolution(request.param), "frames": config["source"]["params"]["frames"]}
+    config["source"]["params"] = {
+        "scene": half_resolution(request.param),
+        "frames": config["source"]["params"]["frames"],
+    }
     path = out / "pipeline.yaml"
     path.write_text(yaml.safe_dump(config))
     report = Pipeline(load_pipeline(path)).run(out)
@@ -64,7 +65,10 @@ def test_urdf_is_a_tree_that_pybullet_loads_with_its_joints(scene_run):
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(path), useFixedBase=True, physicsClientId=client)
-        types = [pybullet.getJointInfo(body, k, physicsClientId=client)[2] for k in range(pybullet.getNumJoints(body, physicsClientId=client))]
+        types = [
+            pybullet.getJointInfo(body, k, physicsClientId=client)[2]
+            for k in range(pybullet.getNumJoints(body, physicsClientId=client))
+        ]
     finally:
         pybullet.disconnect(client)
     loaded = {pybullet.JOINT_REVOLUTE: "revolute", pybullet.JOINT_PRISMATIC: "prismatic"}
@@ -80,8 +84,16 @@ def test_mujoco_scene_rests_under_gravity(scene_run):
     _, out, _ = scene_run
     path = out / "export" / "scene.xml"
     model = mujoco.MjModel.from_xml_path(str(path))
-    free = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.jnt_bodyid[j])) for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE}
-    top_level = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(1, model.nbody) if model.body_parentid[b] == 0}
+    free = {
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.jnt_bodyid[j]))
+        for j in range(model.njnt)
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
+    }
+    top_level = {
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
+        for b in range(1, model.nbody)
+        if model.body_parentid[b] == 0
+    }
     movable = ("chair", "cup", "book", "bottle", "laptop", "monitor", "box", "plant")
     static = ("table", "desk", "cabinet", "shelf", "counter", "fridge", "oven", "sofa")
     assert free == {b for b in top_level if b.rsplit("_", 1)[0] in movable}
@@ -103,7 +115,11 @@ def test_contact_graph_matches_ground_truth_on_most_seeds(tmp_path):
         yaml.safe_dump(
             {
                 "source": {"plugin": "synthetic", "params": {"scene": scene, "frames": 120}},
-                "stages": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.02}}, {"plugin": "contact_graph"}],
+                "stages": [
+                    {"plugin": "oracle"},
+                    {"plugin": "tsdf", "params": {"voxel_size": 0.02}},
+                    {"plugin": "contact_graph"},
+                ],
                 "output": {"save_map": False},
             }
         )

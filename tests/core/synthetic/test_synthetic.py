@@ -15,8 +15,9 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from stratamap.core.cli import app
-from stratamap.core.map.layers import ContactGraph
+from stratamap.core.geometry.transforms import look_at
 from stratamap.core.io.nav2 import read_map
+from stratamap.core.map.layers import ContactGraph
 from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.core.synthetic import SCENE_TYPES, SceneSpec, SyntheticWorld, generate_scene
 from stratamap.core.synthetic.models import FAMILIES, make_model
@@ -24,9 +25,8 @@ from stratamap.core.synthetic.render import SceneRenderer, apply_kinect_noise
 from stratamap.core.synthetic.scene import room_layout
 from stratamap.core.synthetic.writer import write_sequence
 from stratamap.core.testing import fingerprint
-from stratamap.core.geometry.transforms import look_at
+from tests.conftest import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 runner = CliRunner()
 TINY = {"camera": {"width": 80, "height": 60}, "trajectory": {"frames": 3}}
 
@@ -101,7 +101,9 @@ def test_user_mesh_folder_and_broken_files(tmp_path):
     trimesh.creation.box((0.5, 0.4, 0.9)).export(tmp_path / "cab.stl")
     trimesh.creation.icosphere().export(tmp_path / "ball.ply")
     (tmp_path / "broken.obj").write_text("this is not an obj\n")
-    (tmp_path / "classes.csv").write_text("file,class\ncab.stl,cabinet\nball.ply,object\nbroken.obj,box\nmissing.glb,box\n")
+    (tmp_path / "classes.csv").write_text(
+        "file,class\ncab.stl,cabinet\nball.ply,object\nbroken.obj,box\nmissing.glb,box\n"
+    )
     from stratamap.core.library.models import ModelLibrary
 
     lib = ModelLibrary.load(tmp_path)
@@ -232,9 +234,14 @@ def test_lidar_points_lie_on_the_scene():
 
 
 def _digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene_type", ["office", "kitchen"])
 def test_synth_writes_the_tum_layout_deterministically(tmp_path, scene_type):
     spec_file = REPO / "configs" / "scenes" / f"{scene_type}.yaml"
@@ -244,7 +251,15 @@ def test_synth_writes_the_tum_layout_deterministically(tmp_path, scene_type):
         assert result.exit_code == 0, result.output
     a = tmp_path / "a"
     assert _digest(a) == _digest(tmp_path / "b"), "same spec and seed must give identical files"
-    for rel in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.json", "laser.txt", "gt/scene.json", "gt/contact_graph.json"):
+    for rel in (
+        "rgb.txt",
+        "depth.txt",
+        "groundtruth.txt",
+        "camera.json",
+        "laser.txt",
+        "gt/scene.json",
+        "gt/contact_graph.json",
+    ):
         assert (a / rel).is_file(), rel
     depth_files = sorted((a / "depth").glob("*.png"))
     assert len(depth_files) == 4
@@ -252,7 +267,12 @@ def test_synth_writes_the_tum_layout_deterministically(tmp_path, scene_type):
     assert depth.dtype == np.uint16 and depth.max() > 5000
     poses = [ln for ln in (a / "groundtruth.txt").read_text().splitlines() if not ln.startswith("#")]
     assert len(poses) == 4 and all(len(ln.split()) == 8 for ln in poses)
-    graph = ContactGraph.from_dict({"support": json.loads((a / "gt" / "contact_graph.json").read_text()), "proximal": nx.node_link_data(nx.Graph(), edges="links")})
+    graph = ContactGraph.from_dict(
+        {
+            "support": json.loads((a / "gt" / "contact_graph.json").read_text()),
+            "proximal": nx.node_link_data(nx.Graph(), edges="links"),
+        }
+    )
     scene = json.loads((a / "gt" / "scene.json").read_text())
     for obj in scene["objects"]:
         assert graph.support.in_degree(obj["id"]) == 1
