@@ -80,7 +80,8 @@ def main() -> None:
             "seconds_per_object": float(np.mean(seconds[name])),
         }
     print(
-        f"{'completer':16s} {'CD-L1 all':>10s} {'CD-L1 chair':>12s} {'F@2cm':>7s} {'F@5cm':>7s} {'yaw deg':>8s} {'s/obj':>7s}"
+        f"{'completer':16s} {'CD-L1 all':>10s} {'CD-L1 chair':>12s} {'F@2cm':>7s} {'F@5cm':>7s} {'yaw deg':>8s} "
+        f"{'s/obj':>7s}"
     )
     for name, s in summary.items():
 
@@ -88,7 +89,9 @@ def main() -> None:
             return "-" if v is None else format(v, spec)
 
         print(
-            f"{name:16s} {fmt(s['chamfer_l1'], '10.4f')} {fmt(s['chamfer_l1_chairs'], '12.4f')} {fmt(s['fscore_2cm'], '7.3f')} {fmt(s['fscore_5cm'], '7.3f')} {fmt(s['yaw_error_deg'], '8.2f')} {fmt(s['seconds_per_object'], '7.3f')}"
+            f"{name:16s} {fmt(s['chamfer_l1'], '10.4f')} {fmt(s['chamfer_l1_chairs'], '12.4f')} "
+            f"{fmt(s['fscore_2cm'], '7.3f')} "
+            f"{fmt(s['fscore_5cm'], '7.3f')} {fmt(s['yaw_error_deg'], '8.2f')} {fmt(s['seconds_per_object'], '7.3f')}"
         )
     print(json.dumps({"scenes": args.scenes, "completers": summary}))
 

@@ -74,7 +74,9 @@ def main() -> None:
             result[f"top1_{mode}"].append(round(top1, 4))
             result[f"chamfer_{mode}"].append(None if chamfer is None else round(chamfer, 4))
             print(
-                f"{size:5d} models, {mode:10s}: {np.mean(seconds):7.3f} s/object, top-1 {top1:.3f}, Chamfer-L1 {chamfer:.4f} m ({len(rows)} chairs)"
+                f"{size:5d} models, {mode:10s}: {np.mean(seconds):7.3f} s/object, top-1 {top1:.3f}, Chamfer-L1 "
+                f"{chamfer:.4f} "
+                f"m ({len(rows)} chairs)"
             )
     print(json.dumps(result))
 

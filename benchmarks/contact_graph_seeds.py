@@ -58,7 +58,9 @@ def main() -> None:
                 graph = report["metrics"]["graph"]
                 rows.append({"seed": seed, **graph})
                 print(
-                    f"{kind:8s} seed {seed}: ged {graph['ged']} (wrong support {graph['wrong_support']}, missing {graph['missing']}, extra {graph['extra']})",
+                    f"{kind:8s} seed {seed}: ged {graph['ged']} (wrong support {graph['wrong_support']}, missing "
+                    f"{graph['missing']}, "
+                    f"extra {graph['extra']})",
                     flush=True,
                 )
             result[kind] = {

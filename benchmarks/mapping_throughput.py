@@ -95,7 +95,8 @@ def main() -> None:
     fps_bare = args.frames / min(t_bare)
     fps_full = args.frames / min(t_full)
     print(
-        f"bare Open3D integration: {fps_bare:.2f} frames/s; stratamap tsdf with panoptic fusion: {fps_full:.2f} frames/s"
+        f"bare Open3D integration: {fps_bare:.2f} frames/s; stratamap tsdf with panoptic fusion: {fps_full:.2f} "
+        "frames/s"
     )
     print(f"(objects mapped: {len(out['instances'])}, map points: {len(out['geometry'])})")
     print(

@@ -18,7 +18,10 @@ from stratamap.core.paths import repo_root
 
 app = typer.Typer(
     name="stratamap",
-    help="Layered robot maps from indoor scans: occupancy, geometry, panoptic semantics, completed objects, contact graph.",
+    help=(
+        "Layered robot maps from indoor scans: occupancy, geometry, panoptic semantics, completed objects, contact "
+        "graph."
+    ),
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -268,7 +271,8 @@ def models_build(
         _fail(exc)
     joints = sum(len(m.joints) for m in lib)
     out_console.print(
-        f"[green]wrote[/] {out}: {len(lib)} models, {len(lib.families())} families, {len(lib.classes())} classes, {joints} joints"
+        f"[green]wrote[/] {out}: {len(lib)} models, {len(lib.families())} families, {len(lib.classes())} classes, "
+        f"{joints} joints"
     )
 
 

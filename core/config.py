@@ -39,7 +39,9 @@ class StageSpec(BaseModel):
     plugin: str = Field(description="Name of the stage plugin (see `stratamap plugins`).")
     kind: str | None = Field(
         default=None,
-        description="Stage kind (segmenters, mappers, completers, exporters); needed only when two kinds share the name.",
+        description=(
+            "Stage kind (segmenters, mappers, completers, exporters); needed only when two kinds share the name."
+        ),
     )
     params: dict[str, Any] = Field(default_factory=dict, description="Parameters of the plugin's Config.")
 

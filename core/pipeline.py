@@ -50,7 +50,8 @@ def apply_outputs(stage: Stage, result: dict[str, Any] | list[Path], data: Pipel
         expected = LAYERS[layer]
         if value is not None and not isinstance(value, expected):
             raise TypeError(
-                f"{where} ({stage.name}) returned {type(value).__name__} for layer {layer!r}; expected {expected.__name__}"
+                f"{where} ({stage.name}) returned {type(value).__name__} for layer {layer!r}; expected "
+                f"{expected.__name__}"
             )
         if value is not None:
             data.set(layer, value, producer=stage.name)

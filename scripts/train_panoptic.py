@@ -15,7 +15,7 @@ Held-out evaluation: seeds 0-2 of every type, never trained on. Everything is se
 cores the whole run (data, 16 epochs, export, evaluation) took 51 minutes.
 
     pip install -e '.[train]'
-    python scripts/train_panoptic.py --out plugins/segmenters/models
+    python scripts/train_panoptic.py --out plugins/segmenters/onnx_panoptic/models
 
 Writes ``panoptic_small.onnx`` and ``panoptic_small.json`` (inputs, outputs, classes, training
 facts and held-out accuracy).
@@ -179,7 +179,7 @@ def evaluate(session, data: dict[str, np.ndarray], vocab) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/models"))
+    parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/onnx_panoptic/models"))
     parser.add_argument("--scenes-per-type", type=int, default=32)
     parser.add_argument("--frames", type=int, default=15)
     parser.add_argument("--epochs", type=int, default=16)
@@ -294,7 +294,9 @@ def main() -> None:
     scores = evaluate(session, held, vocab)
     meta = {
         "name": "stratamap panoptic_small",
-        "trained_on": "synthetic renders only (stratamap's procedural scenes, Kinect-like depth noise); not real images",
+        "trained_on": (
+            "synthetic renders only (stratamap's procedural scenes, Kinect-like depth noise); not real images"
+        ),
         "inputs": {
             "rgbd": {
                 "shape": [1, 4, HEIGHT, WIDTH],

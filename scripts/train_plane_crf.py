@@ -8,7 +8,7 @@ level 2 from the fronts found on the true furniture faces. Both CRFs are fitted 
 pseudo-likelihood; held-out kitchens (seeds 0..9) are scored with Table IV's metrics. Seeded and
 deterministic; on 2 CPU cores the default run took 10 minutes (588 s of training data and fitting).
 
-    python scripts/train_plane_crf.py --out plugins/segmenters/models
+    python scripts/train_plane_crf.py --out plugins/segmenters/plane_crf/models
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/models"))
+    parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/plane_crf/models"))
     parser.add_argument("--kitchens", type=int, default=40, help="Training kitchens (seeds 100, 101, ...).")
     parser.add_argument("--held-out", type=int, default=8, help="Evaluation kitchens (seeds 0, 1, ...).")
     parser.add_argument("--l2", type=float, default=1.0, help="L2 prior on the node weights.")
@@ -104,7 +104,8 @@ def main() -> None:
         g1.append(a)
         g2.append(b)
         print(
-            f"kitchen {k + 1}/{args.kitchens}: {len(a[3])} regions, {len(b[3])} fronts ({time.perf_counter() - t0:.0f} s)",
+            f"kitchen {k + 1}/{args.kitchens}: {len(a[3])} regions, {len(b[3])} fronts "
+            f"({time.perf_counter() - t0:.0f} s)",
             flush=True,
         )
     crf1 = CRF(LEVEL1, fu.level1_feature_count(), len(fu.L1_RELATIONS)).fit(g1, args.l2, args.edge_l2)

@@ -67,7 +67,10 @@ class SceneEntry(BaseModel):
     )
     files: str | None = Field(
         default=None,
-        description="With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in source.params.path.",
+        description=(
+            "With `source`: a glob (e.g. ../shared/data/mosd/test/*.pcd); one scene per file, its path in "
+            "source.params.path."
+        ),
     )
     variants: list[str] | None = Field(
         default=None, description="Run only these variants on these scenes (default: all)."

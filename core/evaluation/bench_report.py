@@ -122,7 +122,8 @@ def write_markdown(
     if spec.description:
         lines += [spec.description.strip(), ""]
     lines += [
-        f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold (for each row, lower or higher is better as the metric says).",
+        f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold "
+        "(for each row, lower or higher is better as the metric says).",
         "",
     ]
     if results.get("skipped"):
@@ -313,7 +314,8 @@ def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
         ax.set_title(f"{title}: {n_hit} of {len(rec['details']['navigation'])} paths hit 3D obstacles")
         ax.set_aspect("equal")
     fig.suptitle(
-        f"A* for a robot of radius {rec['metrics']['navigation'].get('robot_radius', 0.4)} m ({rec['scene']}); orange: true obstacles in [0.1 m, robot height]"
+        f"A* for a robot of radius {rec['metrics']['navigation'].get('robot_radius', 0.4)} m ({rec['scene']}); orange: "
+        "true obstacles in [0.1 m, robot height]"
     )
     return _save(fig, out / "navigation.png")
 

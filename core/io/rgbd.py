@@ -66,12 +66,14 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
         finite = depth[np.isfinite(depth) & (depth > 0)]
         if finite.size and np.median(finite) > 100:
             raise DataError(
-                f"{path}: float depth with median {np.median(finite):.0f}: looks like millimetres or raw units, expected metres"
+                f"{path}: float depth with median {np.median(finite):.0f}: looks like millimetres or raw units, "
+                "expected metres"
             )
     depth[~np.isfinite(depth) | (depth < 0)] = 0.0
     if shape is not None and depth.shape != shape:
         raise DataError(
-            f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} (rgb/depth size mismatch?)"
+            f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} (rgb/depth size "
+            "mismatch?)"
         )
     return depth
 
@@ -84,7 +86,8 @@ def check_depth_scale(depth: np.ndarray, path: Path, depth_scale: float, max_pla
     med = float(np.median(valid))
     if med > max_plausible or med < 0.05:
         raise DataError(
-            f"{path}: median depth is {med:.3g} m with depth_scale {depth_scale:g}; this looks like the wrong depth scale "
+            f"{path}: median depth is {med:.3g} m with depth_scale {depth_scale:g}; this looks like the wrong depth "
+            "scale "
             f"(TUM uses 5000, Redwood/ScanNet 1000 units per metre)"
         )
 

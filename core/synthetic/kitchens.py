@@ -44,7 +44,9 @@ class _Urdf:
             else ""
         )
         self.joints.append(
-            f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/><origin xyz="{_f(xyz)}" rpy="{_f(rpy)}"/>{extra}</joint>'
+            f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/><origin '
+            f'xyz="{_f(xyz)}" '
+            f'rpy="{_f(rpy)}"/>{extra}</joint>'
         )
 
     def text(self) -> str:

@@ -95,7 +95,10 @@ class TrajectorySpec(_Spec):
 
     type: Literal["walk", "orbit", "fixed"] = Field(
         default="walk",
-        description="walk: a loop through free space like a teleoperated robot; orbit: an ellipse looking at the room center; fixed: one viewpoint.",
+        description=(
+            "walk: a loop through free space like a teleoperated robot; orbit: an ellipse looking at the room center; "
+            "fixed: one viewpoint."
+        ),
     )
     frames: int = Field(default=120, ge=1, le=100000, description="Number of frames along the path.")
     height: float = Field(default=1.3, gt=0.1, description="Camera height above the floor, metres (robots: 1.0-1.5).")
@@ -110,7 +113,10 @@ class NoiseSpec(_Spec):
 
     depth: Literal["none", "kinect"] = Field(
         default="none",
-        description="kinect: axial noise growing with depth squared, disparity quantization, dropouts at grazing angles and edges.",
+        description=(
+            "kinect: axial noise growing with depth squared, disparity quantization, dropouts at grazing angles and "
+            "edges."
+        ),
     )
     min_range: float = Field(
         default=0.4, ge=0.0, description="Depth closer than this reads as no measurement (Kinect: 0.4 m), metres."
@@ -124,7 +130,9 @@ class NoiseSpec(_Spec):
     pose_drift: float = Field(
         default=0.0,
         ge=0.0,
-        description="Std of the random walk added to reported poses per frame (metres; radians/10 for yaw). 0: exact poses.",
+        description=(
+            "Std of the random walk added to reported poses per frame (metres; radians/10 for yaw). 0: exact poses."
+        ),
     )
     laser_std: float = Field(default=0.01, ge=0.0, description="Std of the 2D laser's range noise, metres.")
 

@@ -14,7 +14,8 @@
     DIR/gt/class/<t>.png       16-bit class ids (stratamap vocabulary, listed in gt/scene.json)
     DIR/gt/instance/<t>.png    16-bit instance ids (0 = stuff)
     DIR/gt/trajectory.txt      the true camera poses again (for trajectory error when groundtruth.txt is withheld)
-    DIR/gt/scene.json          spec, room layout, vocabulary, objects (id, class, family, model, params, pose, parent, joints, mesh)
+    DIR/gt/scene.json          spec, room layout, vocabulary, objects (id, class, family, model,
+                               params, pose, parent, joints, mesh)
     DIR/gt/meshes/<id>.ply     each object's full mesh in its object frame
     DIR/gt/contact_graph.json  node-link JSON of the support graph
     DIR/gt/occupancy_objects.{yaml,pgm}  obstacles in [z_min, robot_height] (Nav2 map files)

@@ -31,7 +31,10 @@ from stratamap.core.stages import Completer, PipelineData, StageConfig
 class MatcherConfig(StageConfig):
     library: str | None = Field(
         default=None,
-        description="Model library folder (stratamap, PartNet-Mobility, or meshes + classes.csv); default: a procedural library.",
+        description=(
+            "Model library folder (stratamap, PartNet-Mobility, or meshes + classes.csv); default: a procedural "
+            "library."
+        ),
     )
     library_per_family: int = Field(
         default=8, ge=1, le=500, description="Models per family of the default procedural library."
@@ -260,7 +263,8 @@ class MatchingCompleter(Completer[MatcherConfigT]):
                 continue
             if len(inst.points) < cfg.min_points:
                 self.warn(
-                    f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left uncompleted"
+                    f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left "
+                    "uncompleted"
                 )
                 continue
             todo.append(inst)

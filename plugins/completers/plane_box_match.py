@@ -127,7 +127,7 @@ def model_planes(m: IndexedModel, rot: np.ndarray) -> list[tuple[np.ndarray, flo
 
 
 class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
-    """CAD matching over 24 orientations with box/plane errors, Hungarian plane assignment, LM alignment and min-conflict physics."""
+    """CAD matching over 24 orientations with box/plane errors, Hungarian plane assignment, LM alignment and min-conflict physics."""  # noqa: E501 (one-line summary shown by `stratamap plugins`)
 
     name = "plane_box_match"
     Config = PlaneBoxConfig
@@ -253,7 +253,8 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
         world_t = np.array([[c0, -s0_], [s0_, c0]]) @ t
         cnd.translation = base + np.r_[world_t, 0.0]
         cnd.size = s * size0
-        cnd.samples_offset = np.array([(lo_m[0] + hi_m[0]) / 2, (lo_m[1] + hi_m[1]) / 2, lo_m[2]])  # type: ignore[attr-defined]
+        offset = np.array([(lo_m[0] + hi_m[0]) / 2, (lo_m[1] + hi_m[1]) / 2, lo_m[2]])
+        cnd.samples_offset = offset  # type: ignore[attr-defined]
 
     # ---------------------------------------------------------------- global physical reasoning
 

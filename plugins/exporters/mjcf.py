@@ -22,7 +22,10 @@ class MJCFConfig(StageConfig):
     hinge_holding: float = Field(
         default=2.0,
         ge=0.0,
-        description="Hinge dry friction as a multiple of gravity's torque on the part, so lids and doors stay where they are (0: swing freely).",
+        description=(
+            "Hinge dry friction as a multiple of gravity's torque on the part, so lids and doors stay where they are "
+            "(0: swing freely)."
+        ),
     )
     timestep: float = Field(default=0.002, gt=0.0, description="Simulation timestep, seconds.")
 

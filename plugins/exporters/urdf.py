@@ -56,7 +56,8 @@ class URDFExporter(Exporter[URDFConfig]):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
-        tree = build_tree(data.map.instances, data.map.contact_graph, cfg.density, set(cfg.floating_classes))  # type: ignore[arg-type]
+        instances, graph = data.map.instances, data.map.contact_graph
+        tree = build_tree(instances, graph, cfg.density, set(cfg.floating_classes))  # type: ignore[arg-type]
         robot = ET.Element("robot", name=cfg.robot_name)
         ET.SubElement(robot, "link", name=ROOT_LINK)
         written: list[Path] = []

@@ -110,8 +110,10 @@ class IntegrationConfig(StageConfig):
         ge=1,
         le=16,
         description=(
-            "Every n-th pixel (in x and y) takes part in label fusion. Default: width / 160 (4 at 640 px); for the tsdf mapper's "
-            "'masks' extraction, the widest stride that still samples every voxel at depth_max, voxel_size * fx / depth_max "
+            "Every n-th pixel (in x and y) takes part in label fusion. Default: width / 160 (4 at 640 px); for the "
+            "tsdf mapper's "
+            "'masks' extraction, the widest stride that still samples every voxel at depth_max, voxel_size * fx / "
+            "depth_max "
             "(2 for 2 cm voxels and a Kinect-like camera at 5 m)."
         ),
     )
@@ -151,7 +153,8 @@ class TSDFVolume:
         depth = np.asarray(frame.depth, dtype=np.float32)
         if depth.shape != (intr.height, intr.width):
             raise DataError(
-                f"{mapper}: frame {frame.index} depth is {depth.shape[1]}x{depth.shape[0]}, intrinsics say {intr.width}x{intr.height}"
+                f"{mapper}: frame {frame.index} depth is {depth.shape[1]}x{depth.shape[0]}, intrinsics say "
+                f"{intr.width}x{intr.height}"
             )
         return np.where(np.isfinite(depth) & (depth >= self.cfg.depth_min), depth, 0.0).astype(np.float32)
 

@@ -74,7 +74,10 @@ class ContactGraphConfig(StageConfig):
     feet_clearance: float = Field(
         default=0.015,
         ge=0.0,
-        description="A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do not carry the chair beside it).",
+        description=(
+            "A supporting surface lies at least this far above the supporter's own bottom, metres (a table's feet do "
+            "not carry the chair beside it)."
+        ),
     )
     wall_distance: float = Field(
         default=0.1, ge=0.0, description="An unsupported object this close to wall points is wall-supported, metres."

@@ -106,7 +106,8 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             self.note("slam_source", f"{len(scans)} laser scans (log-odds)")
         else:
             z = geom.points[:, 2] - floor_z  # type: ignore[union-attr]
-            laser = hits(geom.points[np.abs(z - cfg.laser_height) <= cfg.laser_slice / 2, :2])  # type: ignore[union-attr]
+            in_slice = np.abs(z - cfg.laser_height) <= cfg.laser_slice / 2
+            laser = hits(geom.points[in_slice, :2])  # type: ignore[union-attr]
             slam = np.full(shape, -1, np.int8)
             slam[floor_seen] = 0
             slam[laser] = 100

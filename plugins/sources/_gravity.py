@@ -154,7 +154,8 @@ def estimate_alignment(
     floor = find_floor(pts, hint, max_angle_deg=max_angle_deg)
     if floor is None:
         raise DataError(
-            f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint {np.round(hint, 2).tolist()}); "
+            f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "
+            f"{np.round(hint, 2).tolist()}); "
             "if the input is already z-up set `gravity: off`"
         )
     normal, d, inliers = floor

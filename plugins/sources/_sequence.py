@@ -25,11 +25,17 @@ class SequenceConfig(StageConfig):
     stride: int = Field(default=1, ge=1, description="Read every n-th frame.")
     gravity: Literal["auto", "off"] = Field(
         default="auto",
-        description="auto: find the floor, and re-align the world to z-up with the floor at z = 0 if needed; off: trust the input.",
+        description=(
+            "auto: find the floor, and re-align the world to z-up with the floor at z = 0 if needed; off: trust the "
+            "input."
+        ),
     )
     odometry: Literal["auto", "always", "never"] = Field(
         default="auto",
-        description="auto: estimate poses when the input has none; always: estimate them even if given (given poses become ground truth).",
+        description=(
+            "auto: estimate poses when the input has none; always: estimate them even if given (given poses become "
+            "ground truth)."
+        ),
     )
 
 
@@ -148,7 +154,8 @@ class SequenceSource(Source[SequenceConfigT]):
             if "true_poses" in gt.layout:
                 gt.layout["true_poses"] = [(t @ np.asarray(p)).tolist() for p in gt.layout["true_poses"]]
         self.warn(
-            f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg, floor moved by {alignment.floor_offset_m:+.3f} m to z = 0"
+            f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg, floor moved by "
+            f"{alignment.floor_offset_m:+.3f} m to z = 0"
         )
 
 

@@ -38,7 +38,10 @@ class PointCloudConfig(StageConfig):
     )
     gravity: Literal["auto", "off"] = Field(
         default="auto",
-        description="auto: find the lowest large plane perpendicular to up_axis (the floor, or the table of a tabletop scan) and make it z = 0.",
+        description=(
+            "auto: find the lowest large plane perpendicular to up_axis (the floor, or the table of a tabletop scan) "
+            "and make it z = 0."
+        ),
     )
     up_tolerance_deg: float = Field(
         default=35.0,

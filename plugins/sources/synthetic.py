@@ -25,7 +25,7 @@ class SyntheticConfig(StageConfig):
 
 
 class SyntheticSource(Source[SyntheticConfig]):
-    """Procedural scene rendered by ray casting, with per-pixel labels, object meshes, poses and support as ground truth."""
+    """Procedural scene rendered by ray casting, with per-pixel labels, object meshes, poses and support as ground truth."""  # noqa: E501 (one-line summary shown by `stratamap plugins`)
 
     name = "synthetic"
     Config = SyntheticConfig

@@ -111,11 +111,14 @@ class TUMSource(SequenceSource[TUMConfig]):
         pairs = associate(depth_t, rgb_t, cfg.association_tolerance)
         if not pairs:
             raise DataError(
-                f"{root}: no rgb/depth pair within {cfg.association_tolerance} s (rgb.txt {rgb_t[0]:.3f}..{rgb_t[-1]:.3f}, depth.txt {depth_t[0]:.3f}..{depth_t[-1]:.3f})"
+                f"{root}: no rgb/depth pair within {cfg.association_tolerance} s (rgb.txt "
+                f"{rgb_t[0]:.3f}..{rgb_t[-1]:.3f}, "
+                f"depth.txt {depth_t[0]:.3f}..{depth_t[-1]:.3f})"
             )
         if len(pairs) < 0.5 * len(depth_rows):
             self.warn(
-                f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within {cfg.association_tolerance} s"
+                f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within "
+                f"{cfg.association_tolerance} s"
             )
         chosen = select(list(range(len(pairs))), cfg.stride, cfg.max_frames)
         pairs = [pairs[i] for i in chosen]

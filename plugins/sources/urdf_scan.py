@@ -44,7 +44,9 @@ class UrdfScanConfig(StageConfig):
     )
     room: tuple[float, float, float, float, float] | None = Field(
         default=None,
-        description="Room [x0, y0, x1, y1, height] added around the scene, metres; default: the scene's footprint + 1 m.",
+        description=(
+            "Room [x0, y0, x1, y1, height] added around the scene, metres; default: the scene's footprint + 1 m."
+        ),
     )
     viewpoints: list[tuple[float, float, float]] | None = Field(
         default=None, description="Scanner positions [x, y, z], metres (procedural kitchens bring their own)."

@@ -60,15 +60,22 @@ class TSDFConfig(IntegrationConfig):
     fragment_touch: float = Field(
         default=1.5,
         ge=0.0,
-        description="'labels': same-class instances never segmented apart in one frame merge when their points come this close, in voxels (0 turns it off).",
+        description=(
+            "'labels': same-class instances never segmented apart in one frame merge when their points come this "
+            "close, "
+            "in voxels (0 turns it off)."
+        ),
     )
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
     instances: Literal["labels", "masks"] = Field(
         default="labels",
         description=(
-            "How map instances are extracted. 'labels' (the papers'): each label's class and instance (Voxblox++ eq. 6) plus fragment "
-            "merging. 'masks' (for learned segmenters): each point's class by its voxel's per-frame class votes; the label instances "
-            "cut into connected pieces and re-joined where the frames' 2D masks keep covering them together (one frame's mask over "
+            "How map instances are extracted. 'labels' (the papers'): each label's class and instance (Voxblox++ eq. "
+            "6) plus fragment "
+            "merging. 'masks' (for learned segmenters): each point's class by its voxel's per-frame class votes; the "
+            "label instances "
+            "cut into connected pieces and re-joined where the frames' 2D masks keep covering them together (one "
+            "frame's mask over "
             "two chairs does not fuse them)."
         ),
     )
@@ -78,7 +85,8 @@ class TSDFConfig(IntegrationConfig):
     piece_min_points_by_class: dict[str, PositiveInt] = Field(
         default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS),
         description=(
-            "'masks': per class, the points a piece needs to stand alone instead of piece_min_points: a whole cup is about a hundred "
+            "'masks': per class, the points a piece needs to stand alone instead of piece_min_points: a whole cup is "
+            "about a hundred "
             "points, and the part most frames call 'cup' would otherwise join the table it stands on."
         ),
     )
@@ -86,30 +94,44 @@ class TSDFConfig(IntegrationConfig):
         default=0.5,
         gt=0,
         lt=1,
-        description="'masks': same-class pieces merge while frames saw them in one mask more than this share of the time.",
+        description=(
+            "'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
+        ),
     )
     piece_near_gap: float = Field(
         default=0.2,
         ge=0,
-        description="'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: no limit.",
+        description=(
+            "'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: "
+            "no limit."
+        ),
     )
     piece_far_ratio: float = Field(
         default=0.9,
         gt=0,
         le=1,
-        description="'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge (1: never).",
+        description=(
+            "'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge "
+            "(1: never)."
+        ),
     )
     piece_min_class_share: float = Field(
         default=0.1,
         ge=0,
         lt=1,
-        description="'masks': instances under this share of the typical size of their class's instances (piece_fragment_reference) are dropped as misfires; 0: keep all.",
+        description=(
+            "'masks': instances under this share of the typical size of their class's instances "
+            "(piece_fragment_reference) "
+            "are dropped as misfires; 0: keep all."
+        ),
     )
     piece_fragment_reference: Literal["median", "point_median"] = Field(
         default="point_median",
         description=(
-            "'masks': the size piece_min_class_share is a share of: the class's median instance, or the instance its median point is "
-            "in (the size-weighted median: four misfire 'chairs' beside two real ones do not pull it down to a misfire's size)."
+            "'masks': the size piece_min_class_share is a share of: the class's median instance, or the instance its "
+            "median point is "
+            "in (the size-weighted median: four misfire 'chairs' beside two real ones do not pull it down to a "
+            "misfire's size)."
         ),
     )
     piece_cross_ratio: float = Field(
@@ -117,7 +139,8 @@ class TSDFConfig(IntegrationConfig):
         ge=0,
         le=1,
         description=(
-            "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw them in one mask "
+            "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw "
+            "them in one mask "
             "more than this share of the time, taking their points' majority class; 0: never."
         ),
     )
@@ -125,33 +148,46 @@ class TSDFConfig(IntegrationConfig):
         default=0.1,
         ge=0,
         le=1,
-        description="'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points (a book on a shelf stays a book).",
+        description=(
+            "'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points "
+            "(a book on a shelf stays a book)."
+        ),
     )
     piece_stacked_classes: list[str] = Field(
         default_factory=lambda: list(DEFAULT_STACKED_CLASSES),
         description=(
-            "'masks': classes whose objects never stand on one another: two instances of one of them, one above the other, are one "
-            "object whose thin joining parts the TSDF lost (a swivel chair's base and seat, a table's legs and top); []: off."
+            "'masks': classes whose objects never stand on one another: two instances of one of them, one above the "
+            "other, are one "
+            "object whose thin joining parts the TSDF lost (a swivel chair's base and seat, a table's legs and "
+            "top); []: off."
         ),
     )
     piece_stack_overlap: float = Field(
         default=0.5,
         gt=0,
         le=1,
-        description="'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the larger one.",
+        description=(
+            "'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the "
+            "larger one."
+        ),
     )
     piece_max_length: dict[str, PositiveFloat] = Field(
         default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
         description=(
-            "'masks': per class, the longest horizontal side (m) one object has; a longer instance is several touching objects "
-            "(two cups one segment in every frame) and is cut by k-means along its length. Classes left out are never cut; {}: off."
+            "'masks': per class, the longest horizontal side (m) one object has; a longer instance is several "
+            "touching objects "
+            "(two cups one segment in every frame) and is cut by k-means along its length. Classes left out are "
+            "never cut; {}: off."
         ),
     )
     piece_split_balance: float = Field(
         default=0.35,
         ge=0,
         le=1,
-        description="'masks': an over-long instance is cut only if every part holds this share of the largest part's points (a monitor that took a scrap of something far beyond it stays whole).",
+        description=(
+            "'masks': an over-long instance is cut only if every part holds this share of the largest part's points "
+            "(a monitor that took a scrap of something far beyond it stays whole)."
+        ),
     )
 
 

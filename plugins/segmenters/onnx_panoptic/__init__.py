@@ -29,10 +29,14 @@ SHIPPED = Path(__file__).resolve().parent / "models" / "panoptic_small.onnx"
 
 #: The 80 COCO classes in the order Mask R-CNN (zoo, 1-based with background 0) and YOLO (0-based) use.
 COCO = (
-    "person bicycle car motorcycle airplane bus train truck boat traffic_light fire_hydrant stop_sign parking_meter bench bird cat "
-    "dog horse sheep cow elephant bear zebra giraffe backpack umbrella handbag tie suitcase frisbee skis snowboard sports_ball kite "
-    "baseball_bat baseball_glove skateboard surfboard tennis_racket bottle wine_glass cup fork knife spoon bowl banana apple sandwich "
-    "orange broccoli carrot hot_dog pizza donut cake chair couch potted_plant bed dining_table toilet tv laptop mouse remote keyboard "
+    "person bicycle car motorcycle airplane bus train truck boat traffic_light fire_hydrant stop_sign parking_meter "
+    "bench bird cat "
+    "dog horse sheep cow elephant bear zebra giraffe backpack umbrella handbag tie suitcase frisbee skis snowboard "
+    "sports_ball kite "
+    "baseball_bat baseball_glove skateboard surfboard tennis_racket bottle wine_glass cup fork knife spoon bowl banana "
+    "apple sandwich "
+    "orange broccoli carrot hot_dog pizza donut cake chair couch potted_plant bed dining_table toilet tv laptop mouse "
+    "remote keyboard "
     "cell_phone microwave oven toaster sink refrigerator book clock vase scissors teddy_bear hair_drier toothbrush"
 ).split()
 #: COCO names that are map classes under another name.
@@ -55,7 +59,10 @@ class ONNXPanopticConfig(StageConfig):
     )
     classes: list[str] | None = Field(
         default=None,
-        description="Network class names by output index (default: the sidecar's, else COCO with background first for maskrcnn).",
+        description=(
+            "Network class names by output index (default: the sidecar's, else COCO with background first for "
+            "maskrcnn)."
+        ),
     )
     class_map: dict[str, str] = Field(
         default_factory=dict, description="Rename network classes to map classes, e.g. {'dining table': 'table'}."
@@ -76,7 +83,9 @@ class ONNXPanopticConfig(StageConfig):
     std: tuple[float, float, float] = Field(default=(1.0, 1.0, 1.0), description="Divided per channel after the mean.")
     depth_channel: bool | None = Field(
         default=None,
-        description="Append depth (metres / depth_scale) as a 4th channel; default: when the model has 4 input channels.",
+        description=(
+            "Append depth (metres / depth_scale) as a 4th channel; default: when the model has 4 input channels."
+        ),
     )
     depth_scale: float = Field(default=5.0, gt=0.0, description="Depth is divided by this for the depth channel.")
     score_threshold: float = Field(
@@ -95,12 +104,20 @@ class ONNXPanopticConfig(StageConfig):
     min_pixels: int = Field(
         default=12,
         ge=1,
-        description="Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary; 12 chosen on held-out walks: a cup is ~20).",
+        description=(
+            "Instances smaller than this (network pixels) are absorbed by their neighbours (semantic_boundary; 12 "
+            "chosen "
+            "on held-out walks: a cup is ~20)."
+        ),
     )
     speckle_pixels: int = Field(
         default=0,
         ge=0,
-        description="Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x 120; 60 suits frame-level use).",
+        description=(
+            "Class regions smaller than this (network pixels) take the class around them (semantic_boundary; 0: off, "
+            "the default: the tsdf mapper's per-voxel class votes average specks out and a cup is a speck at 160 x "
+            "120; 60 suits frame-level use)."
+        ),
     )
     merge_depth_gap: float = Field(
         default=0.06,
@@ -114,8 +131,10 @@ class ONNXPanopticConfig(StageConfig):
     merge_bridges: Literal["any", "smaller"] = Field(
         default="smaller",
         description=(
-            "Which depth-continuous chains merge two instances of a class (semantic_boundary): 'any'; 'smaller': only through "
-            "instances of other classes each smaller than both (a chair's post bridges seat and base, a table under two cups does not)."
+            "Which depth-continuous chains merge two instances of a class (semantic_boundary): 'any'; 'smaller': "
+            "only through "
+            "instances of other classes each smaller than both (a chair's post bridges seat and base, a table under "
+            "two cups does not)."
         ),
     )
     min_region_score: float = Field(
@@ -190,11 +209,13 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
         layout = cfg.layout if cfg.layout != "auto" else side.get("layout") or self._guess_layout(outputs)
         if layout not in LAYOUT_OUTPUTS:
             raise DataError(
-                f"onnx_panoptic: {path.with_suffix('.json').name} names layout {layout!r}; expected one of {sorted(LAYOUT_OUTPUTS)}"
+                f"onnx_panoptic: {path.with_suffix('.json').name} names layout {layout!r}; expected one of "
+                f"{sorted(LAYOUT_OUTPUTS)}"
             )
         if len(outputs) < LAYOUT_OUTPUTS[layout][0]:
             raise DataError(
-                f"onnx_panoptic: {path.name} has outputs {outputs}, but the {layout!r} layout reads {LAYOUT_OUTPUTS[layout][1]}; "
+                f"onnx_panoptic: {path.name} has outputs {outputs}, but the {layout!r} layout reads "
+                f"{LAYOUT_OUTPUTS[layout][1]}; "
                 "set layout: to the one the model was exported with"
             )
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else (data.map.vocabulary or None)
@@ -219,7 +240,8 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
             rgb = np.asarray(frame.rgb)
             if depth_channel and frame.depth is None:
                 raise DataError(
-                    f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} takes RGB-D input"
+                    f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} "
+                    "takes RGB-D input"
                 )
             tensor, undo, depth_in = self._prepare(
                 rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel
@@ -229,7 +251,8 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                 cls, ins = self._decode(layout, result, class_map, is_thing, depth_in, width, height, cfg)
             except (ValueError, IndexError) as exc:  # outputs of the right number but the wrong shapes
                 raise DataError(
-                    f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} layout ({exc})"
+                    f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} "
+                    f"layout ({exc})"
                 ) from exc
             cls, ins = undo(cls), undo(ins)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))

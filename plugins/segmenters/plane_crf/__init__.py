@@ -40,7 +40,9 @@ class PlaneCRFConfig(StageConfig):
     )
     viewpoints: list[tuple[float, float, float]] | None = Field(
         default=None,
-        description="Scanner positions [x, y, z]; default: the source's (stream metadata), else 1.4 m above the cloud's centre.",
+        description=(
+            "Scanner positions [x, y, z]; default: the source's (stream metadata), else 1.4 m above the cloud's centre."
+        ),
     )
     voxel_size: float | None = Field(
         default=None, gt=0.0, description="Working resolution, metres; default: the one the CRFs were trained at."
@@ -93,7 +95,8 @@ class PlaneCRFSegmenter(Segmenter[PlaneCRFConfig]):
         model = load_model(Path(cfg.model).expanduser() if cfg.model else SHIPPED)
         if model["level1"].n_features != level1_feature_count() or model["level2"].n_features != level2_feature_count():
             raise DataError(
-                "plane_crf: the model's feature sizes do not match this version's features; retrain it (scripts/train_plane_crf.py)"
+                "plane_crf: the model's feature sizes do not match this version's features; retrain it "
+                "(scripts/train_plane_crf.py)"
             )
         known = FurnitureParams.__dataclass_fields__
         params = FurnitureParams(

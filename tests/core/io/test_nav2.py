@@ -44,7 +44,8 @@ def test_reader_rules_scale_and_negate(tmp_path):
     img = np.array([[0, 100, 205, 254, 255]], np.uint8)
     Image.fromarray(img).save(tmp_path / "m.pgm")
     (tmp_path / "m.yaml").write_text(
-        "image: m.pgm\nmode: scale\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+        "image: m.pgm\nmode: scale\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: "
+        "0.65\nfree_thresh: 0.196\n"
     )
     cells = read_map(tmp_path / "m.yaml").data[0]
     # p = (255 - v) / 255: 1.0 -> 100, 0.608 -> scaled, 0.196 -> 0 (rounded), 0.0039 -> free, 0 -> free
