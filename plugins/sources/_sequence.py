@@ -91,6 +91,17 @@ class SequenceSource(Source[SequenceConfigT]):
     Config = SequenceConfig
     provides = frozenset({"frames", "ground_truth"})
 
+    def sequence_folder(self, subfolders: Sequence[str] = (), layout: str = "") -> Path:
+        """The configured sequence folder, checked to exist with its ``subfolders`` (``layout``
+        says in errors what the format's folder holds)."""
+        root = Path(self.config.path).expanduser()
+        if not root.is_dir():
+            raise DataError(f"{root}: sequence folder not found")
+        for sub in subfolders:
+            if not (root / sub).is_dir():
+                raise DataError(f"{root}: no {sub}/ folder ({layout})")
+        return root
+
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         raise NotImplementedError
 

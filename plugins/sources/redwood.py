@@ -62,12 +62,7 @@ class RedwoodSource(SequenceSource[RedwoodConfig]):
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
-        root = Path(cfg.path).expanduser()
-        if not root.is_dir():
-            raise DataError(f"{root}: sequence folder not found")
-        for sub in ("color", "depth"):
-            if not (root / sub).is_dir():
-                raise DataError(f"{root}: no {sub}/ folder (a Redwood sequence has color/ and depth/)")
+        root = self.sequence_folder(("color", "depth"), "a Redwood sequence has color/ and depth/")
         colors = sorted(p for p in (root / "color").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         depths = sorted(p for p in (root / "depth").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if len(colors) != len(depths):

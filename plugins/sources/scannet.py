@@ -57,12 +57,9 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
-        root = Path(cfg.path).expanduser()
-        if not root.is_dir():
-            raise DataError(f"{root}: sequence folder not found")
-        for sub in ("color", "depth", "intrinsic"):
-            if not (root / sub).is_dir():
-                raise DataError(f"{root}: no {sub}/ folder (ScanNet exports have color/, depth/, pose/, intrinsic/)")
+        root = self.sequence_folder(
+            ("color", "depth", "intrinsic"), "ScanNet exports have color/, depth/, pose/, intrinsic/"
+        )
         depths = sorted((root / "depth").glob("*.png"), key=_number)
         if not depths:
             raise DataError(f"{root}/depth: no .png depth images")

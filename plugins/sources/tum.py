@@ -100,9 +100,7 @@ class TUMSource(SequenceSource[TUMConfig]):
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
-        root = Path(cfg.path).expanduser()
-        if not root.is_dir():
-            raise DataError(f"{root}: sequence folder not found")
+        root = self.sequence_folder()
         intr, scale = self._intrinsics(root)
         rgb_rows = read_timestamped_list(root / "rgb.txt")
         depth_rows = read_timestamped_list(root / "depth.txt")
