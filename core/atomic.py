@@ -1,4 +1,6 @@
-"""Atomic file and directory writes: a crash never leaves a partial file under its final name."""
+"""Atomic file and directory writes: a crash never leaves a partial file under its final name, and
+what is written is readable as any new file would be (0644 and 0755 with umask 022; temporary files
+are created 0600 and opened up on success)."""
 
 from __future__ import annotations
 
@@ -7,9 +9,22 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
+
+from stratamap.core.errors import ConfigError
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _open_up(path: Path, directory: bool) -> None:
+    """Give a finished temporary file or folder the mode an ordinary new one would have."""
+    os.chmod(path, (0o777 if directory else 0o666) & ~_umask())
 
 
 def _fsync_dir(path: Path) -> None:
@@ -39,6 +54,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        _open_up(tmp, directory=False)
         os.replace(tmp, final)
         _fsync_dir(final.parent)
     finally:
@@ -71,19 +87,49 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
+def check_output_folder(path: str | os.PathLike[str], ours: Callable[[Path], bool], what: str) -> Path:
+    """``path`` (absolute) if a command may write ``what`` there: it is new, an empty folder, or a
+    folder ``ours`` recognises as an earlier output of the same command. A command never replaces
+    files it did not write: anything else is a ConfigError naming the folder."""
+    final = Path(path).expanduser().absolute()
+    if final.exists() and not final.is_dir():
+        raise ConfigError([("", f"{final} is a file, not a folder: choose a folder for the {what}")])
+    if final.is_dir() and any(final.iterdir()) and not ours(final):
+        raise ConfigError(
+            [("", f"{final} holds files that are not a {what}: choose a new or empty folder (nothing was written)")]
+        )
+    return final
+
+
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield an empty staging directory; on success it replaces ``path`` as a whole.
 
     The old directory (if any) is moved aside first and removed only after the new one is in
     place, so at every instant ``path`` is either the complete old or the complete new content.
+    An existing empty directory (the working directory, say) is kept and filled instead.
     """
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    final = Path(path).expanduser().absolute()
+    if final.exists() and not final.is_dir():
+        raise ConfigError([("", f"{final} is a file, not a folder: nothing was written")])
+    created = [d for d in (final.parent, *final.parent.parents) if not d.exists()]
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    except OSError as exc:
+        _remove_empty(created)
+        raise ConfigError([("", f"cannot write {final}: {exc.strerror or exc}")]) from None
+    done = False
     try:
         yield staging
         _fsync_dir(staging)
+        _open_up(staging, directory=True)
+        if final.is_dir() and not any(final.iterdir()):
+            for entry in staging.iterdir():
+                os.replace(entry, final / entry.name)
+            _fsync_dir(final)
+            done = True
+            return
         backup = None
         if final.exists():
             backup = final.with_name(f".{final.name}.{os.getpid()}.old")
@@ -92,8 +138,18 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
             os.replace(final, backup)
         os.replace(staging, final)
         _fsync_dir(final.parent)
+        done = True
         if backup is not None:
             shutil.rmtree(backup, ignore_errors=True)
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
+        if not done:  # a failed write leaves no folder behind that was not there before
+            _remove_empty(created)
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove these folders, innermost first, where they are still empty."""
+    for folder in sorted(folders, key=lambda d: len(d.parts), reverse=True):
+        with contextlib.suppress(OSError):
+            folder.rmdir()

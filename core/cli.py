@@ -51,6 +51,7 @@ class RichProgress:
             disable=not console.is_terminal,
         )
         self.tasks: dict[int, Any] = {}
+        self.step: Any = None
         self.console = console
 
     @hookimpl
@@ -77,7 +78,17 @@ class RichProgress:
             self.console.print(f"  {stage.kind[:-1]:<9} {stage.name:<16} {seconds:8.2f} s")
 
     @hookimpl
+    def stratamap_pipeline_step(self, pipeline: Any, description: str) -> None:
+        if self.step is not None:
+            self.progress.update(self.step, total=1, completed=1)
+        self.step = self.progress.add_task(description, total=None)
+        if not self.console.is_terminal:
+            self.console.print(f"  {description}", highlight=False)
+
+    @hookimpl
     def stratamap_pipeline_end(self, pipeline: Any, report: dict) -> None:
+        if self.step is not None:
+            self.progress.update(self.step, total=1, completed=1)
         self.progress.stop()
 
 
@@ -86,15 +97,45 @@ def _fail(exc: BaseException) -> None:
     raise typer.Exit(code=2)
 
 
+def _registry() -> Any:
+    """The installed plugins; plugins that failed to load are warnings, a clash of names an error."""
+    from stratamap.core.registry import default_registry
+
+    try:
+        registry = default_registry()
+    except StratamapError as exc:
+        _fail(exc)
+    for failure in registry.failures:
+        console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
+    return registry
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            out_console.print(f"stratamap {version('stratamap')}")
+        except PackageNotFoundError:
+            out_console.print("stratamap (not installed)")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    show_version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """Layered robot maps from indoor scans."""
+
+
 def _run(config: Path, out: Path | None, overrides: list[str] | None) -> tuple[dict, Path]:
     """Run a pipeline file; return its report and the folder it was written to."""
     from stratamap.core.config import load_pipeline
     from stratamap.core.pipeline import Pipeline
-    from stratamap.core.registry import default_registry
 
-    registry = default_registry()
-    for failure in registry.failures:
-        console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
+    registry = _registry()
     try:
         validated = load_pipeline(config, overrides, registry)
     except StratamapError as exc:
@@ -124,6 +165,11 @@ def _print_report(report: dict, out: Path) -> None:
         out_console.print(f"[bold]{family}[/]: " + ", ".join(f"{k}={v:.3g}" for k, v in flat.items()))
     for w in report.get("warnings", []):
         out_console.print(f"[yellow]warning:[/] {w}", highlight=False)
+    written = sorted(p for p in out.iterdir() if not p.name.startswith(".")) if out.is_dir() else []
+    exported = [o for st in report["stages"] if st["kind"] == "exporters" for o in st["outputs"]]
+    out_console.print(f"[green]wrote[/] {out}/: " + ", ".join(p.name + ("/" if p.is_dir() else "") for p in written))
+    for path in exported:
+        out_console.print(f"  {path}", highlight=False)
 
 
 @app.command()
@@ -175,8 +221,9 @@ def validate(
     """Check a pipeline file (structure, every plugin's parameters, data flow) without running it."""
     from stratamap.core.config import load_pipeline
 
+    registry = _registry()
     try:
-        v = load_pipeline(config, overrides)
+        v = load_pipeline(config, overrides, registry)
     except StratamapError as exc:
         _fail(exc)
     names = " -> ".join([v.source.spec.plugin] + [s.spec.plugin for s in v.stages])
@@ -186,9 +233,7 @@ def validate(
 @app.command()
 def plugins(as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list.")] = False) -> None:
     """List installed stage plugins (kind, name, distribution, description)."""
-    from stratamap.core.registry import default_registry
-
-    registry = default_registry()
+    registry = _registry()
     entries = [info.to_dict() for info in registry.all()]
     if as_json:
         sys.stdout.write(json.dumps(entries, indent=2) + "\n")
@@ -199,8 +244,6 @@ def plugins(as_json: Annotated[bool, typer.Option("--json", help="Print a JSON l
         for e in entries:
             table.add_row(e["kind"], e["name"], e["distribution"], e["description"])
         out_console.print(table)
-    for failure in registry.failures:
-        console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -210,7 +253,7 @@ def schema(
     """Print the JSON Schema of pipeline files, with every installed plugin's parameters."""
     from stratamap.core.schema import pipeline_schema
 
-    text = json.dumps(pipeline_schema(), indent=2) + "\n"
+    text = json.dumps(pipeline_schema(_registry()), indent=2) + "\n"
     if out is None:
         sys.stdout.write(text)
     else:
@@ -246,9 +289,15 @@ def _progress_callback(label: str):
         disable=not console.is_terminal,
     )
     task = progress.add_task(label, total=None)
+    printed = [-1]
 
     def update(done: int, total: int) -> None:
         progress.update(task, completed=done, total=total)
+        if not console.is_terminal and total:  # without a terminal: a line every tenth of the work
+            step = done * 10 // total
+            if step > printed[0]:
+                printed[0] = step
+                console.print(f"  {label}: {done}/{total}", highlight=False)
 
     return progress, update
 
@@ -328,14 +377,27 @@ def synth(
     scene_spec = scene_spec.model_copy(update=updates)
     world = SyntheticWorld(scene_spec)
     progress, update = _progress_callback("rendering")
-    with progress:
-        write_sequence(world, out, update)
+    try:
+        with progress:
+            write_sequence(world, out, update)
+    except StratamapError as exc:
+        _fail(exc)
     skipped = f" (did not fit: {world.scene.skipped})" if world.scene.skipped else ""
     out_console.print(f"[green]wrote[/] {out}: {len(world)} frames, {len(world.scene.objects)} objects{skipped}")
 
 
 def main() -> None:
-    app()
+    # Commands turn the errors they expect into "error: ..." lines themselves; this is the net for
+    # the rest, so that no user mistake ends in a traceback.
+    try:
+        app()
+    except StratamapError as exc:
+        console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
+    except OSError as exc:
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        console.print(f"[bold red]error:[/] {where}{exc.strerror or exc}", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":

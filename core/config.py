@@ -17,6 +17,7 @@ Validation has three phases, each reporting every problem with its YAML path:
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -191,8 +192,46 @@ def _resolve_plugin(
     return matches[0], []
 
 
-def validate(doc: dict[str, Any], registry: Registry | None = None, origin: str | None = None) -> ValidatedPipeline:
-    """Validate a loaded pipeline document; raise :class:`ConfigError` listing every problem."""
+#: What shipped pipeline files hold where the user must fill in a value (``--set KEY=VALUE``).
+PLACEHOLDER = "REQUIRED"
+
+
+def placeholders(value: Any, parts: tuple[Any, ...]) -> list[tuple[Any, ...]]:
+    """Key paths under ``value`` still holding :data:`PLACEHOLDER`."""
+    if isinstance(value, str):
+        return [parts] if value.strip() == PLACEHOLDER else []
+    if isinstance(value, dict):
+        return [p for k, v in value.items() for p in placeholders(v, (*parts, k))]
+    if isinstance(value, list):
+        return [p for i, v in enumerate(value) for p in placeholders(v, (*parts, i))]
+    return []
+
+
+def _resolve_paths(config: StageConfig, base_dir: Path, key: str, overridden: set[str]) -> StageConfig:
+    """``config`` with its relative paths (``Config.path_fields``) taken from ``base_dir``; values
+    set on the command line (``overridden``) stay relative to the working folder."""
+    updates = {}
+    for name in type(config).path_fields:
+        value = getattr(config, name, None)
+        if not isinstance(value, str) or not value or value.startswith("<") or f"{key}.{name}" in overridden:
+            continue
+        expanded = Path(value).expanduser()
+        if not expanded.is_absolute():
+            updates[name] = os.path.normpath(base_dir.absolute() / expanded)
+    return config.model_copy(update=updates) if updates else config
+
+
+def validate(
+    doc: dict[str, Any],
+    registry: Registry | None = None,
+    origin: str | None = None,
+    base_dir: Path | None = None,
+    overridden: set[str] | None = None,
+) -> ValidatedPipeline:
+    """Validate a loaded pipeline document; raise :class:`ConfigError` listing every problem.
+
+    ``base_dir``: the folder relative paths in stage parameters are resolved against (the
+    pipeline file's); ``overridden``: keys set on the command line, which stay as given."""
     registry = registry or default_registry()
     try:
         spec = PipelineSpec.model_validate(doc)
@@ -207,13 +246,25 @@ def validate(doc: dict[str, Any], registry: Registry | None = None, origin: str 
     for path, stage_spec, kinds in entries:
         info, errs = _resolve_plugin(registry, stage_spec, path, kinds)
         problems += errs
-        if info is None:
+        unset = placeholders(stage_spec.params, (*parse_path(path), "params"))
+        problems += [
+            (format_path(k), f"still the placeholder {PLACEHOLDER}: set it, e.g. --set {format_path(k)}=VALUE")
+            for k in unset
+        ]
+        if info is None or unset:
             continue
         try:
             config = info.cls.Config.model_validate(stage_spec.params)
         except ValidationError as exc:
             problems += validation_problems(exc, prefix=(*parse_path(path), "params"))
             continue
+        if base_dir is not None:
+            config = _resolve_paths(config, base_dir, f"{path}.params", overridden or set())
+            if path == "source":  # what a source reads must exist before anything runs
+                for name in type(config).path_fields:
+                    value = getattr(config, name, None)
+                    if isinstance(value, str) and value and not Path(value).expanduser().exists():
+                        problems.append((f"source.params.{name}", f"{value} does not exist"))
         resolved.append(ResolvedStage(path, stage_spec, info, config))
     if problems:
         raise ConfigError(problems, source=origin)
@@ -257,6 +308,8 @@ def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry
 def load_pipeline(
     path: str | Path, overrides: list[str] | None = None, registry: Registry | None = None
 ) -> ValidatedPipeline:
-    """Read, override and validate a pipeline file."""
+    """Read, override and validate a pipeline file. Relative paths in it are resolved against its
+    folder; those in ``overrides`` against the working folder."""
     doc = load_document(path, overrides)
-    return validate(doc, registry=registry, origin=str(path))
+    overridden = {format_path(parse_path(a.split("=", 1)[0])) for a in overrides or [] if "=" in a}
+    return validate(doc, registry=registry, origin=str(path), base_dir=Path(path).parent, overridden=overridden)

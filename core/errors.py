@@ -27,5 +27,5 @@ class DataError(StratamapError):
     """Input data is missing, corrupt or inconsistent; the message names the file and what was expected."""
 
 
-class MapFormatError(StratamapError):
+class MapFormatError(DataError):
     """A saved map directory is incomplete or of an unknown format version."""

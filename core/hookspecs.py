@@ -72,5 +72,10 @@ def stratamap_stage_end(pipeline: Any, stage: Any, index: int, seconds: float) -
 
 
 @hookspec
+def stratamap_pipeline_step(pipeline: Any, description: str) -> None:
+    """Called when the pipeline itself starts a step after the stages (evaluating, saving the map)."""
+
+
+@hookspec
 def stratamap_stage_progress(stage: Any, completed: int, total: int | None, description: str) -> None:
     """Called by long-running stages to report progress (e.g. frames integrated)."""

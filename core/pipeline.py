@@ -11,7 +11,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from stratamap.core.atomic import write_json
+from stratamap.core.atomic import atomic_directory, check_output_folder, write_json
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
 from stratamap.core.errors import ConfigError
 from stratamap.core.registry import Registry, default_registry
@@ -35,6 +35,22 @@ class StageRecord:
     kind: str
     seconds: float
     outputs: list[str] = field(default_factory=list)
+
+
+#: Written into every run's output folder, so that a later run may replace it (and nothing else).
+RUN_MARKER = ".stratamap-run"
+
+
+def is_run_output(folder: Path) -> bool:
+    """Whether ``folder`` holds the output of an earlier ``stratamap run``."""
+    return any((folder / name).exists() for name in (RUN_MARKER, "report.json", "map/manifest.json"))
+
+
+def _renamed(path: str, staging: Path, final: Path) -> str:
+    try:
+        return str(final / Path(path).relative_to(staging))
+    except ValueError:
+        return path
 
 
 def apply_outputs(stage: Stage, result: dict[str, Any] | list[Path], data: PipelineData, where: str = "") -> list[str]:
@@ -116,8 +132,18 @@ class Pipeline:
                 [("output.dir", "no output folder: pass --out DIR or set output.dir in the pipeline file")],
                 self.validated.origin,
             )
-        self.out_dir = Path(out)
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        shown = Path(out)
+        final = check_output_folder(shown, is_run_output, "stratamap run output")
+        # Everything is written into a staging folder beside the output and swapped in at the end:
+        # a failed or interrupted run leaves the previous output exactly as it was, and no new folder.
+        with atomic_directory(final) as staging:
+            self.out_dir = staging
+            report = self._run_into(staging, shown)
+        self.out_dir = shown
+        return report
+
+    def _run_into(self, staging: Path, shown: Path) -> dict[str, Any]:
+        spec = self.validated.spec
         data = self.data = PipelineData()
         self.records = []
         self.hook.stratamap_pipeline_start(pipeline=self)
@@ -130,18 +156,23 @@ class Pipeline:
         if data.ground_truth is not None:
             data.map.vocabulary = data.ground_truth.vocabulary
         if spec.output.save_map:
+            self.hook.stratamap_pipeline_step(pipeline=self, description="saving the map")
             data.map.metadata.setdefault("pipeline", self.validated.origin)
-            data.map.save(self.out_dir / "map")
+            data.map.save(staging / "map")
+        for record in self.records:  # files as they will be named once the output is in place
+            record.outputs = [_renamed(o, staging, shown) for o in record.outputs]
 
         report = self._report(data, time.perf_counter() - t_start)
         if spec.output.report:
-            write_json(self.out_dir / "report.json", report)
+            write_json(staging / "report.json", report)
+        write_json(staging / RUN_MARKER, {"pipeline": self.validated.origin})
         self.hook.stratamap_pipeline_end(pipeline=self, report=report)
         return report
 
     def _report(self, data: PipelineData, total_seconds: float) -> dict[str, Any]:
         metrics: dict[str, Any] = {}
         if self.validated.spec.output.metrics:
+            self.hook.stratamap_pipeline_step(pipeline=self, description="evaluating against ground truth")
             metrics = evaluate(self.hook, data)
         return {
             "pipeline": self.validated.origin,

@@ -27,9 +27,9 @@ import inspect
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Generic, TypeVar
+from typing import Any, ClassVar, Generic, Literal, TypeVar, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.layers import (
@@ -61,10 +61,36 @@ LAYERS: dict[str, type] = {
 T = TypeVar("T")
 
 
+def _literal_choices(annotation: Any) -> set[Any]:
+    """The values a ``Literal[...]`` annotation (or an optional one) allows."""
+    if get_origin(annotation) is Literal:
+        return set(get_args(annotation))
+    return {v for arg in get_args(annotation) for v in _literal_choices(arg)}
+
+
 class StageConfig(BaseModel):
     """Base of every stage's parameters: unknown keys are errors, instances are immutable."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+    #: Fields that hold a file or folder path: in a pipeline file, a relative one is resolved
+    #: against the file's folder (on the command line, ``--set`` values against the working folder).
+    path_fields: ClassVar[tuple[str, ...]] = ()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _yaml_switches(cls, data: Any) -> Any:
+        """YAML 1.1 reads off/on/no/yes as booleans: give such a setting back its word when the
+        field takes one (``gravity: off`` is ``"off"``, not ``False``)."""
+        if not isinstance(data, dict):
+            return data
+        fixed = dict(data)
+        for name, info in cls.model_fields.items():
+            value = data.get(name)
+            if isinstance(value, bool):
+                words = ("on", "yes", "true") if value else ("off", "no", "false")
+                choices = _literal_choices(info.annotation)
+                fixed[name] = next((w for w in words if w in choices), value)
+        return fixed
 
 
 @dataclass

@@ -32,12 +32,14 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
-import trimesh
 from pydantic import BaseModel, ValidationError
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.stages import KIND_BASES, KINDS, LAYERS, PipelineData, Stage
+
+nx = lazy_module("networkx")
+trimesh = lazy_module("trimesh")
 
 Check = Callable[[type[Stage]], None]
 

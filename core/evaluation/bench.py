@@ -334,6 +334,8 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
                     truth=gt["objects"].data,
                     origin=np.asarray(occ["multimap"].origin, dtype=float),
                     resolution=float(occ["multimap"].resolution),
+                    slam_origin=np.asarray(occ["slam"].origin, dtype=float),
+                    slam_resolution=float(occ["slam"].resolution),
                     truth_origin=np.asarray(gt["objects"].origin, dtype=float),
                     truth_resolution=float(gt["objects"].resolution),
                 )

@@ -83,12 +83,14 @@ def write_reports(results: dict[str, Any], spec: Any, out: Path) -> list[Path]:
     records = results["records"]
     variants = [v.name for v in spec.variants]
     rows = [record_row(r) for r in records]
-    written = [
+    # Figures first: results.md links the figures this build wrote (it used to glob for PNGs before
+    # they existed, so a benchmark's first results.md had no figures section).
+    figures = write_figures(records, variants, out)
+    return [
         write_csv(records, rows, out / "results.csv"),
-        write_markdown(results, spec, rows, variants, out / "results.md"),
+        write_markdown(results, spec, rows, variants, out / "results.md", figures=figures),
+        *figures,
     ]
-    written += write_figures(records, variants, out)
-    return written
 
 
 def write_csv(records: list[dict[str, Any]], rows: list[dict[str, float]], path: Path) -> Path:
@@ -113,8 +115,14 @@ def table_values(records, rows, variants) -> dict[str, dict[str, list[float]]]:
 
 
 def write_markdown(
-    results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str], path: Path
+    results: dict[str, Any],
+    spec: Any,
+    rows: list[dict[str, float]],
+    variants: list[str],
+    path: Path,
+    figures: list[Path] | None = None,
 ) -> Path:
+    """The tables, and a section linking ``figures`` (default: the PNGs beside ``path``)."""
     records = results["records"]
     values = table_values(records, rows, variants)
     scenes = sorted({r["scene"] for r in records})
@@ -181,9 +189,9 @@ def write_markdown(
                 format_table(rec["metrics"]["classification"]),
                 "",
             ]
-    figures = sorted(p.name for p in path.parent.glob("*.png"))
-    if figures:
-        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figures] + [""]
+    names = sorted(p.name for p in (path.parent.glob("*.png") if figures is None else figures))
+    if names:
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in names] + [""]
     return write_text(path, "\n".join(lines))
 
 
@@ -243,8 +251,11 @@ def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path)
         for v, rows in pq.items():
             if not rows:
                 continue
+            # A class in no scene of this variant (neither true nor predicted) has no PQ: no bar, not a 0.
             means = [
-                float(np.mean([row[c] for row in rows if c in row])) if any(c in row for row in rows) else 0.0
+                float(np.mean([row[c] for row in rows if row.get(c) is not None]))
+                if any(row.get(c) is not None for row in rows)
+                else np.nan
                 for c in classes
             ]
             ax.bar(np.arange(len(classes)) + k * width, means, width, label=v)
@@ -283,8 +294,10 @@ def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
         strict=True,
     ):
         grid = grids["slam" if key == "laser_only" else "multimap"]
-        ox, oy = grids["origin"][:2]
-        res = float(grids["resolution"])
+        # Each grid at its own origin and resolution (older files keep the multimap's only).
+        own = "slam_origin" in grids.files and key == "laser_only"
+        ox, oy = grids["slam_origin" if own else "origin"][:2]
+        res = float(grids["slam_resolution" if own else "resolution"])
         extent = (ox, ox + grid.shape[1] * res, oy, oy + grid.shape[0] * res)
         ax.imshow(
             np.where(grid == 100, 0.0, np.where(grid == 0, 1.0, 0.6)),

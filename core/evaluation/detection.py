@@ -12,10 +12,12 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from stratamap.core.geometry.boxes import box_iou_3d
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ObjectInstance, OrientedBox
+
+optimize = lazy_module("scipy.optimize")
 
 
 def prf(tp: int, n_pred: int, n_gt: int) -> dict[str, float]:
@@ -43,7 +45,7 @@ def match_boxes(
             d = float(np.linalg.norm(pb.center - gb.center))
             if d < center_threshold or box_iou_3d(pb, gb) > iou_threshold:
                 cost[i, j] = d
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = optimize.linear_sum_assignment(cost)
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < big]
 
 

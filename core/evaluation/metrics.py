@@ -79,7 +79,7 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
 
         nav = evaluate_navigation(occ["slam"], occ["multimap"], gt.occupancy["objects"])
         if not details:
-            nav.pop("records")
+            nav.pop("records", None)
         out["navigation"] = nav
     odometry = (data.stream.metadata.get("odometry") if data.stream is not None else None) or {}
     if "ate_rmse_m" in odometry:

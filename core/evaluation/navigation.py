@@ -1,6 +1,13 @@
 """Navigation safety: plan a disc robot's path with A* on an occupancy grid, and check the path
 against ground-truth obstacles (first paper, section V-C: a laser map lets a robot drive into
-chair seats its laser passes under; the multimap does not)."""
+chair seats its laser passes under; the multimap does not).
+
+Plans stay in the mapped free space: unknown cells (and everything beyond the grid) are not
+traversable, and start and goal are cells free for the robot both on the map and in the truth. A
+path that leaves the ground-truth grid counts as colliding: nothing there vouches for it (with
+unknown space free, plans used to run around the outside of the room's walls, never seen by the
+sensor and beyond the truth, and were counted as safe).
+"""
 
 from __future__ import annotations
 
@@ -8,9 +15,11 @@ import heapq
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid
+
+ndimage = lazy_module("scipy.ndimage")
 
 NEIGHBOURS = [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)]
 
@@ -23,14 +32,27 @@ class Plan:
 
 
 def traversable(grid: OccupancyGrid, robot_radius: float, unknown_is_free: bool = False) -> np.ndarray:
-    """Cells where a disc of ``robot_radius`` centred on the cell touches no occupied (or unknown) cell."""
+    """Cells where a disc of ``robot_radius`` centred on the cell touches no occupied (or unknown) cell.
+
+    Unless ``unknown_is_free``, the space beyond the grid is unknown too: the disc may not reach
+    past the grid's border."""
     blocked = grid.data >= 65
     if not unknown_is_free:
-        blocked |= grid.data < 0
+        blocked = np.pad(blocked | (grid.data < 0), 1, constant_values=True)
     if not blocked.any():
         return np.ones(grid.data.shape, bool)
     dist = ndimage.distance_transform_edt(~blocked) * grid.resolution
+    if not unknown_is_free:
+        dist = dist[1:-1, 1:-1]
     return dist > robot_radius
+
+
+def clearance(grid: OccupancyGrid) -> np.ndarray:
+    """Distance (m) from every cell to the nearest occupied cell of ``grid`` (inf when none is)."""
+    occupied = grid.data >= 65
+    if not occupied.any():
+        return np.full(grid.data.shape, np.inf)
+    return ndimage.distance_transform_edt(~occupied) * grid.resolution
 
 
 def astar(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> list[tuple[int, int]] | None:
@@ -89,15 +111,13 @@ def plan_path(
 
 def collides(plan: Plan, obstacles: OccupancyGrid, robot_radius: float) -> bool:
     """Whether a disc of ``robot_radius`` moving along the plan touches an occupied cell of
-    ``obstacles`` (e.g. the ground-truth projection of everything in [0.1 m, robot height])."""
-    occupied = obstacles.data >= 65
-    if not occupied.any():
-        return False
-    dist = ndimage.distance_transform_edt(~occupied) * obstacles.resolution
+    ``obstacles`` (e.g. the ground-truth projection of everything in [0.1 m, robot height]), or
+    leaves the grid of ``obstacles`` (where nothing is known, nothing is certified free)."""
     rc = obstacles.world_to_cell(plan.xy)
-    ok = obstacles.in_bounds(rc)
+    if not obstacles.in_bounds(rc).all():
+        return True
     # A small tolerance for discretization: the robot may graze an obstacle's cell boundary.
-    return bool(np.any(dist[rc[ok, 0], rc[ok, 1]] < robot_radius - obstacles.resolution))
+    return bool(np.any(clearance(obstacles)[rc[:, 0], rc[:, 1]] < robot_radius - obstacles.resolution))
 
 
 def evaluate_navigation(
@@ -108,14 +128,29 @@ def evaluate_navigation(
     pairs: int = 12,
     seed: int = 0,
 ) -> dict:
-    """Plan between start/goal pairs (free for the robot on the multimap) on both maps and count
-    paths that touch ground-truth obstacles."""
+    """Plan between start/goal pairs on both maps and count paths that touch ground-truth obstacles.
+
+    Start and goal are cells where the robot fits on the multimap (known free space: never unknown
+    space, so never outside the walls) and in the truth; plans keep to known free space. On the
+    laser-only map (the multimap without its object band) every such pair is free as well."""
     import itertools
 
-    free = traversable(multimap, robot_radius, True)
+    free = traversable(multimap, robot_radius)
     cells = np.argwhere(free)
+    # ... and free for the robot in the truth too (a start inside a true obstacle makes every path collide).
+    rc = truth.world_to_cell(multimap.cell_to_world(cells))
+    inside = truth.in_bounds(rc)
+    clear = np.zeros(len(cells), bool)
+    clear[inside] = clearance(truth)[rc[inside, 0], rc[inside, 1]] >= robot_radius - truth.resolution
+    cells = cells[clear]
     if len(cells) < 2:
-        return {"paths": 0, "colliding_laser_only": 0, "colliding_multimap": 0}
+        return {
+            "paths": 0,
+            "colliding_laser_only": 0,
+            "colliding_multimap": 0,
+            "robot_radius": robot_radius,
+            "records": [],
+        }
     rng = np.random.default_rng(seed)
     picks = cells[rng.choice(len(cells), min(len(cells), 2 * pairs), replace=False)]
     n = laser_hits = multi_hits = 0
@@ -126,8 +161,8 @@ def evaluate_navigation(
         s, g = multimap.cell_to_world(picks[[a, b]])
         if np.linalg.norm(s - g) < 1.0:
             continue
-        p_laser = plan_path(slam, s, g, robot_radius, True)
-        p_multi = plan_path(multimap, s, g, robot_radius, True)
+        p_laser = plan_path(slam, s, g, robot_radius)
+        p_multi = plan_path(multimap, s, g, robot_radius)
         if p_laser is None or p_multi is None:
             continue
         n += 1

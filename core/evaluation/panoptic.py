@@ -8,8 +8,12 @@ void and ignored. Segments are instances for *thing* classes and one segment per
 
     PQ = sum_TP IoU / (|TP| + |FP|/2 + |FN|/2) = SQ x RQ
 
-reported averaged over the classes present, over things, over stuff, and per class. Predicted
-segments made mostly (> 50%) of void points are not counted as false positives.
+reported averaged over the classes present, over things, over stuff, and per class. A class is
+present when the ground truth or the prediction holds a segment of it (Kirillov et al. average PQ
+over those): an average over no class at all (``pq_stuff`` of a scene with no stuff segment either
+way, ``pq_things`` of one with no thing) is undefined and reported as ``None``, not as 0, which
+would read as "every stuff segment missed". Predicted segments made mostly (> 50%) of void points
+are not counted as false positives.
 """
 
 from __future__ import annotations
@@ -18,17 +22,19 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.vocabulary import Vocabulary
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
 
 VOID = -1
 
 
 def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -> dict[str, Any]:
-    """2D segmentation quality over every ``stride``-th frame: mIoU over classes present, and PQ
+    """2D segmentation quality over every ``stride``-th frame: mIoU over classes present (None when none is), and PQ
     (things, stuff) with all sampled frames pooled as one image (instance ids kept apart per frame).
     Pixels the ground truth leaves unknown (class 0) are not counted."""
     n = len(vocab.names)
@@ -56,7 +62,7 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
     present[0] = False  # "unknown" is the void label, not a class
     pq = panoptic_quality(np.concatenate(pc), np.concatenate(pi), np.concatenate(gc), np.concatenate(gi), vocab)
     return {
-        "miou": float(np.mean(inter[present] / union[present])) if present.any() else 0.0,
+        "miou": float(np.mean(inter[present] / union[present])) if present.any() else None,
         "iou_by_class": {vocab.name(c): float(inter[c] / union[c]) for c in np.flatnonzero(present)},
         "pq": pq["pq"],
         "sq": pq["sq"],
@@ -239,8 +245,9 @@ def panoptic_quality(
             "fn": int(s["fn"]),
         }
 
-    def mean(names: list[str], key: str) -> float:
-        return float(np.mean([per_class[n][key] for n in names])) if names else 0.0
+    def mean(names: list[str], key: str) -> float | None:
+        """Over the classes present; None (undefined, not 0) when no class of the kind is present."""
+        return float(np.mean([per_class[n][key] for n in names])) if names else None
 
     things = [n for n in per_class if vocab.is_thing[vocab.id(n)]]
     stuff = [n for n in per_class if not vocab.is_thing[vocab.id(n)]]

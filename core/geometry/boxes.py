@@ -6,8 +6,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import trimesh
-from scipy.spatial import ConvexHull, QhullError
+
+from stratamap.core.lazy import lazy_module
+
+spatial = lazy_module("scipy.spatial")
+
+trimesh = lazy_module("trimesh")
 
 
 @dataclass
@@ -71,8 +75,8 @@ def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndar
     if len(xy) == 0:
         raise ValueError("min_area_rectangle needs at least one point")
     try:
-        hull = xy[ConvexHull(xy).vertices]
-    except (QhullError, ValueError):
+        hull = xy[spatial.ConvexHull(xy).vertices]
+    except (spatial.QhullError, ValueError):
         hull = xy  # collinear or too few points: the edges of the raw set still work
     if len(hull) == 1:
         return hull[0].copy(), 0.0, np.zeros(2)

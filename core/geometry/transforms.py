@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from stratamap.core.lazy import lazy_module
+
+rotations = lazy_module("scipy.spatial.transform")
 
 
 def make_pose(translation=(0.0, 0.0, 0.0), yaw: float = 0.0, rotation: np.ndarray | None = None) -> np.ndarray:
@@ -37,7 +40,7 @@ def yaw_of(pose: np.ndarray) -> float:
 
 def rpy_of(pose: np.ndarray) -> tuple[float, float, float]:
     """Roll, pitch, yaw (URDF convention: fixed-axis XYZ)."""
-    r, p, y = Rotation.from_matrix(pose[:3, :3]).as_euler("xyz")
+    r, p, y = rotations.Rotation.from_matrix(pose[:3, :3]).as_euler("xyz")
     return float(r), float(p), float(y)
 
 
@@ -57,7 +60,7 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 
 def matrix_to_quat_xyzw(r: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(r).as_quat()
+    return rotations.Rotation.from_matrix(r).as_quat()
 
 
 def wrap_angle(a):

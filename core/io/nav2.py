@@ -22,6 +22,7 @@ from PIL import Image, UnidentifiedImageError
 
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.errors import DataError
+from stratamap.core.io import brief
 from stratamap.core.map.layers import OccupancyGrid
 
 OCCUPIED_THRESH = 0.65
@@ -105,9 +106,13 @@ def read_map(yaml_path: str | Path) -> OccupancyGrid:
     if not yaml_path.is_file():
         raise DataError(f"{yaml_path}: map YAML not found")
     try:
-        meta: Any = yaml.safe_load(yaml_path.read_text())
-    except yaml.YAMLError as exc:
-        raise DataError(f"{yaml_path}: not valid YAML ({exc})") from exc
+        meta: Any = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise DataError(f"{yaml_path}: not valid YAML ({brief(exc)})") from exc
+    except (ValueError, TypeError, RecursionError) as exc:  # e.g. a date YAML cannot construct: 2022-13-45
+        raise DataError(f"{yaml_path}: not valid YAML ({brief(exc, True)})") from exc
+    except OSError as exc:
+        raise DataError(f"{yaml_path}: cannot be read ({brief(exc)})") from exc
     if not isinstance(meta, dict):
         raise DataError(f"{yaml_path}: expected a mapping with image, resolution, origin, ...")
     for key in ("image", "resolution", "origin"):
@@ -116,13 +121,25 @@ def read_map(yaml_path: str | Path) -> OccupancyGrid:
     mode = str(meta.get("mode", "trinary"))
     if mode not in ("trinary", "scale", "raw"):
         raise DataError(f"{yaml_path}: mode {mode!r} is not one of trinary, scale, raw")
-    negate = int(meta.get("negate", 0))
-    occ = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
-    free = float(meta.get("free_thresh", FREE_THRESH))
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1) or isinstance(negate, float):
+        raise DataError(f"{yaml_path}: negate must be 0 or 1, got {negate!r}")
+    occ = _number(meta.get("occupied_thresh", OCCUPIED_THRESH), yaml_path, "occupied_thresh")
+    free = _number(meta.get("free_thresh", FREE_THRESH), yaml_path, "free_thresh")
+    if not 0 <= free < occ <= 1:
+        raise DataError(
+            f"{yaml_path}: thresholds must satisfy 0 <= free_thresh < occupied_thresh <= 1, got {free}, {occ}"
+        )
     origin = meta["origin"]
     if not (isinstance(origin, list) and len(origin) == 3):
         raise DataError(f"{yaml_path}: origin must be [x, y, yaw], got {origin!r}")
-    image_path = Path(str(meta["image"]))
+    origin = [_number(v, yaml_path, "origin") for v in origin]
+    res = _number(meta["resolution"], yaml_path, "resolution")
+    if res <= 0:
+        raise DataError(f"{yaml_path}: resolution must be a positive number, got {meta['resolution']!r}")
+    if not isinstance(meta["image"], str) or not meta["image"].strip():
+        raise DataError(f"{yaml_path}: image must be a file name, got {meta['image']!r}")
+    image_path = Path(meta["image"])
     if not image_path.is_absolute():
         image_path = yaml_path.parent / image_path
     if not image_path.is_file():
@@ -132,8 +149,12 @@ def read_map(yaml_path: str | Path) -> OccupancyGrid:
             im.load()
             has_alpha = im.mode in ("LA", "RGBA")
             arr = np.asarray(im.convert("LA") if has_alpha else im.convert("L"), dtype=np.float64)
-    except (UnidentifiedImageError, OSError) as exc:
-        raise DataError(f"{image_path}: cannot be read as an image ({exc})") from exc
+    except UnidentifiedImageError as exc:
+        raise DataError(f"{image_path}: cannot be read as an image ({brief(exc)})") from exc
+    except Exception as exc:  # Pillow's decoders raise OSError, ValueError, SyntaxError, struct.error, ...
+        raise DataError(f"{image_path}: cannot be read as an image ({brief(exc, True)})") from exc
+    if arr.ndim != 2 + has_alpha or arr.size == 0:
+        raise DataError(f"{image_path}: expected a non-empty grayscale image, got shape {arr.shape}")
     if has_alpha:
         alpha, arr = arr[..., 1], arr[..., 0]
     else:
@@ -151,7 +172,17 @@ def read_map(yaml_path: str | Path) -> OccupancyGrid:
         if alpha is not None:
             cells[alpha < 255] = -1  # map_server: transparent pixels are unknown in scale mode
     data = np.flipud(cells).astype(np.int8)
-    res = float(meta["resolution"])
-    if not math.isfinite(res) or res <= 0:
-        raise DataError(f"{yaml_path}: resolution must be a positive number, got {meta['resolution']!r}")
-    return OccupancyGrid(data, res, (float(origin[0]), float(origin[1]), float(origin[2])))
+    return OccupancyGrid(data, res, (origin[0], origin[1], origin[2]))
+
+
+def _number(value: Any, yaml_path: Path, key: str) -> float:
+    """A finite number from the YAML, or a DataError naming the file and key."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise DataError(f"{yaml_path}: {key} must be a number, got {value!r}")
+    try:
+        ok = math.isfinite(value)
+    except OverflowError:
+        ok = False
+    if not ok:
+        raise DataError(f"{yaml_path}: {key} must be a finite number, got {value!r}")
+    return float(value)

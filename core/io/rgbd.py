@@ -6,14 +6,20 @@ sizes, timestamp association and pose interpolation.
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
-from scipy.spatial.transform import Rotation, Slerp
 
 from stratamap.core.errors import DataError
-from stratamap.core.map.sensors import SensorStream
+from stratamap.core.io import brief
+from stratamap.core.lazy import lazy_module
+from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
+
+rotations = lazy_module("scipy.spatial.transform")
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -28,12 +34,18 @@ def read_image(path: Path) -> np.ndarray:
                 return np.asarray(im, dtype=np.int32)
             if im.mode == "F":
                 return np.asarray(im, dtype=np.float32)
+            if im.mode in ("P", "PA", "CMYK", "YCbCr", "LAB", "HSV"):  # palette or other color spaces: as RGB(A)
+                return np.asarray(im.convert("RGBA" if im.mode == "PA" or "transparency" in im.info else "RGB"))
             return np.asarray(im)
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise DataError(f"{path}: cannot be read as an image ({exc})") from exc
+    except UnidentifiedImageError as exc:
+        raise DataError(f"{path}: cannot be read as an image ({brief(exc)})") from exc
+    except Exception as exc:  # Pillow's decoders raise OSError, ValueError, SyntaxError, struct.error, ...
+        raise DataError(f"{path}: cannot be read as an image ({brief(exc, True)})") from exc
 
 
-def read_rgb(path: Path, shape: tuple[int, int] | None = None) -> np.ndarray:
+def read_rgb(path: Path, shape: tuple[int, int] | None = None, resample: bool = False) -> np.ndarray:
+    """8-bit RGB of size ``shape`` (height, width): a color image of another size is an error, or with
+    ``resample`` (ScanNet's colour images are larger than its depth) resampled when the aspect ratio agrees."""
     img = read_image(path)
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
@@ -46,7 +58,13 @@ def read_rgb(path: Path, shape: tuple[int, int] | None = None) -> np.ndarray:
         else:
             raise DataError(f"{path}: expected 8-bit color, got {img.dtype}")
     if shape is not None and img.shape[:2] != shape:
-        # Some datasets (ScanNet) ship larger color images than depth: resample to the depth grid.
+        h, w = img.shape[:2]
+        if not resample or not h or not w or abs((w / h) / (shape[1] / shape[0]) - 1) > 0.05:
+            raise DataError(
+                f"{path}: color image is {w}x{h}, expected {shape[1]}x{shape[0]} as the camera intrinsics say (image "
+                "size mismatch)"
+            )
+        # ScanNet ships larger color images than depth: resample to the depth grid.
         img = np.asarray(Image.fromarray(img).resize((shape[1], shape[0]), Image.BILINEAR))
     return img
 
@@ -59,6 +77,8 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
         raise DataError(f"{path}: depth must be single-channel, got shape {img.shape} (is this a color image?)")
     if img.dtype == np.uint8:
         raise DataError(f"{path}: depth is 8-bit; expected 16-bit integers ({depth_scale:g} per metre) or float metres")
+    if img.dtype.kind not in "iuf":
+        raise DataError(f"{path}: depth of type {img.dtype}; expected 16-bit integers or float metres")
     if np.issubdtype(img.dtype, np.integer):
         depth = img.astype(np.float32) / np.float32(depth_scale)
     else:
@@ -72,8 +92,8 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
     depth[~np.isfinite(depth) | (depth < 0)] = 0.0
     if shape is not None and depth.shape != shape:
         raise DataError(
-            f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} (rgb/depth size "
-            "mismatch?)"
+            f"{path}: depth is {depth.shape[1]}x{depth.shape[0]}, expected {shape[1]}x{shape[0]} as the camera "
+            "intrinsics say (image size mismatch)"
         )
     return depth
 
@@ -92,12 +112,24 @@ def check_depth_scale(depth: np.ndarray, path: Path, depth_scale: float, max_pla
         )
 
 
-def read_timestamped_list(path: Path) -> list[tuple[float, list[str]]]:
-    """Lines ``timestamp rest...`` (TUM lists); comments (#) skipped; timestamps must increase."""
+def read_text_lines(path: Path) -> list[str]:
+    """The lines of a text file, or a DataError naming the file when it is missing or not text."""
     if not path.is_file():
         raise DataError(f"{path}: file missing")
+    try:
+        return path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be read ({brief(exc)})") from exc
+
+
+def read_timestamped_list(path: Path, min_values: int = 0, what: str = "") -> list[tuple[float, list[str]]]:
+    """Lines ``timestamp rest...`` (TUM lists); comments (#) skipped; timestamps must be finite and increase,
+    and each line must have at least ``min_values`` values after its timestamp (``what`` names them)."""
     rows = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    lines = []
+    for n, line in enumerate(read_text_lines(path), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -105,17 +137,95 @@ def read_timestamped_list(path: Path) -> list[tuple[float, list[str]]]:
         try:
             t = float(parts[0])
         except ValueError:
-            raise DataError(f"{path}:{n}: expected a timestamp, got {parts[0]!r}") from None
+            raise DataError(f"{path}:{n}: expected a timestamp, got {parts[0][:40]!r}") from None
+        if not np.isfinite(t):
+            raise DataError(f"{path}:{n}: timestamp {parts[0]!r} is not a finite number")
+        if len(parts) - 1 < min_values:
+            raise DataError(f"{path}:{n}: expected a timestamp and {what or f'{min_values} values'}, got {line[:80]!r}")
         rows.append((t, parts[1:]))
+        lines.append(n)
     if not rows:
         raise DataError(f"{path}: no entries")
     times = np.array([r[0] for r in rows])
     bad = np.flatnonzero(np.diff(times) <= 0)
     if len(bad):
+        k = int(bad[0])
+        kind = "repeats" if times[k] == times[k + 1] else "goes back in time"
         raise DataError(
-            f"{path}: timestamps are not increasing at entry {bad[0] + 2} ({times[bad[0]]} then {times[bad[0] + 1]})"
+            f"{path}:{lines[k + 1]}: timestamps are not increasing: entry {k + 2} {kind} ({float(times[k])!r} then "
+            f"{float(times[k + 1])!r})"
         )
     return rows
+
+
+def intrinsics_from(values: Any, where: str) -> CameraIntrinsics:
+    """A camera from ``width, height, fx, fy, cx, cy`` in a mapping, checked: whole positive image sizes,
+    finite values and positive focal lengths; ``where`` names the file (and key) in errors."""
+    keys = ("width", "height", "fx", "fy", "cx", "cy")
+    if not isinstance(values, dict):
+        raise DataError(f"{where}: expected an object with {', '.join(keys)}, got {type(values).__name__}")
+    missing = [k for k in keys if k not in values]
+    if missing:
+        raise DataError(f"{where}: missing {', '.join(missing)} (a camera needs {', '.join(keys)})")
+    values = {k: v.item() if isinstance(v, np.generic) else v for k, v in values.items()}
+    nums = {}
+    for k in keys:
+        v = values[k]
+        try:
+            nums[k] = float(v) if not isinstance(v, bool) else math.nan
+        except (TypeError, ValueError, OverflowError):
+            nums[k] = math.nan
+        if not math.isfinite(nums[k]):
+            raise DataError(f"{where}: {k} must be a finite number, got {v!r}"[:200])
+    for k in ("width", "height"):
+        if nums[k] < 1 or nums[k] != int(nums[k]) or nums[k] > 1 << 16:
+            raise DataError(f"{where}: {k} must be a whole number of pixels (1..65536), got {values[k]!r}")
+    for k in ("fx", "fy"):
+        if nums[k] <= 0:
+            raise DataError(f"{where}: {k} must be positive, got {values[k]!r}")
+    return CameraIntrinsics(int(nums["width"]), int(nums["height"]), nums["fx"], nums["fy"], nums["cx"], nums["cy"])
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file's content, or a DataError naming the file."""
+    try:
+        return json.loads("\n".join(read_text_lines(path)))
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: corrupt JSON ({brief(exc)})") from exc
+
+
+def rigid_pose(values: Any, where: str, tolerance: float = 2e-3) -> np.ndarray:
+    """A 4x4 rigid transform (rotation and translation, last row 0 0 0 1), checked; ``where`` names it in errors."""
+    try:
+        mat = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataError(f"{where}: not a 4x4 matrix of numbers") from None
+    if mat.shape != (4, 4):
+        raise DataError(f"{where}: expected a 4x4 matrix, got shape {mat.shape}")
+    if not np.all(np.isfinite(mat)):
+        raise DataError(f"{where}: the pose holds NaN or infinite values")
+    rot = mat[:3, :3]
+    if (
+        np.abs(mat[3] - (0, 0, 0, 1)).max() > 1e-6
+        or np.abs(rot.T @ rot - np.eye(3)).max() > tolerance
+        or np.linalg.det(rot) < 0
+    ):
+        raise DataError(f"{where}: not a rigid transform (rotation not orthonormal, or last row not 0 0 0 1)")
+    return mat
+
+
+def read_open3d_camera(path: Path) -> CameraIntrinsics:
+    """An Open3D ``PinholeCameraIntrinsic`` JSON: width, height and a column-major 9-value ``intrinsic_matrix``."""
+    cam = read_json(path)
+    if not isinstance(cam, dict) or "intrinsic_matrix" not in cam:
+        raise DataError(f"{path}: expected an object with width, height and a 9-value intrinsic_matrix")
+    try:
+        K = np.array(cam["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T  # Open3D stores column-major
+    except (TypeError, ValueError):
+        raise DataError(f"{path}: intrinsic_matrix must be 9 numbers, got {cam['intrinsic_matrix']!r}"[:200]) from None
+    values = {"width": cam.get("width"), "height": cam.get("height")}
+    values |= {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}
+    return intrinsics_from(values, str(path))
 
 
 def associate(a: np.ndarray, b: np.ndarray, tolerance: float) -> list[tuple[int, int]]:
@@ -150,11 +260,16 @@ def parse_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
             raise DataError(
                 f"{path}: entry {n + 1} has {len(vals)} values after the timestamp, expected 7 (tx ty tz qx qy qz qw)"
             )
-        v = np.array([float(x) for x in vals])
+        try:
+            v = np.array([float(x) for x in vals])
+        except ValueError:
+            raise DataError(
+                f"{path}: entry {n + 1} holds a value that is not a number ({' '.join(vals)[:80]})"
+            ) from None
         if not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-6:
             raise DataError(f"{path}: entry {n + 1} is not a valid pose ({vals})")
         pose = np.eye(4)
-        pose[:3, :3] = Rotation.from_quat(v[3:] / np.linalg.norm(v[3:])).as_matrix()
+        pose[:3, :3] = rotations.Rotation.from_quat(v[3:] / np.linalg.norm(v[3:])).as_matrix()
         pose[:3, 3] = v[:3]
         times.append(t)
         poses.append(pose)
@@ -168,7 +283,7 @@ def interpolate_poses(
     out: list[np.ndarray | None] = []
     if len(times) == 1:
         return [poses[0].copy() if abs(q - times[0]) <= tolerance else None for q in query]
-    slerp = Slerp(times, Rotation.from_matrix(poses[:, :3, :3]))
+    slerp = rotations.Slerp(times, rotations.Rotation.from_matrix(poses[:, :3, :3]))
     for q in query:
         if times[0] <= q <= times[-1]:
             j = int(np.clip(np.searchsorted(times, q), 1, len(times) - 1))
@@ -195,7 +310,8 @@ def read_laser_file(path: Path) -> list:
     from stratamap.core.map.sensors import LaserScan
 
     scans = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    last = -np.inf
+    for n, line in enumerate(read_text_lines(path), 1):
         if not line.strip() or line.startswith("#"):
             continue
         vals = line.split()
@@ -205,7 +321,15 @@ def read_laser_file(path: Path) -> list:
             head = [float(v) for v in vals[:8]]
             ranges = np.array([float(v) for v in vals[8:]], dtype=np.float32)
         except ValueError as exc:
-            raise DataError(f"{path}:{n}: {exc}") from None
+            raise DataError(f"{path}:{n}: {brief(exc)}") from None
+        if not np.all(np.isfinite(head)) or head[6] == 0 or head[7] <= 0:
+            raise DataError(
+                f"{path}:{n}: timestamp, pose and angles must be finite, angle_increment non-zero and range_max "
+                f"positive, got {' '.join(vals[:8])}"
+            )
+        if head[0] <= last:
+            raise DataError(f"{path}:{n}: timestamp {head[0]!r} does not follow {last!r}; timestamps must increase")
+        last = head[0]
         t, x, y, z, yaw, amin, ainc, rmax = head
         scans.append(LaserScan(t, amin, ainc, ranges, rmax, make_pose((x, y, z), yaw)))
     return scans
@@ -214,8 +338,6 @@ def read_laser_file(path: Path) -> list:
 def write_redwood(stream: SensorStream, root: Path) -> Path:
     """Write ``stream`` in the Open3D / Redwood layout: color/*.jpg, depth/*.png (mm),
     trajectory.log (camera-to-world), camera.json (column-major ``intrinsic_matrix``)."""
-    import json
-
     root = Path(root)
     (root / "color").mkdir(parents=True, exist_ok=True)
     (root / "depth").mkdir(parents=True, exist_ok=True)

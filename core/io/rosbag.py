@@ -8,9 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import LidarScan, SensorStream
+
+rotations = lazy_module("scipy.spatial.transform")
 
 
 def _typestore(ros_version: int) -> Any:
@@ -52,7 +54,7 @@ def _serialize(ts: Any, msg: Any, msgtype: str, ros_version: int) -> bytes:
 
 def _tf(ts: Any, t: float, parent: str, child: str, pose: np.ndarray, ros_version: int) -> Any:
     T = ts.types
-    q = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    q = rotations.Rotation.from_matrix(pose[:3, :3]).as_quat()
     transform = T["geometry_msgs/msg/Transform"](
         translation=T["geometry_msgs/msg/Vector3"](x=float(pose[0, 3]), y=float(pose[1, 3]), z=float(pose[2, 3])),
         rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
@@ -69,8 +71,12 @@ def write_rgbd_bag(
     ros_version: int = 2,
     world_frame: str = "map",
     camera_frame: str = "camera_color_optical_frame",
+    depth_encoding: str = "16UC1",
 ) -> Path:
-    """Depth (16UC1, mm), color (rgb8), camera_info and tf (world -> camera) per frame."""
+    """Depth (``16UC1`` in mm, or ``32FC1`` in metres), color (rgb8), camera_info and tf (world -> camera)
+    per frame."""
+    if depth_encoding not in ("16UC1", "32FC1"):
+        raise ValueError(f"depth_encoding must be 16UC1 or 32FC1, got {depth_encoding!r}")
     path = Path(path)
     ts = _typestore(ros_version)
     T = ts.types
@@ -86,14 +92,17 @@ def write_rgbd_bag(
             t = float(frame.timestamp) + 1.0
             ns = int(round(t * 1e9))
             header = _header(ts, t, camera_frame, ros_version, k)
-            depth = np.clip(np.round(frame.depth * 1000.0), 0, 65535).astype("<u2")
+            if depth_encoding == "16UC1":
+                depth = np.clip(np.round(frame.depth * 1000.0), 0, 65535).astype("<u2")
+            else:
+                depth = np.asarray(frame.depth, dtype="<f4")
             d_msg = T["sensor_msgs/msg/Image"](
                 header=header,
                 height=intr.height,
                 width=intr.width,
-                encoding="16UC1",
+                encoding=depth_encoding,
                 is_bigendian=0,
-                step=intr.width * 2,
+                step=intr.width * depth.dtype.itemsize,
                 data=np.frombuffer(depth.tobytes(), np.uint8),
             )
             c_msg = T["sensor_msgs/msg/Image"](

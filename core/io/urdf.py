@@ -12,10 +12,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from scipy.spatial.transform import Rotation
 
 from stratamap.core.errors import DataError
+from stratamap.core.io import brief
+from stratamap.core.io.mesh import read_mesh
+from stratamap.core.lazy import lazy_module
+
+rotations = lazy_module("scipy.spatial.transform")
+
+trimesh = lazy_module("trimesh")
 
 
 @dataclass
@@ -67,7 +72,7 @@ class UrdfModel:
                 motion = np.eye(4)
                 value = q.get(j.name, 0.0)
                 if j.type in ("revolute", "continuous") and value:
-                    motion[:3, :3] = Rotation.from_rotvec(j.axis / np.linalg.norm(j.axis) * value).as_matrix()
+                    motion[:3, :3] = rotations.Rotation.from_rotvec(j.axis / np.linalg.norm(j.axis) * value).as_matrix()
                 elif j.type == "prismatic" and value:
                     motion[:3, 3] = j.axis / np.linalg.norm(j.axis) * value
                 poses[j.child] = poses[parent] @ j.origin @ motion
@@ -75,13 +80,27 @@ class UrdfModel:
         return poses
 
 
-def _origin(el: ET.Element | None) -> np.ndarray:
+def _floats(text: str | None, count: int | tuple[int, ...], where: str, default: str | None = None) -> list[float]:
+    """``count`` finite numbers from an attribute value, or a DataError naming the file and element."""
+    text = default if text is None else text
+    counts = (count,) if isinstance(count, int) else count
+    try:
+        values = [float(v) for v in (text or "").split()]
+    except ValueError:
+        values = []
+    if len(values) not in counts or not all(np.isfinite(values)):
+        want = " or ".join(str(c) for c in counts)
+        raise DataError(f"{where}: expected {want} finite numbers, got {text!r}"[:300])
+    return values
+
+
+def _origin(el: ET.Element | None, where: str = "origin") -> np.ndarray:
     pose = np.eye(4)
     if el is None:
         return pose
-    xyz = [float(v) for v in el.get("xyz", "0 0 0").split()]
-    rpy = [float(v) for v in el.get("rpy", "0 0 0").split()]
-    pose[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    xyz = _floats(el.get("xyz"), 3, f"{where} xyz", "0 0 0")
+    rpy = _floats(el.get("rpy"), 3, f"{where} rpy", "0 0 0")
+    pose[:3, :3] = rotations.Rotation.from_euler("xyz", rpy).as_matrix()
     pose[:3, 3] = xyz
     return pose
 
@@ -113,50 +132,72 @@ def _package_name(folder: Path) -> str | None:
 
 
 def _load_mesh(path: Path) -> trimesh.Trimesh:
-    loaded = trimesh.load(path, force="mesh", process=False)
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise ValueError("no triangles")
-    return loaded
+    try:
+        return read_mesh(path, "visual mesh")
+    except DataError as exc:  # unreadable or empty meshes fall back to the collision geometry, with a warning
+        raise ValueError(str(exc)) from exc
 
 
-def _geometry(geom: ET.Element, urdf_path: Path, roots: dict[str, Path] | None) -> tuple[trimesh.Trimesh, str]:
+def _geometry(
+    geom: ET.Element, urdf_path: Path, roots: dict[str, Path] | None, where: str
+) -> tuple[trimesh.Trimesh, str]:
     mesh_el = geom.find("mesh")
     if mesh_el is not None:
         uri = mesh_el.get("filename", "")
+        scale = _floats(mesh_el.get("scale"), (1, 3), f"{where} <mesh> scale", "1 1 1")
         path = resolve_uri(uri, urdf_path, roots)
         if not path.is_file():
             raise FileNotFoundError(f"mesh {uri} (looked at {path})")
         mesh = _load_mesh(path)
-        scale = mesh_el.get("scale")
-        if scale:
-            mesh.apply_scale([float(v) for v in scale.split()])
+        mesh.apply_scale(scale if len(scale) == 3 else scale[0])
         return mesh, str(path)
     box = geom.find("box")
     if box is not None:
-        return trimesh.creation.box([float(v) for v in box.get("size", "0 0 0").split()]), "box"
+        size = _floats(box.get("size"), 3, f"{where} <box> size")
+        if min(size) < 0:
+            raise DataError(f"{where} <box> size must not be negative, got {box.get('size')!r}")
+        return trimesh.creation.box(size), "box"
     cyl = geom.find("cylinder")
     if cyl is not None:
-        return trimesh.creation.cylinder(float(cyl.get("radius", 0)), float(cyl.get("length", 0))), "cylinder"
+        radius = _floats(cyl.get("radius"), 1, f"{where} <cylinder> radius")[0]
+        length = _floats(cyl.get("length"), 1, f"{where} <cylinder> length")[0]
+        if radius <= 0 or length < 0:
+            raise DataError(f"{where} <cylinder>: radius must be positive and length not negative")
+        return trimesh.creation.cylinder(radius, length), "cylinder"
     sph = geom.find("sphere")
     if sph is not None:
-        return trimesh.creation.icosphere(radius=float(sph.get("radius", 0))), "sphere"
+        radius = _floats(sph.get("radius"), 1, f"{where} <sphere> radius")[0]
+        if radius <= 0:
+            raise DataError(f"{where} <sphere>: radius must be positive, got {radius}")
+        return trimesh.creation.icosphere(radius=radius), "sphere"
     raise ValueError("geometry without mesh, box, cylinder or sphere")
 
 
+JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+
+
 def read_urdf(path: str | Path, package_roots: dict[str, Path] | None = None, load_meshes: bool = True) -> UrdfModel:
-    """Parse a URDF; missing or unreadable visual meshes fall back to collision geometry (with a warning)."""
+    """Parse a URDF; missing or unreadable visual meshes fall back to collision geometry (with a warning).
+    Malformed numbers, unknown joint types, repeated names and joints that do not form one tree of links
+    are DataErrors naming the file and the element."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: URDF not found")
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
-        raise DataError(f"{path}: not valid XML ({exc})") from exc
+        raise DataError(f"{path}: not valid XML ({brief(exc)})") from exc
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot be read as XML ({brief(exc)})") from exc
     if root.tag != "robot":
         raise DataError(f"{path}: root element is <{root.tag}>, expected <robot>")
     model = UrdfModel(root.get("name", path.stem), path)
     for link in root.findall("link"):
         name = link.get("name", "")
+        if not name:
+            raise DataError(f"{path}: a <link> without a name")
+        if name in model.links:
+            raise DataError(f"{path}: link {name!r} is defined twice")
         visuals: list[UrdfVisual] = []
         if load_meshes:
             vis_els = link.findall("visual")
@@ -165,49 +206,87 @@ def read_urdf(path: str | Path, package_roots: dict[str, Path] | None = None, lo
                 geom = vis.find("geometry")
                 if geom is None:
                     continue
+                where = f"{path}: link {name!r} visual {k}"
                 try:
-                    mesh, source = _geometry(geom, path, package_roots)
-                    mesh.apply_transform(_origin(vis.find("origin")))
+                    mesh, source = _geometry(geom, path, package_roots, where)
+                    mesh.apply_transform(_origin(vis.find("origin"), f"{where} <origin>"))
                     visuals.append(UrdfVisual(mesh, source, vis.get("name", "")))
                     continue
                 except (FileNotFoundError, ValueError, OSError) as exc:
-                    problem = f"link {name!r}: visual {k} unusable ({exc})"
+                    problem = f"link {name!r}: visual {k} unusable ({brief(exc)})"
                 fallback = col_els[k] if k < len(col_els) else (col_els[0] if col_els else None)
                 try:
                     if fallback is None or fallback.find("geometry") is None:
                         raise ValueError("no collision geometry")
-                    mesh, source = _geometry(fallback.find("geometry"), path, package_roots)  # type: ignore[arg-type]
-                    mesh.apply_transform(_origin(fallback.find("origin")))
+                    where = f"{path}: link {name!r} collision {col_els.index(fallback)}"
+                    mesh, source = _geometry(fallback.find("geometry"), path, package_roots, where)  # type: ignore[arg-type]
+                    mesh.apply_transform(_origin(fallback.find("origin"), f"{where} <origin>"))
                     visuals.append(UrdfVisual(mesh, source, vis.get("name", "")))
                     model.warnings.append(f"{problem}; using its collision geometry {source}")
                 except (FileNotFoundError, ValueError, OSError) as exc:
                     model.warnings.append(
-                        f"{problem}; no usable collision geometry either ({exc}); link left without a mesh"
+                        f"{problem}; no usable collision geometry either ({brief(exc)}); link left without a mesh"
                     )
         model.links[name] = visuals
+    names: set[str] = set()
     for joint in root.findall("joint"):
+        jname = joint.get("name", "")
+        where = f"{path}: joint {jname!r}"
+        if not jname or jname in names:
+            raise DataError(f"{where}: every joint needs a name of its own" if jname else f"{path}: a nameless <joint>")
+        names.add(jname)
+        jtype = joint.get("type", "fixed")
+        if jtype not in JOINT_TYPES:
+            raise DataError(f"{where}: type {jtype!r} is not one of {', '.join(JOINT_TYPES)}")
         parent, child = joint.find("parent"), joint.find("child")
         if parent is None or child is None:
-            raise DataError(f"{path}: joint {joint.get('name')!r} lacks <parent> or <child>")
+            raise DataError(f"{where}: lacks <parent> or <child>")
         axis_el = joint.find("axis")
-        axis = np.array([float(v) for v in (axis_el.get("xyz", "1 0 0") if axis_el is not None else "1 0 0").split()])
+        axis = np.array(_floats(axis_el.get("xyz") if axis_el is not None else None, 3, f"{where} <axis>", "1 0 0"))
+        if jtype in ("revolute", "continuous", "prismatic") and np.linalg.norm(axis) < 1e-9:
+            raise DataError(f"{where}: a {jtype} joint needs a non-zero <axis>")
         limit = joint.find("limit")
-        lower = float(limit.get("lower", 0)) if limit is not None else 0.0
-        upper = float(limit.get("upper", 0)) if limit is not None else 0.0
+        lower = _floats(limit.get("lower"), 1, f"{where} <limit> lower", "0")[0] if limit is not None else 0.0
+        upper = _floats(limit.get("upper"), 1, f"{where} <limit> upper", "0")[0] if limit is not None else 0.0
         model.joints.append(
             UrdfJoint(
-                joint.get("name", ""),
-                joint.get("type", "fixed"),
+                jname,
+                jtype,
                 parent.get("link", ""),
                 child.get("link", ""),
-                _origin(joint.find("origin")),
+                _origin(joint.find("origin"), f"{where} <origin>"),
                 axis,
                 lower,
                 upper,
             )
         )
+    _check_tree(model)
+    return model
+
+
+def _check_tree(model: UrdfModel) -> None:
+    """Every joint links two defined links, no link has two parents, and all links hang from one root."""
+    path = model.path
+    parent_of: dict[str, str] = {}
     for j in model.joints:
         for end in (j.parent, j.child):
             if end not in model.links:
                 raise DataError(f"{path}: joint {j.name!r} names link {end!r}, which is not defined")
-    return model
+        if j.child in parent_of:
+            raise DataError(f"{path}: link {j.child!r} is the child of two joints; a URDF is a tree")
+        parent_of[j.child] = j.name
+    roots = [name for name in model.links if name not in parent_of]
+    if len(roots) != 1:
+        raise DataError(f"{path}: expected one root link (a link no joint has as child), found {roots[:10]}")
+    children: dict[str, list[str]] = {}
+    for j in model.joints:
+        children.setdefault(j.parent, []).append(j.child)
+    seen, stack = {roots[0]}, [roots[0]]
+    while stack:
+        for c in children.get(stack.pop(), []):
+            if c not in seen:
+                seen.add(c)
+                stack.append(c)
+    unreachable = [name for name in model.links if name not in seen]
+    if unreachable:
+        raise DataError(f"{path}: links {unreachable[:10]} are not connected to the root {roots[0]!r} (a joint cycle?)")

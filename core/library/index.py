@@ -13,10 +13,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from scipy.spatial import cKDTree
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.library.models import LibraryModel, ModelLibrary
+
+spatial = lazy_module("scipy.spatial")
+
+trimesh = lazy_module("trimesh")
 
 DESCRIPTOR_VERSION = 2
 HEIGHT_BINS = 8
@@ -53,12 +56,12 @@ class IndexedModel:
     size: np.ndarray  # (3,)
     planes: np.ndarray  # (K, 5)
     descriptor: np.ndarray
-    _tree: cKDTree | None = field(default=None, repr=False)
+    _tree: spatial.cKDTree | None = field(default=None, repr=False)
 
     @property
-    def tree(self) -> cKDTree:
+    def tree(self) -> spatial.cKDTree:
         if self._tree is None:
-            self._tree = cKDTree(self.samples)
+            self._tree = spatial.cKDTree(self.samples)
         return self._tree
 
 

@@ -34,11 +34,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trimesh
 
-from stratamap.core.atomic import atomic_directory, write_json
+from stratamap.core.atomic import atomic_directory, check_output_folder, write_json
 from stratamap.core.errors import DataError
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Joint
+
+trimesh = lazy_module("trimesh")
 
 LIBRARY_FORMAT = "stratamap.library"
 LIBRARY_VERSION = 1
@@ -278,8 +280,9 @@ def model_to_library(model: Any) -> LibraryModel:
 def write_library(
     models: Iterable[LibraryModel], out: str | Path, progress: Callable[[int], None] | None = None
 ) -> Path:
-    """Write models in the native format; the folder is replaced atomically as a whole."""
-    out = Path(out)
+    """Write models in the native format; an earlier library in ``out`` is replaced atomically as a
+    whole, and a folder with anything else in it is refused (a ConfigError), never emptied."""
+    out = check_output_folder(out, lambda folder: (folder / "models.json").is_file(), "model library")
     with atomic_directory(out) as staging:
         records = []
         for k, m in enumerate(models):

@@ -6,11 +6,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import trimesh
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, Joint, OccupancyMaps, OrientedBox
 from stratamap.core.map.sensors import FrameSegmentation
 from stratamap.core.map.vocabulary import Vocabulary
+
+trimesh = lazy_module("trimesh")
 
 
 @dataclass

@@ -23,14 +23,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
-import trimesh
 
 from stratamap.core.atomic import atomic_directory, write_json
 from stratamap.core.errors import MapFormatError
 from stratamap.core.geometry.boxes import OrientedBox
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.vocabulary import Vocabulary
+
+nx = lazy_module("networkx")
+trimesh = lazy_module("trimesh")
 
 MAP_FORMAT = "stratamap.map"
 MAP_FORMAT_VERSION = 1
@@ -312,8 +314,8 @@ class ContactGraph:
     an undirected graph over the same nodes.
     """
 
-    support: nx.DiGraph = field(default_factory=nx.DiGraph)
-    proximal: nx.Graph = field(default_factory=nx.Graph)
+    support: nx.DiGraph = field(default_factory=lambda: nx.DiGraph())
+    proximal: nx.Graph = field(default_factory=lambda: nx.Graph())
 
     def __post_init__(self) -> None:
         if SCENE_NODE not in self.support:
@@ -414,10 +416,20 @@ class LayeredMap:
     # ---------------------------------------------------------------- persistence
 
     def save(self, directory: str | Path) -> Path:
-        """Write the map to ``directory`` (replaced atomically as a whole). See ``docs/map-format.md``."""
+        """Write the map to ``directory`` (replaced atomically as a whole; a file, or a folder of other files that
+        is not a saved map, is refused). Saving a loaded map gives the same bytes. See ``docs/map-format.md``."""
         from stratamap.core.map import format as map_format
 
         directory = Path(directory)
+        if directory.exists() and not directory.is_dir():
+            raise MapFormatError(
+                f"{directory}: is a file, not a folder; a map is saved as a folder (nothing was written)"
+            )
+        if directory.is_dir() and not (directory / "manifest.json").is_file() and any(directory.iterdir()):
+            raise MapFormatError(
+                f"{directory}: holds files but no manifest.json, so it is not a saved map; saving would replace "
+                "them (choose a new or empty folder; nothing was written)"
+            )
         with atomic_directory(directory) as staging:
             manifest = map_format.write_layers(self, staging)
             write_json(staging / "manifest.json", manifest)
@@ -432,9 +444,13 @@ class LayeredMap:
         if not manifest_path.is_file():
             raise MapFormatError(f"{manifest_path}: no manifest; is {directory} a saved stratamap map?")
         try:
-            manifest = json.loads(manifest_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise MapFormatError(f"{manifest_path}: corrupt JSON ({exc})") from exc
+            manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise MapFormatError(f"{manifest_path}: corrupt JSON ({' '.join(str(exc).split())})") from exc
+        except OSError as exc:
+            raise MapFormatError(f"{manifest_path}: cannot be read ({' '.join(str(exc).split())})") from exc
+        if not isinstance(manifest, dict):
+            raise MapFormatError(f"{manifest_path}: expected a JSON object, got {type(manifest).__name__}")
         if manifest.get("format") != MAP_FORMAT:
             raise MapFormatError(f"{manifest_path}: format is {manifest.get('format')!r}, expected {MAP_FORMAT!r}")
         if manifest.get("version") != MAP_FORMAT_VERSION:

@@ -12,10 +12,12 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-import trimesh
 
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
+
+trimesh = lazy_module("trimesh")
 
 ROOT_LINK = "world"
 

@@ -14,12 +14,14 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from stratamap.core.atomic import atomic_path, write_text
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ObjectInstances
 from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
 from stratamap.core.simulation.physics import mesh_parts
+
+rotations = lazy_module("scipy.spatial.transform")
 
 #: Classes that get a free joint by default (movable objects); others are fixed to the world.
 DEFAULT_FREE_CLASSES = ("chair", "box", "book", "cup", "bottle", "laptop", "monitor", "plant")
@@ -30,7 +32,7 @@ def _fmt(values) -> str:
 
 
 def _quat_wxyz(pose: np.ndarray) -> str:
-    x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    x, y, z, w = rotations.Rotation.from_matrix(pose[:3, :3]).as_quat()
     return _fmt([w, x, y, z])
 
 

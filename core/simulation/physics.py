@@ -21,11 +21,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trimesh
-from scipy.optimize import linprog
-from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
+
+optimize = lazy_module("scipy.optimize")
+spatial = lazy_module("scipy.spatial")
+
+trimesh = lazy_module("trimesh")
 
 #: Overlap depth below this is contact, not penetration (metres).
 CONTACT_TOLERANCE = 0.003
@@ -66,8 +69,8 @@ class Shell:
 
 def convex_shell(vertices: np.ndarray) -> Shell | None:
     try:
-        hull = ConvexHull(vertices)
-    except (QhullError, ValueError):
+        hull = spatial.ConvexHull(vertices)
+    except (spatial.QhullError, ValueError):
         return None
     return Shell(np.asarray(vertices[hull.vertices], dtype=float), np.asarray(hull.equations, dtype=float))
 
@@ -257,7 +260,7 @@ def _overlap_volume(a: Shell, b: Shell) -> float:
     halfspaces = np.concatenate([a.equations, b.equations])
     # An interior point: the Chebyshev center of the intersection (linear program).
     norm = np.linalg.norm(halfspaces[:, :3], axis=1, keepdims=True)
-    res = linprog(
+    res = optimize.linprog(
         np.r_[0, 0, 0, -1.0],
         A_ub=np.hstack([halfspaces[:, :3], norm]),
         b_ub=-halfspaces[:, 3],
@@ -267,9 +270,9 @@ def _overlap_volume(a: Shell, b: Shell) -> float:
     if not res.success or res.x[3] <= 1e-5:
         return 0.0
     try:
-        pts = HalfspaceIntersection(halfspaces, res.x[:3]).intersections
-        return float(ConvexHull(pts).volume)
-    except (QhullError, ValueError):
+        pts = spatial.HalfspaceIntersection(halfspaces, res.x[:3]).intersections
+        return float(spatial.ConvexHull(pts).volume)
+    except (spatial.QhullError, ValueError):
         return 0.0
 
 

@@ -24,10 +24,12 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-import trimesh
 
 from stratamap.core.errors import DataError
 from stratamap.core.io.urdf import UrdfModel
+from stratamap.core.lazy import lazy_module
+
+trimesh = lazy_module("trimesh")
 
 LEVEL1 = ("floor", "table", "ceiling", "wall", "furniture")
 LEVEL1_HORIZONTAL = ("floor", "table", "ceiling")

@@ -114,7 +114,8 @@ class _Kitchen:
             name,
             [
                 (np.array([0.0, -FRONT_T / 2, 0.0]), np.zeros(3), _box([w, FRONT_T, h])),
-                (np.array([0.0, box_d / 2, 0.0]), np.zeros(3), _box([w - 0.04, box_d, h - 0.04])),
+                # the drawer's box behind its front; a front under 4.5 cm tall gets a 5 mm one (never negative)
+                (np.array([0.0, box_d / 2, 0.0]), np.zeros(3), _box([w - 0.04, box_d, max(h - 0.04, 0.005)])),
             ],
         )
         c = np.array([(x0 + x1) / 2, 0.0, (z0 + z1) / 2])

@@ -16,10 +16,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import trimesh
 
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Joint
+
+trimesh = lazy_module("trimesh")
 
 ROOT_LINK = "body"
 

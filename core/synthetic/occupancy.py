@@ -10,12 +10,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
-import trimesh
 
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid
 from stratamap.core.synthetic.scene import Scene
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
+trimesh = lazy_module("trimesh")
 
 
 @dataclass

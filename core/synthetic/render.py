@@ -5,13 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
 
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.synthetic.scene import Scene
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
 
 KINECT_FOCAL_BASELINE = 580.0 * 0.075  # pixels x metres
 

@@ -6,14 +6,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import trimesh
 
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.groundtruth import GroundTruthObject
 from stratamap.core.map.layers import ContactGraph
 from stratamap.core.synthetic.models import Model, ModelPart
 from stratamap.core.synthetic.placement import place_objects
 from stratamap.core.synthetic.spec import SceneSpec
+
+trimesh = lazy_module("trimesh")
 
 WALL_THICKNESS = 0.1
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from stratamap.core.geometry.transforms import look_at
+from stratamap.core.lazy import lazy_module
 from stratamap.core.synthetic.scene import Scene
 from stratamap.core.synthetic.spec import TrajectorySpec
+
+ndimage = lazy_module("scipy.ndimage")
 
 GRID = 0.05
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from stratamap.core.atomic import atomic_directory, write_json, write_text
+from stratamap.core.atomic import atomic_directory, check_output_folder, write_json, write_text
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw, yaw_of
 from stratamap.core.io.nav2 import write_map
 from stratamap.core.synthetic.generate import SyntheticWorld
@@ -56,8 +56,15 @@ def tum_pose_line(t: float, pose: np.ndarray) -> str:
     return f"{t:.6f} " + " ".join(f"{v:.9f}" for v in vals)
 
 
+def is_sequence(folder: Path) -> bool:
+    """Whether ``folder`` holds a sequence this writer wrote (which it may replace)."""
+    return (folder / "gt" / "scene.json").is_file() and (folder / "rgb.txt").is_file()
+
+
 def write_sequence(world: SyntheticWorld, out: str | Path, progress: Callable[[int, int], None] | None = None) -> Path:
-    out = Path(out)
+    """Write ``world`` into ``out``, replacing an earlier sequence there as a whole; a folder with
+    anything else in it is refused (a ConfigError), never emptied."""
+    out = check_output_folder(out, is_sequence, "synthetic sequence")
     n = len(world)
     with atomic_directory(out) as d:
         for sub in ("rgb", "depth", "gt/class", "gt/instance", "gt/meshes"):

@@ -16,19 +16,23 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
-import trimesh
 from pydantic import Field
 
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
 from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
 from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
 from stratamap.core.stages import Completer, PipelineData, StageConfig
 
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
+trimesh = lazy_module("trimesh")
+
 
 class MatcherConfig(StageConfig):
+    path_fields = ("library", "cache_dir")
+
     library: str | None = Field(
         default=None,
         description=(

@@ -5,11 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import trimesh
 from pydantic import Field
 
 from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Completion
+
+trimesh = lazy_module("trimesh")
 
 
 class BBoxConfig(StageConfig):

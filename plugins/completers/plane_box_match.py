@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 from pydantic import Field
-from scipy.optimize import least_squares, linear_sum_assignment
 
 from stratamap.core import PipelineData, hookimpl
 from stratamap.core.geometry.points import ransac_plane
+from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 from stratamap.core.map.layers import ObjectInstance, OrientedBox
 from stratamap.plugins.completers._matching import (
@@ -44,6 +44,8 @@ from stratamap.plugins.completers._matching import (
     object_base,
     posed_completion,
 )
+
+optimize = lazy_module("scipy.optimize")
 
 
 def canonical_orientations() -> list[np.ndarray]:
@@ -182,7 +184,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
                 angle = 1.0 - float(np.dot(n_o, n_m))
                 offset = abs(d_o - d_m * scale)
                 cost[i, j] = angle + offset
-        rows, cols = linear_sum_assignment(cost)
+        rows, cols = optimize.linear_sum_assignment(cost)
         unmatched = len(obs) - len(rows)
         return float(cost[rows, cols].sum() + unmatched) / len(obs)
 
@@ -241,7 +243,7 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
 
         # The quarter turns are among the 24 orientations already: one start at yaw 0 suffices.
         x0 = np.array([0.0, np.log(s0), obs_center[0], obs_center[1]])
-        best = least_squares(residuals, x0, method="lm", max_nfev=40)
+        best = optimize.least_squares(residuals, x0, method="lm", max_nfev=40)
         r2, s, t = transform(best.x)
         q = local.copy()
         q[:, :2] = (q[:, :2] - t) @ r2

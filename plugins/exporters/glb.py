@@ -6,11 +6,13 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import trimesh
 from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path
+from stratamap.core.lazy import lazy_module
+
+trimesh = lazy_module("trimesh")
 
 #: stratamap's z-up world to glTF's y-up (x right, y up, z toward the viewer).
 Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])

@@ -5,12 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
 from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import write_json
+from stratamap.core.lazy import lazy_module
+
+nx = lazy_module("networkx")
 
 
 class SceneGraphConfig(StageConfig):

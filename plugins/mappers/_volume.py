@@ -8,16 +8,18 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
-import trimesh
 from pydantic import Field
 
 from stratamap.core import StageConfig
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Geometry
 from stratamap.core.map.sensors import CameraIntrinsics
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
+trimesh = lazy_module("trimesh")
 
 
 def label_stride(configured: int | None, width: int) -> int:

@@ -16,13 +16,15 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-import open3d as o3d
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.instances import instances_from_semantics
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.priors import class_extents
+
+o3d = lazy_module("open3d")
 
 
 class InstanceClustersConfig(StageConfig):

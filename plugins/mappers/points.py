@@ -5,13 +5,15 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Geometry
+
+o3d = lazy_module("open3d")
 
 
 class PointsConfig(StageConfig):

@@ -12,15 +12,17 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import open3d.core as o3c
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Semantics
 from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
+
+o3c = lazy_module("open3d.core")
 
 
 class SemanticTSDFConfig(IntegrationConfig):

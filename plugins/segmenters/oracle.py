@@ -32,7 +32,22 @@ class OracleSegmenter(Segmenter[OracleConfig]):
 
         gt = data.ground_truth
         stream = data.stream
-        assert gt is not None and stream is not None
+        if stream is None or not len(stream.frames):
+            raise DataError(
+                "oracle: the source gave no camera frames; the oracle labels RGB-D frames (a point cloud's labels "
+                "are ground truth for evaluation, not per-frame labels)"
+            )
+        if gt is None:
+            raise DataError(
+                f"oracle: no ground truth for {stream.name!r}: the oracle needs per-frame labels from a gt/ folder "
+                "beside the sequence (gt/class/*.png, gt/instance/*.png and gt/scene.json, as `stratamap synth` "
+                "writes them; the tum source loads it when load_ground_truth is true)"
+            )
+        if not len(gt.frame_labels):
+            raise DataError(
+                f"oracle: the ground truth of {stream.name!r} has no per-frame labels (no gt/class/ and gt/instance/ "
+                "images); sequences written by `stratamap synth` have them"
+            )
         if len(gt.frame_labels) != len(stream.frames):
             raise DataError(
                 f"oracle: the ground truth has labels for {len(gt.frame_labels)} frames but the stream has "

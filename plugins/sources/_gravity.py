@@ -15,12 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import ransac_plane
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import SensorStream
+
+o3d = lazy_module("open3d")
 
 
 @dataclass

@@ -3,18 +3,41 @@
 * RGB-D: Open3D's dense RGB-D SLAM model, tracking each frame against a ray cast of the TSDF
   built so far (frame to model), as KinectFusion does.
 * LiDAR and point-cloud sequences: KISS-ICP.
+
+Both are deterministic: the same input gives byte-identical poses on every run, so they run on
+one thread. With more, results depend on thread scheduling: Open3D's tracking sums its normal
+equations in a parallel (TBB) reduction whose order varies; its integration lists the frustum's
+blocks in a varying order, and its ray casting, whenever the range-map fragment buffer overflows
+(it grows to fit only after a frame that needed more), keeps a varying subset of fragments;
+KISS-ICP's registration reduces in parallel too.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
 
 from stratamap.core.errors import DataError
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
+
+
+@contextmanager
+def open3d_threads(n: int) -> Iterator[None]:
+    """Limit Open3D's CPU (TBB) threads to ``n`` inside the block, then restore the previous limit."""
+    previous = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(0)
+    default = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(n)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(0 if previous == default else previous)
 
 
 def rgbd_frame_to_model(
@@ -36,24 +59,25 @@ def rgbd_frame_to_model(
     pose = np.eye(4)
     poses = []
     scale = 1000.0
-    for i, frame in enumerate(frames):
-        depth = np.clip(np.round(np.nan_to_num(frame.depth) * scale), 0, 65535).astype(np.uint16)
-        if not np.any(depth):
-            raise DataError(f"odometry: frame {frame.index} has no valid depth; cannot track it")
-        input_frame.set_data_from_image("depth", o3d.t.geometry.Image(o3c.Tensor(depth)))
-        input_frame.set_data_from_image("color", o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(frame.rgb))))
-        if i > 0:
-            try:
-                result = model.track_frame_to_model(input_frame, raycast_frame, scale, depth_max, 0.07)
-                pose = pose @ result.transformation.numpy()
-            except RuntimeError as exc:  # Open3D raises when the system is degenerate
-                raise DataError(f"odometry: tracking lost at frame {frame.index} ({exc})") from exc
-        poses.append(pose.copy())
-        model.update_frame_pose(i, o3c.Tensor(pose))
-        model.integrate(input_frame, scale, depth_max, trunc_multiplier)
-        model.synthesize_model_frame(raycast_frame, scale, depth_min, depth_max, trunc_multiplier, False)
-        if progress is not None:
-            progress(i + 1)
+    with open3d_threads(1):  # deterministic: see the module's docstring
+        for i, frame in enumerate(frames):
+            depth = np.clip(np.round(np.nan_to_num(frame.depth) * scale), 0, 65535).astype(np.uint16)
+            if not np.any(depth):
+                raise DataError(f"odometry: frame {frame.index} has no valid depth; cannot track it")
+            input_frame.set_data_from_image("depth", o3d.t.geometry.Image(o3c.Tensor(depth)))
+            input_frame.set_data_from_image("color", o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(frame.rgb))))
+            if i > 0:
+                try:
+                    result = model.track_frame_to_model(input_frame, raycast_frame, scale, depth_max, 0.07)
+                    pose = pose @ result.transformation.numpy()
+                except RuntimeError as exc:  # Open3D raises when the system is degenerate
+                    raise DataError(f"odometry: tracking lost at frame {frame.index} ({exc})") from exc
+            poses.append(pose.copy())
+            model.update_frame_pose(i, o3c.Tensor(pose))
+            model.integrate(input_frame, scale, depth_max, trunc_multiplier)
+            model.synthesize_model_frame(raycast_frame, scale, depth_min, depth_max, trunc_multiplier, False)
+            if progress is not None:
+                progress(i + 1)
     return poses
 
 
@@ -71,6 +95,7 @@ def lidar_odometry(
     config.data.min_range = 0.3
     config.data.deskew = False
     config.mapping.voxel_size = max_range / 100.0 if max_range > 10 else 0.1
+    config.registration.max_num_threads = 1  # its parallel reduction is not deterministic
     odom = KissICP(config=config)
     poses = []
     for k, pts in enumerate(scans):

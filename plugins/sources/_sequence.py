@@ -20,6 +20,8 @@ from stratamap.plugins.sources._gravity import estimate_alignment, transform_str
 
 
 class SequenceConfig(StageConfig):
+    path_fields = ("path",)
+
     path: str = Field(description="Folder of the sequence.")
     max_frames: int | None = Field(default=None, ge=1, description="Read at most this many frames (after `stride`).")
     stride: int = Field(default=1, ge=1, description="Read every n-th frame.")

@@ -16,6 +16,7 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
@@ -25,6 +26,8 @@ UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "
 
 
 class PointCloudConfig(StageConfig):
+    path_fields = ("path",)
+
     path: str = Field(
         description="A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label)."
     )
@@ -53,42 +56,34 @@ class PointCloudConfig(StageConfig):
 
 
 def read_cloud(path: Path, label_field: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(points, colors in [0, 1] or None, labels or None) from a supported file."""
-    if not path.is_file():
-        raise DataError(f"{path}: point cloud file not found")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise DataError(f"{path}: not a plain .npy array ({exc})") from exc
-        if arr.ndim != 2 or arr.shape[1] not in (3, 4, 6, 7):
-            raise DataError(
-                f"{path}: expected an (N, 3|4|6|7) array (xyz[, label] or xyz rgb[, label]), got {arr.shape}"
-            )
-        pts = arr[:, :3].astype(np.float64)
-        colors = arr[:, 3:6].astype(np.float64) if arr.shape[1] >= 6 else None
-        if colors is not None and colors.max() > 1.0:
-            colors = colors / 255.0
-        labels = arr[:, -1].astype(np.int64) if arr.shape[1] in (4, 7) else None
-        return pts, colors, labels
-    if suffix in (".ply", ".pcd", ".xyz", ".xyzrgb", ".xyzn", ".pts"):
-        import open3d as o3d
+    """(points, colors in [0, 1] or None, labels or None) from a supported file, verified against its header
+    (see :mod:`stratamap.core.io.pointcloud`): a cut or malformed file is a ``DataError``, never zeros."""
+    cloud = read_point_cloud(path, label_field)
+    labels = cloud.fields.get(label_field)
+    if labels is not None:
+        labels = np.asarray(labels)
+        if labels.ndim != 1:
+            raise DataError(f"{path}: label field {label_field!r} has {labels.shape[1]} values per point, expected 1")
+    return cloud.points, cloud.colors, labels
 
-        try:
-            cloud = o3d.t.io.read_point_cloud(str(path))
-        except RuntimeError as exc:
-            raise DataError(f"{path}: cannot be read as a point cloud ({exc})") from exc
-        if "positions" not in cloud.point or len(cloud.point.positions) == 0:
-            raise DataError(f"{path}: contains no points (corrupt or empty file?)")
-        pts = cloud.point.positions.numpy().astype(np.float64)
-        colors = None
-        if "colors" in cloud.point:
-            c = cloud.point.colors.numpy().astype(np.float64)
-            colors = c / 255.0 if c.max() > 1.0 else c
-        labels = cloud.point[label_field].numpy().reshape(-1).astype(np.int64) if label_field in cloud.point else None
-        return pts, colors, labels
-    raise DataError(f"{path}: unsupported point cloud format {suffix!r} (use .ply, .pcd, .xyz or .npy)")
+
+def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labels: np.ndarray | None) -> None:
+    """Colors and labels of the valid points must be finite (and labels whole numbers)."""
+    if colors is not None:
+        bad = ~np.all(np.isfinite(colors[valid]), axis=1)
+        if bad.any():
+            raise DataError(f"{path}: {int(bad.sum())} points with valid coordinates have NaN or infinite colors")
+    if labels is None:
+        return
+    lab = labels[valid]
+    if lab.dtype.kind not in "iuf":
+        raise DataError(f"{path}: labels of type {lab.dtype}; expected integers")
+    if lab.dtype.kind == "f":
+        bad = ~np.isfinite(lab) | (lab != np.round(lab))
+        if bad.any():
+            raise DataError(f"{path}: {int(bad.sum())} labels are not whole numbers (first: {lab[bad][0].item()!r})")
+    if lab.size and (lab.min() < -(2**31) or lab.max() >= 2**31):
+        raise DataError(f"{path}: labels range {lab.min()}..{lab.max()}; expected 32-bit integers")
 
 
 class PointCloudSource(Source[PointCloudConfig]):
@@ -116,11 +111,14 @@ class PointCloudSource(Source[PointCloudConfig]):
         pts, colors, labels = read_cloud(path, cfg.label_field)
         valid = np.all(np.isfinite(pts), axis=1)
         dropped = int((~valid).sum())
+        if not valid.any():
+            raise DataError(f"{path}: none of its {len(pts)} points has finite coordinates (all NaN or infinite)")
+        _check_values(path, valid, colors, labels)
         pts = pts[valid] * cfg.scale
         colors = None if colors is None else np.clip(colors[valid], 0, 1)
-        labels = None if labels is None else labels[valid]
-        if len(pts) == 0:
-            raise DataError(f"{path}: no valid (finite) points")
+        labels = None if labels is None else labels[valid].astype(np.int64)
+        if not np.all(np.isfinite(pts)):
+            raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
         stream = SensorStream(
             name=path.stem, points=pts, point_colors=colors, metadata={"path": str(path), "dropped_invalid": dropped}
         )

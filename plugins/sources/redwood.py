@@ -7,7 +7,6 @@ from an Open3D ``camera*.json`` (column-major ``intrinsic_matrix``), else the Pr
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,16 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_rgb, write_redwood
+from stratamap.core.io import brief
+from stratamap.core.io.rgbd import (
+    check_depth_scale,
+    read_depth,
+    read_open3d_camera,
+    read_rgb,
+    read_text_lines,
+    rigid_pose,
+    write_redwood,
+)
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
@@ -33,20 +41,29 @@ class RedwoodConfig(SequenceConfig):
 
 
 def read_log(path: Path) -> dict[int, np.ndarray]:
-    """Redwood/Open3D .log: per frame a line 'id id frame_number' then four matrix rows."""
-    lines = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
+    """Redwood/Open3D .log: per frame a line 'id id frame_number' then four matrix rows; poses in file order,
+    keyed by frame id, which must increase (a repeated or decreasing id is an error, not a silent overwrite)."""
+    lines = [ln.split() for ln in read_text_lines(path) if ln.strip()]
+    if not lines:
+        raise DataError(f"{path}: empty; a .log file has 5 lines per pose (an 'id id frame' line and 4 matrix rows)")
     if len(lines) % 5:
-        raise DataError(f"{path}: {len(lines)} non-empty lines; a .log file has 5 lines per pose")
-    poses = {}
+        raise DataError(f"{path}: {len(lines)} non-empty lines; a .log file has 5 lines per pose (cut short?)")
+    poses: dict[int, np.ndarray] = {}
+    last = None
     for k in range(0, len(lines), 5):
+        entry = k // 5 + 1
         try:
-            frame = int(lines[k][2]) if len(lines[k]) >= 3 else k // 5
-            mat = np.array([[float(v) for v in row] for row in lines[k + 1 : k + 5]])
+            frame = int(lines[k][0])
+            rows = [[float(v) for v in row] for row in lines[k + 1 : k + 5]]
         except ValueError as exc:
-            raise DataError(f"{path}: entry {k // 5 + 1} is malformed ({exc})") from exc
-        if mat.shape != (4, 4) or not np.all(np.isfinite(mat)):
-            raise DataError(f"{path}: entry {k // 5 + 1} is not a 4x4 matrix")
-        poses[frame] = mat
+            raise DataError(f"{path}: entry {entry} is malformed ({brief(exc)})") from exc
+        if len(lines[k]) != 3 or any(len(r) != 4 for r in rows):
+            raise DataError(f"{path}: entry {entry}: expected an 'id id frame' line and four rows of 4 numbers")
+        if last is not None and frame <= last:
+            kind = "repeats" if frame == last else "goes back"
+            raise DataError(f"{path}: entry {entry}: frame id {frame} {kind} after {last}; frame ids must increase")
+        poses[frame] = rigid_pose(rows, f"{path}: entry {entry}")
+        last = frame
     return poses
 
 
@@ -72,12 +89,7 @@ class RedwoodSource(SequenceSource[RedwoodConfig]):
         intr = PRIMESENSE
         cams = sorted(root.glob("camera*.json"))
         if cams:
-            try:
-                cam = json.loads(cams[0].read_text())
-                K = np.array(cam["intrinsic_matrix"], float).reshape(3, 3).T  # Open3D stores column-major
-                intr = CameraIntrinsics(int(cam["width"]), int(cam["height"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
-            except (KeyError, ValueError, json.JSONDecodeError) as exc:
-                raise DataError(f"{cams[0]}: expected width, height and a 9-value intrinsic_matrix ({exc!r})") from exc
+            intr = read_open3d_camera(cams[0])
         else:
             self.warn(f"{root}: no camera*.json; using PrimeSense intrinsics (fx = fy = 525)")
         idx = select(list(range(len(colors))), cfg.stride, cfg.max_frames)

@@ -17,14 +17,17 @@ from typing import Any
 
 import numpy as np
 from pydantic import Field
-from scipy.spatial.transform import Rotation
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.io.rgbd import associate
+from stratamap.core.io import brief
+from stratamap.core.io.rgbd import associate, check_depth_scale, intrinsics_from
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.groundtruth import GroundTruth
-from stratamap.core.map.sensors import CameraIntrinsics, LidarScan, SensorStream
+from stratamap.core.map.sensors import LidarScan, SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
+
+rotations = lazy_module("scipy.spatial.transform")
 
 IMAGE = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
 INFO = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
@@ -68,23 +71,46 @@ def stamp_of(msg: Any) -> float:
     return float(st.sec) + float(getattr(st, "nanosec", getattr(st, "nsec", 0))) * 1e-9
 
 
+def _where(topic: str, msg: Any) -> str:
+    try:
+        return f"{topic} at t={stamp_of(msg):.6f}"
+    except Exception:  # a message without a usable header
+        return topic
+
+
 def image_array(msg: Any, topic: str) -> np.ndarray:
+    """The image of a ``sensor_msgs/Image``: depth in metres (16UC1 millimetres or 32FC1 metres), color as
+    8-bit RGB; a size, step or data length that disagree is a DataError naming the topic and stamp."""
     enc = msg.encoding
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    h, w = int(msg.height), int(msg.width)
-    if enc in ("16UC1", "mono16"):
-        arr = data.view(">u2" if msg.is_bigendian else "<u2").reshape(h, msg.step // 2)[:, :w]
-        return arr.astype(np.float32) / 1000.0
-    if enc == "32FC1":
-        arr = data.view(">f4" if msg.is_bigendian else "<f4").reshape(h, msg.step // 4)[:, :w].astype(np.float32)
-        arr[~np.isfinite(arr)] = 0.0
-        return arr
-    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}.get(enc)
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "16UC1": 2, "mono16": 2, "32FC1": 4}.get(enc)
     if channels is None:
         raise DataError(
-            f"{topic}: unsupported image encoding {enc!r} (depth: 16UC1, 32FC1; color: {sorted(COLOR_ENCODINGS)})"
+            f"{_where(topic, msg)}: unsupported image encoding {enc!r} (depth: 16UC1, 32FC1; color: "
+            f"{', '.join(sorted(COLOR_ENCODINGS))})"
         )
-    arr = data.reshape(h, msg.step)[:, : w * channels].reshape(h, w, channels)
+    row = w * channels  # bytes of pixels per row
+    if h <= 0 or w <= 0 or step < row or len(data) != h * step:
+        raise DataError(
+            f"{_where(topic, msg)}: a {w}x{h} {enc} image with step {step} needs {h * max(step, row)} bytes and a step "
+            f"of at least {row}; the message holds {len(data)} bytes"
+        )
+    rows = data.reshape(h, step)[:, :row]
+    if enc in ("16UC1", "mono16"):
+        arr = np.ascontiguousarray(rows).view(">u2" if msg.is_bigendian else "<u2")
+        return arr.astype(np.float32) / 1000.0
+    if enc == "32FC1":
+        arr = np.ascontiguousarray(rows).view(">f4" if msg.is_bigendian else "<f4").astype(np.float32)
+        arr[~np.isfinite(arr) | (arr < 0)] = 0.0
+        valid = arr[arr > 0]
+        if valid.size and np.median(valid) > 100:
+            raise DataError(
+                f"{_where(topic, msg)}: 32FC1 depth with median {np.median(valid):.0f}: looks like millimetres; 32FC1 "
+                "depth is in metres (16UC1 is millimetres)"
+            )
+        return arr
+    arr = rows.reshape(h, w, channels)
     if enc.startswith("bgr"):
         arr = arr[..., [2, 1, 0]]
     elif enc == "mono8":
@@ -93,28 +119,50 @@ def image_array(msg: Any, topic: str) -> np.ndarray:
 
 
 def cloud_array(msg: Any, topic: str) -> np.ndarray:
+    """Finite x, y, z of a ``sensor_msgs/PointCloud2`` (NaN marks no return); fields, offsets and the data
+    length are checked against ``point_step``, ``width`` and ``height``."""
     fields = {f.name: f for f in msg.fields}
+    where = _where(topic, msg)
     if not {"x", "y", "z"} <= set(fields):
-        raise DataError(f"{topic}: PointCloud2 without x, y, z fields (has {sorted(fields)})")
+        raise DataError(f"{where}: PointCloud2 without x, y, z fields (has {sorted(fields)})")
+    step, n = int(msg.point_step), int(msg.width) * int(msg.height)
+    for k in "xyz":
+        f = fields[k]
+        if f.datatype not in PC2_TYPES:
+            raise DataError(f"{where}: field {k!r} has datatype {f.datatype}; expected 1..8 (INT8 .. FLOAT64)")
+        if f.offset < 0 or f.offset + np.dtype(PC2_TYPES[f.datatype]).itemsize > step:
+            raise DataError(f"{where}: field {k!r} at offset {f.offset} does not fit in point_step {step}")
+    if n < 0 or len(msg.data) < n * step:
+        raise DataError(
+            f"{where}: {msg.width}x{msg.height} points of {step} bytes need {n * step} bytes; the message holds "
+            f"{len(msg.data)}"
+        )
     endian = ">" if msg.is_bigendian else "<"
     dtype = np.dtype(
         {
             "names": ["x", "y", "z"],
             "formats": [np.dtype(PC2_TYPES[fields[k].datatype]).newbyteorder(endian) for k in "xyz"],
             "offsets": [fields[k].offset for k in "xyz"],
-            "itemsize": msg.point_step,
+            "itemsize": step,
         }
     )
-    raw = np.frombuffer(bytes(msg.data), dtype=dtype, count=int(msg.width) * int(msg.height))
+    raw = np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
     pts = np.stack([raw["x"], raw["y"], raw["z"]], 1).astype(np.float64)
     return pts[np.all(np.isfinite(pts), axis=1)]
 
 
 def transform_matrix(tf: Any) -> np.ndarray:
     t, q = tf.transform.translation, tf.transform.rotation
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    trans = np.array([t.x, t.y, t.z], dtype=np.float64)
+    if not np.all(np.isfinite(quat)) or not np.all(np.isfinite(trans)) or np.linalg.norm(quat) < 1e-6:
+        raise DataError(
+            f"tf {tf.header.frame_id!r} -> {tf.child_frame_id!r}: not a valid transform (translation {trans.tolist()}, "
+            f"quaternion {quat.tolist()})"
+        )
     pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    pose[:3, 3] = [t.x, t.y, t.z]
+    pose[:3, :3] = rotations.Rotation.from_quat(quat / np.linalg.norm(quat)).as_matrix()
+    pose[:3, 3] = trans
     return pose
 
 
@@ -183,13 +231,13 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             reader = AnyReader([path], default_typestore=typestore)
             reader.open()
         except Exception as exc:  # rosbags raises several reader errors
-            raise DataError(f"{path}: cannot open as a ROS 1 or ROS 2 bag ({exc})") from exc
+            raise DataError(f"{path}: cannot open as a ROS 1 or ROS 2 bag ({brief(exc, True)})") from exc
+        by_type: dict[str, list[str]] = {}
+        images, infos, clouds = [], [], []
+        edges: dict[str, list[tuple[float, str, np.ndarray]]] = {}
         try:
-            by_type: dict[str, list[str]] = {}
             for c in reader.connections:
                 by_type.setdefault(c.msgtype, []).append(c.topic)
-            images, infos, clouds = [], [], []
-            edges: dict[str, list[tuple[float, str, np.ndarray]]] = {}
             wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | INFO | CLOUD | TF}
             conns = [c for c in reader.connections if c.topic in wanted]
             for conn, _, raw in reader.messages(connections=conns):
@@ -207,11 +255,46 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                     infos.append((conn.topic, msg))
                 elif conn.msgtype in CLOUD:
                     clouds.append((conn.topic, stamp_of(msg), msg))
+        except DataError as exc:
+            raise DataError(f"{path}: {brief(exc)}") from exc
+        except Exception as exc:  # corrupt chunks, records or messages: rosbags and its deserializers raise many types
+            raise DataError(f"{path}: corrupt bag: cannot read its messages ({brief(exc, True)})") from exc
         finally:
-            reader.close()
+            try:
+                reader.close()
+            except Exception:  # closing a half-read corrupt bag may fail again; the first error is the one to report
+                pass
         for v in edges.values():
             v.sort(key=lambda e: e[0])
+        topics = {t: m for m, ts in by_type.items() for t in ts}
+        for param, kinds in (
+            ("depth_topic", IMAGE),
+            ("color_topic", IMAGE),
+            ("camera_info_topic", INFO),
+            ("pointcloud_topic", CLOUD),
+        ):
+            topic = getattr(cfg, param)
+            if topic is None:
+                continue
+            if topic not in topics:
+                raise DataError(f"{path}: no topic {topic!r} (asked for by {param}); the bag has {sorted(topics)}")
+            if topics[topic] not in kinds:
+                raise DataError(
+                    f"{path}: topic {topic!r} ({param}) carries {topics[topic]}, expected {sorted(kinds)[0]}"
+                )
         return {"types": by_type, "images": images, "infos": infos, "clouds": clouds, "tf": TfBuffer(edges), "cfg": cfg}
+
+    @staticmethod
+    def _by_stamp(path: Path, topic: str, msgs: list[tuple[float, Any]]) -> list[tuple[float, Any]]:
+        """Messages of one topic in stamp order; two messages with one stamp are an error, not a silent pick."""
+        msgs = sorted(msgs, key=lambda m: m[0])
+        for (a, _), (b, _) in zip(msgs, msgs[1:]):
+            if a == b:
+                raise DataError(
+                    f"{path}: two messages on {topic!r} have the same header stamp {a:.9f} (duplicated messages, or a "
+                    "driver that does not stamp its images?)"
+                )
+        return msgs
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
@@ -233,34 +316,64 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             return self._load_lidar(path, bag, tf, world)
         if depth_topic not in encodings:
             raise DataError(f"{path}: no messages on depth topic {depth_topic!r}; image topics: {sorted(encodings)}")
+        if encodings[depth_topic] not in DEPTH_ENCODINGS:
+            raise DataError(
+                f"{path}: depth topic {depth_topic!r} has encoding {encodings[depth_topic]!r}; expected "
+                f"{', '.join(sorted(DEPTH_ENCODINGS))}"
+            )
         if color_topic is None:
             raise DataError(f"{path}: no color image topic (rgb8/bgr8/...) to pair with {depth_topic!r}")
+        if color_topic not in encodings:
+            raise DataError(f"{path}: no messages on color topic {color_topic!r}; image topics: {sorted(encodings)}")
         infos = bag["infos"]
         info_topic = cfg.camera_info_topic or (infos[0][0] if infos else None)
         info = next((m for t, m in infos if t == info_topic), None)
         if info is None:
-            raise DataError(f"{path}: no CameraInfo message (topics: {sorted(bag['types'])}); intrinsics are needed")
-        k = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=float).reshape(3, 3)  # ROS 2 / ROS 1 field names
-        intr = CameraIntrinsics(int(info.width), int(info.height), k[0, 0], k[1, 1], k[0, 2], k[1, 2])
-        depth_msgs = [(t, m) for tp, t, m in images if tp == depth_topic]
-        color_msgs = [(t, m) for tp, t, m in images if tp == color_topic]
+            raise DataError(
+                f"{path}: no CameraInfo message{f' on {info_topic!r}' if info_topic else ''} (topics: "
+                f"{sorted(t for ts in bag['types'].values() for t in ts)}); intrinsics are needed"
+            )
+        try:
+            k = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=float).reshape(3, 3)  # ROS 2 / ROS 1 names
+        except ValueError:
+            raise DataError(f"{path}: CameraInfo on {info_topic!r} has no 3x3 K matrix") from None
+        intr = intrinsics_from(
+            {"width": info.width, "height": info.height, "fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2]},
+            f"{path}: CameraInfo on {info_topic!r}",
+        )
+        depth_msgs = self._by_stamp(path, depth_topic, [(t, m) for tp, t, m in images if tp == depth_topic])
+        color_msgs = self._by_stamp(path, color_topic, [(t, m) for tp, t, m in images if tp == color_topic])
         pairs = associate(
             np.array([t for t, _ in depth_msgs]), np.array([t for t, _ in color_msgs]), cfg.sync_tolerance
         )
         if not pairs:
             raise DataError(f"{path}: no depth/color pair within {cfg.sync_tolerance} s")
+        if len(pairs) < 0.5 * len(depth_msgs):
+            self.warn(
+                f"only {len(pairs)} of {len(depth_msgs)} depth images have a color image within {cfg.sync_tolerance} s"
+            )
         pairs = [pairs[i] for i in select(list(range(len(pairs))), cfg.stride, cfg.max_frames)]
         times = [depth_msgs[d][0] for d, _ in pairs]
         shape = (intr.height, intr.width)
 
         def read(k: int):
             d_msg, c_msg = depth_msgs[pairs[k][0]][1], color_msgs[pairs[k][1]][1]
-            depth = image_array(d_msg, depth_topic)
-            rgb = image_array(c_msg, color_topic)
+            try:
+                depth = image_array(d_msg, depth_topic)
+                rgb = image_array(c_msg, color_topic)
+            except DataError as exc:
+                raise DataError(f"{path}: {exc}") from exc
             if depth.shape != shape or rgb.shape[:2] != shape:
-                raise DataError(f"{path}: image size {depth.shape} / {rgb.shape[:2]} differs from CameraInfo {shape}")
+                raise DataError(
+                    f"{path}: image size {depth.shape[1]}x{depth.shape[0]} (depth) / {rgb.shape[1]}x{rgb.shape[0]} "
+                    f"(color) differs from CameraInfo's {shape[1]}x{shape[0]} (image size mismatch)"
+                )
             return rgb, depth
 
+        first_depth = read(0)[1]
+        check_depth_scale(
+            first_depth, Path(f"{path}:{depth_topic}"), 1000.0 if encodings[depth_topic] != "32FC1" else 1.0
+        )
         frame_id = depth_msgs[0][1].header.frame_id.lstrip("/")
         poses = [tf.lookup(world, frame_id, t) for t in times] if tf.edges else [None] * len(times)
         frames = PosedFrames(times, read, poses)
@@ -287,11 +400,21 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         sweeps = [(t, m) for tp, t, m in clouds if tp == topic]
         if not sweeps:
             raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {sorted(bag['types'])})")
+        sweeps = self._by_stamp(path, topic, sweeps)  # type: ignore[arg-type]
         sweeps = [sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames)]
         scans = []
         for t, msg in sweeps:
             pose = tf.lookup(world, msg.header.frame_id.lstrip("/"), t) if tf.edges else None
-            scans.append(LidarScan(t, cloud_array(msg, topic), pose))
+            try:
+                points = cloud_array(msg, topic)  # type: ignore[arg-type]
+            except DataError as exc:
+                raise DataError(f"{path}: {exc}") from exc
+            scans.append(LidarScan(t, points, pose))
+        empty = sum(len(s.points) == 0 for s in scans)
+        if empty == len(scans):
+            raise DataError(f"{path}: the PointCloud2 messages on {topic!r} hold no finite points")
+        if empty:
+            self.warn(f"{path}: {empty} of {len(scans)} sweeps on {topic!r} hold no finite points")
         if any(s.pose is None for s in scans):
             if cfg.odometry == "never":
                 raise DataError(f"{path}: LiDAR sweeps without tf poses and odometry is 'never'")

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,18 @@ from pydantic import Field
 
 from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.io.rgbd import check_depth_scale, read_depth, read_image, read_rgb, write_scannet
+from stratamap.core.io import brief
+from stratamap.core.io.rgbd import (
+    check_depth_scale,
+    intrinsics_from,
+    read_depth,
+    read_image,
+    read_rgb,
+    rigid_pose,
+    write_scannet,
+)
 from stratamap.core.map.groundtruth import GroundTruth
-from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
+from stratamap.core.map.sensors import SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 
@@ -36,9 +46,13 @@ def read_matrix(path: Path) -> np.ndarray:
     if not path.is_file():
         raise DataError(f"{path}: file missing")
     try:
-        mat = np.loadtxt(path, dtype=float)
-    except ValueError as exc:
-        raise DataError(f"{path}: not a whitespace-separated matrix ({exc})") from exc
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # an empty file: the shape check below says so
+            mat = np.loadtxt(path, dtype=float, ndmin=2)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not a whitespace-separated matrix ({brief(exc)})") from exc
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be read ({brief(exc)})") from exc
     if mat.shape != (4, 4):
         raise DataError(f"{path}: expected a 4x4 matrix, got shape {mat.shape}")
     return mat
@@ -64,9 +78,23 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
         if not depths:
             raise DataError(f"{root}/depth: no .png depth images")
         numbers = [_number(p) for p in depths]
+        repeated = sorted({n for a, n in zip(numbers, numbers[1:]) if a == n})
+        if repeated:
+            raise DataError(f"{root}/depth: frame number {repeated[0]} names two depth images (e.g. 7.png and 07.png)")
         first = read_image(depths[0])
-        K = read_matrix(root / "intrinsic" / "intrinsic_depth.txt")
-        intr = CameraIntrinsics(first.shape[1], first.shape[0], K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+        K_file = root / "intrinsic" / "intrinsic_depth.txt"
+        K = read_matrix(K_file)
+        intr = intrinsics_from(
+            {
+                "width": first.shape[1],
+                "height": first.shape[0],
+                "fx": K[0, 0],
+                "fy": K[1, 1],
+                "cx": K[0, 2],
+                "cy": K[1, 2],
+            },
+            str(K_file),
+        )
         idx = select(list(range(len(depths))), cfg.stride, cfg.max_frames)
         shape = (intr.height, intr.width)
         check_depth_scale(read_depth(depths[idx[0]], cfg.depth_scale, shape), depths[idx[0]], cfg.depth_scale)
@@ -82,7 +110,7 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
                 poses.append(None)  # ScanNet writes -inf when tracking was lost
                 lost += 1
             else:
-                poses.append(mat)
+                poses.append(rigid_pose(mat, str(pose_file)))
         if lost:
             self.warn(f"{lost} frames have invalid (-inf) poses in pose/; they use odometry")
 
@@ -91,7 +119,7 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
             color = root / "color" / f"{n}.jpg"
             if not color.is_file():
                 color = root / "color" / f"{n}.png"
-            return read_rgb(color, shape), read_depth(depths[idx[k]], cfg.depth_scale, shape)
+            return read_rgb(color, shape, resample=True), read_depth(depths[idx[k]], cfg.depth_scale, shape)
 
         frames = PosedFrames([numbers[i] / cfg.frame_rate for i in idx], read, poses)
         stream = SensorStream(

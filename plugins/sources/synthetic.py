@@ -12,6 +12,8 @@ from stratamap.core.synthetic import SceneSpec, generate_sequence
 
 
 class SyntheticConfig(StageConfig):
+    path_fields = ("scene_file",)
+
     scene: SceneSpec = Field(
         default_factory=SceneSpec, description="The procedural scene: type, objects, seed, sensors, trajectory, noise."
     )

@@ -9,7 +9,6 @@ A ``gt/`` folder written by ``stratamap synth`` is loaded as ground truth (label
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +21,10 @@ from stratamap.core.io.rgbd import (
     associate,
     check_depth_scale,
     interpolate_poses,
+    intrinsics_from,
     parse_tum_poses,
     read_depth,
+    read_json,
     read_laser_file,
     read_rgb,
     read_timestamped_list,
@@ -81,20 +82,14 @@ class TUMSource(SequenceSource[TUMConfig]):
         cfg = self.config
         cam_file = root / "camera.json"
         if cam_file.is_file():
-            try:
-                cam = json.loads(cam_file.read_text())
-                intr = CameraIntrinsics.from_dict(cam)
-            except (json.JSONDecodeError, KeyError, ValueError, TypeError) as exc:
-                raise DataError(
-                    f"{cam_file}: expected keys width, height, fx, fy, cx, cy, depth_scale ({exc!r})"
-                ) from exc
-            scale = cfg.depth_scale or float(cam.get("depth_scale", TUM_DEFAULT["depth_scale"]))
-            return intr, scale
+            cam = read_json(cam_file)
+            intr = intrinsics_from(cam, str(cam_file))
+            scale = cfg.depth_scale or cam.get("depth_scale", TUM_DEFAULT["depth_scale"])
+            if isinstance(scale, bool) or not isinstance(scale, int | float) or not 0 < scale < float("inf"):
+                raise DataError(f"{cam_file}: depth_scale must be a positive number (units per metre), got {scale!r}")
+            return intr, float(scale)
         if cfg.intrinsics is not None:
-            try:
-                return CameraIntrinsics.from_dict(cfg.intrinsics), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
-            except (KeyError, ValueError) as exc:
-                raise DataError(f"intrinsics: expected width, height, fx, fy, cx, cy ({exc!r})") from exc
+            return intrinsics_from(cfg.intrinsics, "intrinsics"), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
         self.warn(f"{root}: no camera.json and no intrinsics given; using the TUM Freiburg-1 defaults")
         return CameraIntrinsics.from_dict(TUM_DEFAULT), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
 
@@ -102,8 +97,8 @@ class TUMSource(SequenceSource[TUMConfig]):
         cfg = self.config
         root = self.sequence_folder()
         intr, scale = self._intrinsics(root)
-        rgb_rows = read_timestamped_list(root / "rgb.txt")
-        depth_rows = read_timestamped_list(root / "depth.txt")
+        rgb_rows = read_timestamped_list(root / "rgb.txt", 1, "an image file name")
+        depth_rows = read_timestamped_list(root / "depth.txt", 1, "an image file name")
         rgb_t = np.array([t for t, _ in rgb_rows])
         depth_t = np.array([t for t, _ in depth_rows])
         pairs = associate(depth_t, rgb_t, cfg.association_tolerance)
@@ -151,7 +146,7 @@ class TUMSource(SequenceSource[TUMConfig]):
         gt = None
         if cfg.load_ground_truth and (root / "gt").is_dir():
             stamps = [Path(f).stem for f in rgb_files]
-            gt = load_ground_truth(root / "gt", stamps)
+            gt = load_ground_truth(root / "gt", stamps, shape)
             traj = root / "gt" / "trajectory.txt"
             if traj.is_file():
                 tt, tp = parse_tum_poses(traj)

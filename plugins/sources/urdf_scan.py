@@ -33,6 +33,8 @@ from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL1_CLASS, LEVEL2,
 
 
 class UrdfScanConfig(StageConfig):
+    path_fields = ("path",)
+
     path: str | None = Field(
         default=None, description="URDF file of the scene (meshes resolved via package:// and the file's folders)."
     )

@@ -27,6 +27,7 @@ CORE_RANKS = {
     "atomic": 0,
     "paths": 0,
     "documents": 0,
+    "lazy": 0,
     "geometry": 1,
     "map": 2,
     "io": 3,
@@ -94,6 +95,7 @@ def test_core_dependencies_point_down():
         )
         if me is None:
             continue
+        assert me in CORE_RANKS, f"core/{me} has no rank: place it in CORE_RANKS (and docs/architecture.md)"
         for line, name in _imports(path):
             other = _core_part(name)
             if other in CORE_RANKS and CORE_RANKS[other] > CORE_RANKS[me]:

@@ -9,9 +9,10 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
-from stratamap.core.evaluation.bench import run_bench
+from stratamap.core.evaluation.bench import run_bench, safe
 from stratamap.core.evaluation.bench_report import records_equal
 from tests.core.evaluation.test_bench import tiny_bench
 
@@ -49,6 +50,20 @@ def test_bench_writes_records_tables_and_figures_and_skips_done_runs(local_run):
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["scene", "variant"] and "detection.f1" in header
     assert len(list(out.glob("*.png"))) >= 2 and (out / "navigation.png").is_file()
+    # The first results.md already links every figure the run drew.
+    figures = sorted(p.name for p in out.glob("*.png"))
+    assert "## Figures" in md and all(f"![{name}]({name})" in md for name in figures), md
+    # Planned paths stay inside the room's walls (the outermost true obstacles).
+    rec = by_variant["bbox"]
+    grids = np.load(out / "runs" / safe(rec["scene"]) / "bbox" / "navigation.npz")
+    rows, cols = np.nonzero(grids["truth"] == 100)
+    walls_lo = grids["truth_origin"][:2] + (np.array([cols.min(), rows.min()]) + 0.5) * grids["truth_resolution"]
+    walls_hi = grids["truth_origin"][:2] + (np.array([cols.max(), rows.max()]) + 0.5) * grids["truth_resolution"]
+    assert rec["details"]["navigation"]
+    for path in rec["details"]["navigation"]:
+        for key in ("laser_only", "multimap"):
+            xy = np.asarray(path[key])
+            assert (xy > walls_lo).all() and (xy < walls_hi).all(), (key, xy.min(0), xy.max(0), walls_lo, walls_hi)
     again = run_bench(config, out, progress=False)
     assert again["ran"] == 0 and again["records"] == 2
 

@@ -38,6 +38,7 @@ def scene_run(request, tmp_path_factory):
     }
     path = out / "pipeline.yaml"
     path.write_text(yaml.safe_dump(config))
+    out = out / "run"  # a run's output folder holds nothing but the run
     report = Pipeline(load_pipeline(path)).run(out)
     return request.param, out, report
 

@@ -15,13 +15,13 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-import open3d.core as o3c
 from pydantic import Field, PositiveFloat, PositiveInt
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.instances import instances_from_semantics
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
@@ -35,6 +35,8 @@ from stratamap.plugins.mappers.tsdf.mask_instances import (
     mask_instances,
 )
 from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
+
+o3c = lazy_module("open3d.core")
 
 
 def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size: float, depth_max: float) -> int:

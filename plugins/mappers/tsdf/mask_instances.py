@@ -57,14 +57,16 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
-from scipy.cluster.vq import kmeans2
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS, cell_keys
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.priors import NOT_STACKED, class_max_lengths
 from stratamap.core.map.vocabulary import Vocabulary
+
+vq = lazy_module("scipy.cluster.vq")
+sparse = lazy_module("scipy.sparse")
+csgraph = lazy_module("scipy.sparse.csgraph")
+spatial = lazy_module("scipy.spatial")
 
 _OFFSET = np.int64(1) << 20  # voxel coordinates within +-2^20 voxels (20 km at 2 cm) pack into one int64
 _BITS = 21
@@ -188,11 +190,11 @@ def connected_pieces(
     ``min_points`` (one number, or one per class id) join (with their class) the neighbouring
     piece they share most links with."""
     n = len(points)
-    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    pairs = spatial.cKDTree(points).query_pairs(link, output_type="ndarray")
     a, b = pairs[:, 0], pairs[:, 1]
     same = (point_class[a] == point_class[b]) & (group[a] == group[b])
-    graph = coo_matrix((np.ones(int(same.sum())), (a[same], b[same])), shape=(n, n))
-    count, piece = connected_components(graph, directed=False)
+    graph = sparse.coo_matrix((np.ones(int(same.sum())), (a[same], b[same])), shape=(n, n))
+    count, piece = csgraph.connected_components(graph, directed=False)
     piece_class = np.zeros(count, np.int64)
     piece_class[piece] = point_class  # a piece keeps its id, and so its class, when others join it
     per_class = np.asarray(min_points)
@@ -250,7 +252,7 @@ def mask_cooccurrence(
     if count == 0 or len(obs) == 0:
         return together, apart
     uniq, inv = voxels
-    dist, nearest = cKDTree(points).query(key_voxels(uniq) * voxel_size, distance_upper_bound=1.5 * voxel_size)
+    dist, nearest = spatial.cKDTree(points).query(key_voxels(uniq) * voxel_size, distance_upper_bound=1.5 * voxel_size)
     piece_of_key = np.where(np.isfinite(dist), piece[np.minimum(nearest, len(piece) - 1)], -1)
     start = 0
     for keys, cls, inst in zip(obs.keys, obs.classes, obs.instances, strict=True):
@@ -289,7 +291,7 @@ def piece_proximity(points: np.ndarray, piece: np.ndarray, count: int, gap: floa
         return near
     _, first = np.unique(cell_keys(points[use], gap / 4) * count + piece[use], return_index=True)
     owner = piece[use][first]
-    pairs = cKDTree(points[use][first]).query_pairs(gap, output_type="ndarray")
+    pairs = spatial.cKDTree(points[use][first]).query_pairs(gap, output_type="ndarray")
     a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
     near[a[a != b], b[a != b]] = True
     return near | near.T
@@ -409,7 +411,9 @@ def mask_instances(
             close = np.zeros(len(cand), bool)
             for h in np.unique(target):
                 mine = target == h
-                dist, _ = cKDTree(points[owner == h]).query(points[cand[mine]], distance_upper_bound=params.near_gap)
+                dist, _ = spatial.cKDTree(points[owner == h]).query(
+                    points[cand[mine]], distance_upper_bound=params.near_gap
+                )
                 close[mine] = np.isfinite(dist)
             ok[np.flatnonzero(ok)[~close]] = False
         owner[idx[ok]] = host[pos[ok]]
@@ -567,7 +571,7 @@ def split_oversized(
         seeds = np.percentile(along, 100 * (np.arange(parts) + 0.5) / parts)[:, None]
         with warnings.catch_warnings():  # an empty part is a failed split, caught by the balance test below
             warnings.simplefilter("ignore", UserWarning)
-            _, part = kmeans2(along[:, None], seeds, minit="matrix")
+            _, part = vq.kmeans2(along[:, None], seeds, minit="matrix")
         sizes = np.bincount(part, minlength=parts)
         if sizes.min() < balance * sizes.max():
             continue

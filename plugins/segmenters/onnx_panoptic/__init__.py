@@ -50,6 +50,8 @@ COCO_TO_MAP = {
 
 
 class ONNXPanopticConfig(StageConfig):
+    path_fields = ("model",)
+
     model: str | None = Field(
         default=None, description="ONNX file; default: the shipped panoptic_small.onnx (synthetic-trained)."
     )

@@ -22,9 +22,12 @@ with class ids already mapped to the map's vocabulary (unmapped classes become 0
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+
+from stratamap.core.lazy import lazy_module
+
+ndimage = lazy_module("scipy.ndimage")
+sparse = lazy_module("scipy.sparse")
+csgraph = lazy_module("scipy.sparse.csgraph")
 
 
 def _paste(class_ids, instance_ids, scores, masks, labels, confidences) -> None:
@@ -267,8 +270,8 @@ def merge_depth_continuous(
     first, second = joined >> 32, joined & 0xFFFFFFFF
     if bridges == "smaller":
         first, second = _bridged_pairs(instance_ids, np.asarray(class_ids), first, second, size)
-    graph = coo_matrix((np.ones(len(first)), (first, second)), shape=(size, size))
-    component = connected_components(graph, directed=False)[1]
+    graph = sparse.coo_matrix((np.ones(len(first)), (first, second)), shape=(size, size))
+    component = csgraph.connected_components(graph, directed=False)[1]
     # Each merged group keeps its smallest id (0, unlabelled, is never joined).
     roots = np.full(component.max() + 1, size)
     np.minimum.at(roots, component, np.arange(size))

@@ -35,6 +35,8 @@ SHIPPED = Path(__file__).resolve().parent / "models" / "plane_crf.json"
 
 
 class PlaneCRFConfig(StageConfig):
+    path_fields = ("model",)
+
     model: str | None = Field(
         default=None, description="CRF weights (JSON); default: the shipped models/plane_crf.json."
     )

@@ -6,9 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from stratamap.core.lazy import lazy_module
 from stratamap.plugins.segmenters.plane_crf.planes import plane_axes, radius_components
+
+spatial = lazy_module("scipy.spatial")
 
 
 @dataclass
@@ -81,7 +83,7 @@ def find_fixtures(
     normal: np.ndarray,
     d: float,
     cloud: np.ndarray,
-    tree: cKDTree,
+    tree: spatial.cKDTree,
     standoff: tuple[float, float] = (0.012, 0.07),
     cluster_radius: float = 0.02,
     min_points: int = 8,

@@ -24,13 +24,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from stratamap.core.geometry.points import voxel_downsample
+from stratamap.core.lazy import lazy_module
 from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL2
 from stratamap.plugins.segmenters.plane_crf.crf import CRF, binned
 from stratamap.plugins.segmenters.plane_crf.fixtures import Fixture, find_fixtures
 from stratamap.plugins.segmenters.plane_crf.planes import boundary_points, multilod_planes, plane_axes, region_grow
+
+spatial = lazy_module("scipy.spatial")
 
 HORIZONTAL_DEG = 20.0
 
@@ -124,7 +126,7 @@ def point_labels(res: FurnitureResult) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def orient_to_viewpoints(points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
-    _, nearest = cKDTree(viewpoints).query(points)
+    _, nearest = spatial.cKDTree(viewpoints).query(points)
     flip = np.einsum("ij,ij->i", normals, viewpoints[nearest] - points) < 0
     normals = normals.copy()
     normals[flip] *= -1
@@ -158,7 +160,7 @@ def extract_regions(
             c = points[ridx].mean(0)
             d = plane.d
             if orientation == "vertical":
-                _, nearest = cKDTree(viewpoints).query(c)
+                _, nearest = spatial.cKDTree(viewpoints).query(c)
                 if n @ (viewpoints[nearest] - c) < 0:
                     n, d = -n, -d
             u, v = plane_axes(n)
@@ -253,7 +255,7 @@ L1_RELATIONS = ("hh", "vv", "h_above_v", "h_below_v", "v_below_h", "v_above_h")
 
 def region_graph(points: np.ndarray, regions: list[Region], adjacency: float = 0.06) -> tuple[np.ndarray, np.ndarray]:
     """Touching regions (closest points within ``adjacency``) and the relation of each pair."""
-    trees = [cKDTree(points[r.indices[:: max(1, len(r.indices) // 400)]]) for r in regions]
+    trees = [spatial.cKDTree(points[r.indices[:: max(1, len(r.indices) // 400)]]) for r in regions]
     lo = np.array([points[r.indices].min(0) for r in regions]).reshape(-1, 3)
     hi = np.array([points[r.indices].max(0) for r in regions]).reshape(-1, 3)
     edges, rels = [], []
@@ -518,7 +520,7 @@ def find_fronts(
     regions: list[Region],
     furniture: list[int],
     cloud: np.ndarray,
-    tree: cKDTree,
+    tree: spatial.cKDTree,
     p: FurnitureParams,
 ) -> list[FrontCandidate]:
     fronts: list[FrontCandidate] = []
@@ -614,7 +616,7 @@ def label_regions(
         if res.level1[i] == LEVEL1.index("furniture") and regions[i].orientation == "vertical"
     ]
     cloud = np.asarray(cloud, float)
-    res.fronts = find_fronts(points, regions, furniture, cloud, cKDTree(cloud), p)
+    res.fronts = find_fronts(points, regions, furniture, cloud, spatial.cKDTree(cloud), p)
     res.front_of[:] = -1
     for f in res.fronts:
         res.front_of[f.indices] = f.id

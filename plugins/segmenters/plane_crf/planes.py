@@ -13,9 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from stratamap.core.geometry.points import cell_keys
+from stratamap.core.lazy import lazy_module
+
+spatial = lazy_module("scipy.spatial")
 
 # --------------------------------------------------------------------------------------------
 # Planes
@@ -152,7 +154,7 @@ def radius_components(points: np.ndarray, radius: float) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    pairs = spatial.cKDTree(points).query_pairs(radius, output_type="ndarray")
     n = len(points)
     graph = (
         coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -176,7 +178,7 @@ def merge_planes(
             i = parent[i]
         return i
 
-    trees = [cKDTree(points[p.indices]) for p in planes]
+    trees = [spatial.cKDTree(points[p.indices]) for p in planes]
     cos = np.cos(np.radians(merge_deg))
     for i in range(len(planes)):
         for j in range(i + 1, len(planes)):
@@ -223,7 +225,7 @@ def boundary_points(
         return np.ones(n, bool)
     u, v = plane_axes(normal)
     uv = np.stack([points @ u, points @ v], 1)
-    dist, nb = cKDTree(uv).query(uv, k=min(k + 1, n), distance_upper_bound=radius)
+    dist, nb = spatial.cKDTree(uv).query(uv, k=min(k + 1, n), distance_upper_bound=radius)
     nb = nb[:, 1:]
     valid = np.isfinite(dist[:, 1:])
     safe = np.where(valid, nb, 0)
@@ -248,6 +250,6 @@ def region_grow(points: np.ndarray, boundary: np.ndarray, radius: float) -> np.n
         return labels
     labels[inner] = radius_components(points[inner], radius)
     if boundary.any():
-        _, nearest = cKDTree(points[inner]).query(points[boundary])
+        _, nearest = spatial.cKDTree(points[inner]).query(points[boundary])
         labels[boundary] = labels[inner][nearest]
     return labels

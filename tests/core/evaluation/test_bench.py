@@ -82,3 +82,34 @@ def test_shipped_benchmarks_validate_every_run(name):
         for variant in spec.variants:
             if scene.get("variants") is None or variant.name in scene["variants"]:
                 validate(variant_document(spec, variant, scene["source"]), origin=name)
+
+
+def test_first_report_links_its_figures_and_skips_undefined_metrics(tmp_path):
+    from stratamap.core.evaluation.bench_report import write_reports
+
+    spec, _ = load_bench(tiny_bench(tmp_path))
+
+    def record(scene: str, variant: str, pq_stuff: float | None) -> dict:
+        return {
+            "scene": scene,
+            "variant": variant,
+            "seconds_total": 1.0,
+            "peak_memory_mb": 100.0,
+            "metrics": {"panoptic": {"pq": 0.6, "pq_things": 0.5, "pq_stuff": pq_stuff}},
+            "details": {"pq_by_class": {"chair": 0.5, **({} if pq_stuff is None else {"floor": pq_stuff})}},
+        }
+
+    # Scene a has no stuff segment, true or predicted: its pq_stuff is undefined (None), not 0.
+    records = [record("a", "none", None), record("b", "none", 0.8), record("a", "bbox", None), record("b", "bbox", 0.8)]
+    out = tmp_path / "out"
+    out.mkdir()
+    written = write_reports({"name": "tiny", "records": records, "skipped": []}, spec, out)
+    figures = sorted(p.name for p in out.glob("*.png"))
+    assert figures and {out / name for name in figures} <= set(written)
+    md = (out / "results.md").read_text()
+    assert "## Figures" in md and all(f"![{name}]({name})" in md for name in figures)
+    # The mean over scenes is over the scenes where pq_stuff is defined: 0.8, not (0 + 0.8) / 2.
+    assert "| pq_stuff | 0.8 ± 0 | 0.8 ± 0 |" in md
+    csv_rows = (out / "results.csv").read_text().splitlines()
+    header = csv_rows[0].split(",")
+    assert [row.split(",")[header.index("panoptic.pq_stuff")] for row in csv_rows[1:]] == ["", "0.8", "", "0.8"]

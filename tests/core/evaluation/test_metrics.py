@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from stratamap.core.evaluation.detection import average_precision, box_map
-from stratamap.core.evaluation.panoptic import frame_quality, instance_map
+from stratamap.core.evaluation.panoptic import frame_quality, instance_map, panoptic_quality
 from stratamap.core.map.layers import ObjectInstance, OrientedBox, Semantics
 from stratamap.core.map.sensors import FrameSegmentation
 from stratamap.core.map.vocabulary import Vocabulary
@@ -68,3 +68,46 @@ def test_frame_quality_miou_and_pq():
     )
     # IoU floor = 4/6, chair = 2/4.
     assert half["miou"] == pytest.approx((4 / 6 + 2 / 4) / 2)
+
+
+def test_pq_of_a_kind_no_segment_has_is_undefined_not_zero():
+    vocab = Vocabulary.default()
+    chair, table, floor = vocab.id("chair"), vocab.id("table"), vocab.id("floor")
+    # Things only, in the truth and the prediction: no stuff segment either way.
+    gt_c = np.array([chair] * 10 + [table] * 10)
+    gt_i = np.array([1] * 10 + [2] * 10)
+    res = panoptic_quality(gt_c, gt_i + 4, gt_c, gt_i, vocab)
+    assert res["pq"] == pytest.approx(1.0) and res["pq_things"] == pytest.approx(1.0)
+    assert res["pq_stuff"] is None
+    assert set(res["by_class"]) == {"chair", "table"}
+    # Stuff only: PQ of things is undefined.
+    floor_only = np.full(8, floor)
+    res = panoptic_quality(floor_only, np.zeros(8), floor_only, np.zeros(8), vocab)
+    assert res["pq_stuff"] == pytest.approx(1.0) and res["pq_things"] is None
+    # A stuff class the prediction invents counts (PQ over classes in the truth or the prediction).
+    pred_c = gt_c.copy()
+    pred_c[:3] = floor
+    res = panoptic_quality(pred_c, gt_i + 4, gt_c, gt_i, vocab)
+    assert res["pq_stuff"] == pytest.approx(0.0) and res["by_class"]["floor"]["fp"] == 1
+    # Nothing at all: every average is undefined.
+    empty = np.zeros(0, np.int64)
+    res = panoptic_quality(empty, empty, empty, empty, vocab)
+    assert res["pq"] is None and res["sq"] is None and res["pq_things"] is None and res["pq_stuff"] is None
+
+
+def test_frame_quality_without_stuff_reports_none():
+    vocab = Vocabulary.default()
+    chair = vocab.id("chair")
+    cls = np.array([[0, 0, chair, chair]] * 2, np.uint16)
+    inst = np.array([[0, 0, 1, 1]] * 2, np.int32)
+    q = frame_quality([FrameSegmentation(0, cls.copy(), inst * 3)], [FrameSegmentation(0, cls, inst)], vocab, stride=1)
+    assert q["pq_things"] == pytest.approx(1.0) and q["pq_stuff"] is None
+    assert q["miou"] == pytest.approx(1.0)
+    unknown = np.zeros((2, 4), np.uint16)
+    q = frame_quality(
+        [FrameSegmentation(0, unknown.copy(), np.zeros((2, 4), np.int32))],
+        [FrameSegmentation(0, unknown, np.zeros((2, 4), np.int32))],
+        vocab,
+        stride=1,
+    )
+    assert q["miou"] is None and q["pq"] is None

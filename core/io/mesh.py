@@ -1,0 +1,61 @@
+"""Mesh files (OBJ, PLY, STL, OFF, GLB, DAE, ...), read with trimesh and checked: a mesh that cannot be
+parsed, has no triangles, non-finite vertices or faces that index missing vertices is a :class:`DataError`
+naming the file and what was expected (a PLY is first verified against its header, as point clouds are);
+writing goes through an atomic temporary file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stratamap.core.atomic import atomic_path
+from stratamap.core.errors import DataError
+from stratamap.core.io import brief
+from stratamap.core.io.pointcloud import read_ply
+from stratamap.core.lazy import lazy_module
+
+trimesh = lazy_module("trimesh")
+
+
+def check_mesh(vertices: Any, faces: Any, where: str) -> None:
+    """Raise a DataError (``where: ...``) unless ``faces`` are (F, 3) indices into the finite (V, 3) ``vertices``."""
+    v, f = np.asarray(vertices), np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise DataError(f"{where}: vertices have shape {v.shape}, expected (V, 3)")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise DataError(f"{where}: faces have shape {f.shape}, expected (F, 3) triangles")
+    if len(f) == 0:
+        raise DataError(f"{where}: no triangles")
+    if not np.all(np.isfinite(v)):
+        raise DataError(f"{where}: {int((~np.isfinite(v)).any(axis=1).sum())} vertices are NaN or infinite")
+    if f.min() < 0 or f.max() >= len(v):
+        bad = f[(f < 0) | (f >= len(v))][0]
+        raise DataError(f"{where}: a face uses vertex index {bad}, but there are {len(v)} vertices (0..{len(v) - 1})")
+
+
+def read_mesh(path: str | Path, what: str = "mesh") -> Any:
+    """A ``trimesh.Trimesh`` (scenes are concatenated; nothing is merged or reordered), checked with
+    :func:`check_mesh`; ``what`` says in errors what the mesh is for."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: {what} file missing")
+    if path.suffix.lower() == ".ply":  # trimesh reads a cut or malformed PLY silently: check it against its header
+        read_ply(path.read_bytes(), path)
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh's loaders raise many types (IndexError, ValueError, KeyError, ...)
+        raise DataError(f"{path}: cannot be read as a {what} ({brief(exc, True)})") from exc
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise DataError(f"{path}: holds no triangle mesh (got {type(loaded).__name__}); expected a {what}")
+    check_mesh(loaded.vertices, loaded.faces, str(path))
+    return loaded
+
+
+def write_mesh(mesh: Any, path: str | Path, file_type: str | None = None) -> Path:
+    """Export ``mesh`` atomically; the type follows the suffix unless ``file_type`` is given."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        mesh.export(tmp, file_type=file_type or path.suffix.lstrip(".").lower())
+    return path
