@@ -819,6 +819,14 @@ def _format_rows(cols: list[tuple[str, np.ndarray]]) -> bytes:
     return ("\n".join(lines) + "\n").encode("ascii")
 
 
+def _packed_rows(cols: list[tuple[str, np.ndarray]], types: list[np.dtype]) -> bytes:
+    """The columns as little-endian binary rows of the given types."""
+    rows = np.empty(len(cols[0][1]), np.dtype([(name, t) for (name, _), t in zip(cols, types)]))
+    for name, v in cols:
+        rows[name] = v
+    return rows.tobytes()
+
+
 def write_ply(
     path: str | Path,
     points: np.ndarray,
@@ -833,11 +841,8 @@ def write_ply(
     lines += [f"property {_ply_type(v.dtype)} {name}" for name, v in cols]
     header = ("\n".join([*lines, "end_header"]) + "\n").encode("ascii")
     if binary:
-        dt = np.dtype([(name, np.dtype(PLY_TYPES[_ply_type(v.dtype)]).newbyteorder("<")) for name, v in cols])
-        rows = np.empty(len(cols[0][1]), dt)
-        for name, v in cols:
-            rows[name] = v
-        return write_bytes(path, header + rows.tobytes())
+        types = [np.dtype(PLY_TYPES[_ply_type(v.dtype)]).newbyteorder("<") for _, v in cols]
+        return write_bytes(path, header + _packed_rows(cols, types))
     return write_bytes(path, header + _format_rows(cols))
 
 
@@ -880,11 +885,8 @@ def write_pcd(
         ]
     )
     if binary:
-        dt = np.dtype([(name, v.dtype.newbyteorder("<")) for name, v in cols])
-        rows = np.empty(n, dt)
-        for name, v in cols:
-            rows[name] = v
-        return write_bytes(path, (header + "\n").encode("ascii") + rows.tobytes())
+        types = [v.dtype.newbyteorder("<") for _, v in cols]
+        return write_bytes(path, (header + "\n").encode("ascii") + _packed_rows(cols, types))
     return write_bytes(path, (header + "\n").encode("ascii") + _format_rows(cols))
 
 
