@@ -152,7 +152,8 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
         if len(pairs)
         else coo_matrix((n, n))
     )
-    return connected_components(graph, directed=False)[1]
+    # int64: patch-pair keys are products of patch ids, which overflow int32 past 46,341 patches
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 class PatchGraph(NamedTuple):

@@ -398,3 +398,20 @@ def test_semantic_boundary_leaves_unsure_regions_unknown():
         == 1
     ).all()
     assert inst.max() == 0
+
+
+def test_patch_graph_keys_do_not_overflow_on_large_maps():
+    """A fused room map has more than 46,341 patches: patch-pair keys must not overflow int32 (they
+    did, and `clusters` crashed with 'negative axis 0 index' on a real office map)."""
+    from stratamap.plugins.segmenters.clusters import ClustersConfig, patch_graph
+
+    cfg = ClustersConfig()
+    n = 60_000  # points in a row, one per patch cell, each linked to its neighbours
+    points = np.zeros((n, 3))
+    points[:, 0] = np.arange(n) * cfg.patch_size * 1.01
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    pairs = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
+    graph = patch_graph(points, normals, pairs, cfg)
+    assert len(graph.centroid) == n and len(graph.edges) == n - 1
+    assert graph.edges.min() >= 0 and graph.edges.max() == n - 1
+    assert np.array_equal(np.sort(graph.edges, axis=1), pairs)
