@@ -5,6 +5,7 @@ are created 0600 and opened up on success)."""
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import shutil
@@ -115,7 +116,8 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
     created = [d for d in (final.parent, *final.parent.parents) if not d.exists()]
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+        _remove_stale_staging(final)
+        staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.{os.getpid()}.", suffix=".staging", dir=final.parent))
     except OSError as exc:
         _remove_empty(created)
         raise ConfigError([("", f"cannot write {final}: {exc.strerror or exc}")]) from None
@@ -146,6 +148,24 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
             shutil.rmtree(staging, ignore_errors=True)
         if not done:  # a failed write leaves no folder behind that was not there before
             _remove_empty(created)
+
+
+def _remove_stale_staging(final: Path) -> None:
+    """Staging folders of ``final`` left by writers that were killed (their process is gone)."""
+    for staging in final.parent.glob(f".{glob.escape(final.name)}.*.staging"):
+        pid = staging.name[len(final.name) + 2 :].split(".", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and staging.is_dir():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _remove_empty(folders: list[Path]) -> None:

@@ -171,3 +171,41 @@ def test_two_plugins_with_one_name_is_a_clean_error(tmp_path, command):
     )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "two completers plugins are named 'bbox'" in result.stderr
+
+
+@pytest.mark.slow
+def test_a_killed_run_leaves_the_output_intact_and_its_staging_is_swept(tmp_path):
+    """SIGKILL in the middle of a run: the output folder keeps the earlier run, and the next run
+    removes the killed run's staging folder."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    assert (
+        _stratamap(
+            "run", "configs/demo.yaml", "--out", str(out), "--set", "source.params.scene.trajectory.frames=8"
+        ).returncode
+        == 0
+    )
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stratamap.core.cli", "run", "configs/demo.yaml", "--out", str(out)],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(tmp_path.glob(".out.*.staging")):
+        time.sleep(0.02)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert list(tmp_path.glob(".out.*.staging"))
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert (
+        _stratamap(
+            "run", "configs/demo.yaml", "--out", str(out), "--set", "source.params.scene.trajectory.frames=8"
+        ).returncode
+        == 0
+    )
+    assert not list(tmp_path.glob(".out.*.staging"))
