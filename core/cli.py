@@ -170,6 +170,8 @@ def _print_report(report: dict, out: Path) -> None:
     out_console.print(f"[green]wrote[/] {out}/: " + ", ".join(p.name + ("/" if p.is_dir() else "") for p in written))
     for path in exported:
         out_console.print(f"  {path}", highlight=False)
+    if (out / "report.html").is_file():
+        out_console.print(f"[bold]report:[/] {out / 'report.html'}", highlight=False)
 
 
 @app.command()

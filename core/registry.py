@@ -46,8 +46,9 @@ EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
 #: registered in code, through the same hooks third parties implement (as pytest and datasette do);
 #: entry points are for third-party plugins only.
 BUILTIN_PACKAGE = "stratamap.plugins"
-#: The framework's own hook implementations outside plugins: the built-in metric families.
-CORE_HOOK_MODULES: tuple[str, ...] = ("stratamap.core.evaluation.metrics",)
+#: The framework's own hook implementations outside plugins: the built-in metric families and the
+#: HTML run report.
+CORE_HOOK_MODULES: tuple[str, ...] = ("stratamap.core.evaluation.metrics", "stratamap.core.evaluation.html_report")
 
 
 def builtin_modules() -> tuple[str, ...]:

@@ -111,3 +111,52 @@ def test_template_plugin_swaps_in_for_bbox(tmp_path, monkeypatch):
     assert [s["plugin"] for s in report["stages"]][4] == "hull"
     m = LayeredMap.load(tmp_path / "map")
     assert {i.completion.completer for i in m.instances} == {"hull"}
+
+
+def test_report_html_is_self_contained_and_lists_every_object(demo_run):
+    """report.html beside report.json: figures embedded (no network), one table row per object of
+    the saved map, with its class and supporter, and every stage."""
+    import re
+    from html.parser import HTMLParser
+
+    out, report = demo_run
+    page = (out / "report.html").read_text()
+    images = re.findall(r'<img[^>]*src="([^"]+)"', page)
+    assert len(images) == 3 and all(src.startswith("data:image/png;base64,") for src in images)
+    assert "http://" not in page and "https://" not in page
+
+    class Rows(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.tables, self.table, self.cell = {}, None, None
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "table":
+                self.table = self.tables.setdefault(dict(attrs).get("class"), [])
+            elif tag == "tr" and self.table is not None:
+                self.table.append([])
+            elif tag in ("td", "th"):
+                self.cell = ""
+
+        def handle_data(self, data):
+            if self.cell is not None:
+                self.cell += data
+
+        def handle_endtag(self, tag):
+            if tag in ("td", "th") and self.table is not None:
+                self.table[-1].append(self.cell)
+                self.cell = None
+            elif tag == "table":
+                self.table = None
+
+    parser = Rows()
+    parser.feed(page)
+    header, *rows = parser.tables["objects"]
+    saved = LayeredMap.load(out / "map")
+    by_id = {int(r[header.index("id")]): r for r in rows}
+    assert sorted(by_id) == sorted(inst.id for inst in saved.instances)
+    for inst in saved.instances:
+        assert by_id[inst.id][header.index("class")] == inst.class_name
+    assert {r[header.index("supporter")] for r in rows} >= {"floor"}
+    stage_rows = parser.tables["stages"][1:]
+    assert [r[1] for r in stage_rows] == [s["plugin"] for s in report["stages"]]

@@ -1,0 +1,218 @@
+"""``report.html``: a run's map for a person to look at, beside ``report.json``.
+
+One self-contained file (figures embedded as PNG, no network): the top-down map coloured by class
+and by instance with labelled boxes and the support edges of the contact graph, the occupancy
+layers side by side, a table of objects (class, points, completion model, score, scale, supporter,
+joints), metrics, stage timings and warnings. It is written by the built-in implementation of
+``stratamap_pipeline_end``, so every ``stratamap run`` with ``output.report`` on writes one.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stratamap.core.atomic import write_text
+from stratamap.core.hookspecs import hookimpl
+
+MAX_POINTS = 60_000  # drawn in the top-down views; more add nothing visible
+
+
+def _png(fig: Any) -> str:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def _drawn(draw: Any, *args: Any) -> str | None:
+    """A figure as a data URI, or why it could not be drawn: a figure never costs the run its output."""
+    try:
+        return draw(*args)
+    except Exception as exc:  # the page says what went wrong instead
+        return f"{type(exc).__name__}: {exc}"
+
+
+def _subsample(n: int) -> np.ndarray:
+    return np.arange(n) if n <= MAX_POINTS else np.linspace(0, n - 1, MAX_POINTS).astype(np.int64)
+
+
+def _supporters(data: Any) -> dict[Any, Any]:
+    graph = data.map.contact_graph
+    if graph is None:
+        return {}
+    return {child: parent for parent, child in graph.support.edges()}
+
+
+def top_down(data: Any, by: str) -> str | None:
+    """The map from above, points coloured ``by`` class or instance, object boxes labelled."""
+    geometry, semantics, instances = data.map.geometry, data.map.semantics, data.map.instances
+    if geometry is None or len(geometry) == 0:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pts = geometry.points
+    keep = _subsample(len(pts))
+    if semantics is not None and len(semantics) == len(pts):
+        ids = semantics.class_ids if by == "class" else semantics.instance_ids
+        color = plt.get_cmap("tab20")(np.asarray(ids)[keep] % 20)
+        color[np.asarray(ids)[keep] == 0] = (0.75, 0.75, 0.75, 1.0)
+    elif geometry.colors is not None:
+        color = geometry.colors[keep]
+    else:
+        color = "0.4"
+    fig, ax = plt.subplots(figsize=(7, 6))
+    order = np.argsort(pts[keep, 2])  # higher points drawn last: tabletops over floors
+    ax.scatter(
+        pts[keep][order, 0],
+        pts[keep][order, 1],
+        s=0.3,
+        c=np.asarray(color)[order] if not isinstance(color, str) else color,
+    )
+    centers = {}
+    for inst in instances or []:
+        corners = np.vstack([inst.box.corners_2d(), inst.box.corners_2d()[:1]])
+        ax.plot(corners[:, 0], corners[:, 1], color="black", linewidth=0.8)
+        centers[inst.id] = inst.box.center[:2]
+        ax.annotate(f"{inst.class_name} {inst.id}", inst.box.center[:2], fontsize=6, ha="center", va="center")
+    for child, parent in _supporters(data).items():
+        if child in centers and parent in centers:
+            (x0, y0), (x1, y1) = centers[parent], centers[child]
+            ax.annotate("", (x1, y1), (x0, y0), arrowprops={"arrowstyle": "->", "color": "tab:red", "lw": 0.8})
+    if by == "class" and semantics is not None and len(semantics) == len(pts):
+        from matplotlib.patches import Patch
+
+        present = [int(c) for c in np.unique(semantics.class_ids) if c > 0]
+        handles = [Patch(color=plt.get_cmap("tab20")(c % 20), label=semantics.vocabulary.name(c)) for c in present]
+        ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    title = "classes" if by == "class" else "instances"
+    ax.set_title(f"top-down, coloured by {title}; red arrows: supporter -> supported")
+    return _png(fig)
+
+
+def occupancy_layers(data: Any) -> str | None:
+    """The occupancy layers side by side, in world coordinates."""
+    layers = data.map.occupancy
+    if not layers:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    preferred = ["slam", "objects", "multimap"]
+    names = [n for n in preferred if n in layers] + sorted(n for n in layers if n not in preferred)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 4), squeeze=False)
+    for ax, name in zip(axes[0], names, strict=True):
+        grid = layers[name]
+        h, w = grid.data.shape
+        x0, y0 = grid.origin[0], grid.origin[1]
+        shown = np.where(grid.data < 0, 0.5, 1.0 - np.clip(grid.data, 0, 100) / 100.0)
+        extent = (x0, x0 + w * grid.resolution, y0, y0 + h * grid.resolution)
+        ax.imshow(shown, origin="lower", cmap="gray", vmin=0, vmax=1, extent=extent)
+        ax.set_title(f"{name} ({grid.resolution:g} m cells)")
+        ax.set_aspect("equal")
+    return _png(fig)
+
+
+def object_rows(data: Any) -> list[dict[str, Any]]:
+    """One row per object of the map: what a person checks first."""
+    supporters = _supporters(data)
+    rows = []
+    for inst in data.map.instances or []:
+        c = inst.completion
+        rows.append(
+            {
+                "id": inst.id,
+                "class": inst.class_name,
+                "points": len(inst.points),
+                "size (m)": " x ".join(f"{v:.2f}" for v in inst.box.size),
+                "completion": "-" if c is None else (c.model_id or c.completer),
+                "score": "-" if c is None else f"{c.score:.3g}",
+                "scale": "-" if c is None else " x ".join(f"{v:.2f}" for v in c.scale),
+                "supporter": supporters.get(inst.id, "-"),
+                "joints": "-" if c is None or not c.joints else ", ".join(f"{j.name} ({j.type})" for j in c.joints),
+            }
+        )
+    return rows
+
+
+def _table(rows: list[dict[str, Any]], cls: str) -> str:
+    if not rows:
+        return "<p>none</p>"
+    head = "".join(f"<th>{html.escape(str(k))}</th>" for k in rows[0])
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row.values()) + "</tr>" for row in rows)
+    return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def _metric_rows(metrics: dict[str, Any]) -> list[dict[str, Any]]:
+    rows = []
+    for family, values in metrics.items():
+        if isinstance(values, dict):
+            flat = {k: v for k, v in values.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+            rows.append({"family": family, "values": ", ".join(f"{k}={v:.4g}" for k, v in flat.items())})
+    return rows
+
+
+def render(data: Any, report: dict[str, Any]) -> str:
+    """The whole page."""
+    figures = [
+        ("Map by class", _drawn(top_down, data, "class")),
+        ("Map by instance", _drawn(top_down, data, "instance")),
+        ("Occupancy layers", _drawn(occupancy_layers, data)),
+    ]
+    stages = [
+        {"stage": s["name"], "plugin": s["plugin"], "kind": s["kind"], "seconds": f"{s['seconds']:.2f}"}
+        for s in report.get("stages", [])
+    ]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>stratamap run report</title>",
+        "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
+        "td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}img{max-width:100%}</style></head><body>",
+        f"<h1>stratamap run report</h1><p>pipeline: {html.escape(str(report.get('pipeline')))}; "
+        f"{report.get('frames', 0)} frames; {report.get('seconds_total', 0):.1f} s; "
+        f"layers: {html.escape(json_line(report.get('layers', {})))}</p>",
+    ]
+    for title, image in figures:
+        if image is not None and image.startswith("data:"):
+            parts.append(f'<h2>{title}</h2><figure><img class="figure" alt="{title}" src="{image}"></figure>')
+        elif image is not None:
+            parts.append(f"<h2>{title}</h2><p>not drawn: {html.escape(image)}</p>")
+    parts.append("<h2>Objects</h2>" + _table(object_rows(data), "objects"))
+    parts.append("<h2>Metrics</h2>" + _table(_metric_rows(report.get("metrics", {})), "metrics"))
+    parts.append("<h2>Stages</h2>" + _table(stages, "stages"))
+    warnings = report.get("warnings", [])
+    parts.append(
+        "<h2>Warnings</h2>"
+        + ("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>" if warnings else "<p>none</p>")
+    )
+    parts.append("</body></html>\n")
+    return "".join(parts)
+
+
+def json_line(value: Any) -> str:
+    """``{"geometry": {"points": 5}}`` as ``geometry points 5``, nested dicts flattened."""
+    if not isinstance(value, dict):
+        return str(value)
+    return "; ".join(f"{k} {json_line(v) if isinstance(v, dict) else v}" for k, v in value.items())
+
+
+@hookimpl
+def stratamap_pipeline_end(pipeline: Any, report: dict) -> None:
+    """Write report.html beside report.json (when the pipeline writes a report)."""
+    if not pipeline.validated.spec.output.report or pipeline.out_dir is None or pipeline.data is None:
+        return
+    write_text(Path(pipeline.out_dir) / "report.html", render(pipeline.data, report))
