@@ -10,6 +10,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.stratamap-installed
+BROWSER_STAMP := $(VENV)/.stratamap-browser
 OUT ?= out/demo
 
 .PHONY: demo test test-fast lint format install system-deps clean
@@ -17,7 +18,7 @@ OUT ?= out/demo
 demo: $(STAMP)
 	$(VENV)/bin/stratamap demo --out $(OUT)
 
-test: $(STAMP)
+test: $(STAMP) $(BROWSER_STAMP)
 	$(PY) -m pytest -q
 
 test-fast: $(STAMP)
@@ -44,6 +45,11 @@ $(STAMP): pyproject.toml scripts/system-deps.sh | $(PY)
 	$(PIP) install -q --upgrade pip setuptools wheel
 	$(PIP) install -q -e ".[test]"
 	touch $(STAMP)
+
+# The browser tests drive Debian's chromium (installed here, once).
+$(BROWSER_STAMP): scripts/system-deps.sh | $(STAMP)
+	bash scripts/system-deps.sh --browser
+	touch $(BROWSER_STAMP)
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

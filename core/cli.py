@@ -9,6 +9,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -93,7 +94,7 @@ class RichProgress:
 
 
 def _fail(exc: BaseException) -> None:
-    console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+    console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
 
 
@@ -130,14 +131,25 @@ def _options(
     """Layered robot maps from indoor scans."""
 
 
-def _run(config: Path, out: Path | None, overrides: list[str] | None) -> tuple[dict, Path]:
+ObserveOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--observe",
+        help="Follow the run with an observer (see `stratamap plugins`), e.g. --observe rerun; repeatable.",
+    ),
+]
+
+
+def _run(
+    config: Path, out: Path | None, overrides: list[str] | None, observe: list[str] | None = None
+) -> tuple[dict, Path]:
     """Run a pipeline file; return its report and the folder it was written to."""
     from stratamap.core.config import load_pipeline
     from stratamap.core.pipeline import Pipeline
 
     registry = _registry()
     try:
-        validated = load_pipeline(config, overrides, registry)
+        validated = load_pipeline(config, overrides, registry, observe)
     except StratamapError as exc:
         _fail(exc)
     pipeline = Pipeline(validated, registry)
@@ -171,7 +183,8 @@ def _print_report(report: dict, out: Path) -> None:
     for path in exported:
         out_console.print(f"  {path}", highlight=False)
     if (out / "report.html").is_file():
-        out_console.print(f"[bold]report:[/] {out / 'report.html'}", highlight=False)
+        # soft_wrap: a path longer than the line (80 columns when piped) stays whole, for copying
+        out_console.print(f"[bold]report:[/] {out / 'report.html'}", highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -179,9 +192,10 @@ def run(
     config: Annotated[Path, typer.Argument(help="Pipeline YAML file.")],
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (map/, export/, report.json).")] = None,
     overrides: SetOption = None,
+    observe: ObserveOption = None,
 ) -> None:
     """Run a pipeline: read, segment, map, complete, export; write map/, export/ and report.json."""
-    report, written = _run(config, out, overrides)
+    report, written = _run(config, out, overrides, observe)
     _print_report(report, written)
 
 
@@ -234,9 +248,9 @@ def validate(
 
 @app.command()
 def plugins(as_json: Annotated[bool, typer.Option("--json", help="Print a JSON list.")] = False) -> None:
-    """List installed stage plugins (kind, name, distribution, description)."""
+    """List installed stage plugins and run observers (kind, name, distribution, description)."""
     registry = _registry()
-    entries = [info.to_dict() for info in registry.all()]
+    entries = [info.to_dict() for info in [*registry.all(), *registry.observers()]]
     if as_json:
         sys.stdout.write(json.dumps(entries, indent=2) + "\n")
     else:
@@ -275,6 +289,37 @@ def demo(
         _fail(StratamapError(f"{config} not found: run the demo from a stratamap checkout"))
     report, written = _run(config, out, overrides)
     _print_report(report, written)
+
+
+@app.command()
+def view(
+    out: Annotated[Path, typer.Argument(help="A run's output folder (holding map/) or a saved map folder.")],
+    host: Annotated[str, typer.Option("--host", help="Address to serve on (0.0.0.0 to reach it from elsewhere).")] = (
+        "127.0.0.1"
+    ),
+    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port (the next free one if taken).")] = 8080,
+    max_points: Annotated[
+        int, typer.Option("--max-points", min=1, help="Geometry points drawn at most (evenly subsampled).")
+    ] = 400_000,
+) -> None:
+    """Open a saved map in a local web viewer (layers, objects, joints); runs until Ctrl-C."""
+    import time
+
+    from stratamap.core.viewer.app import open_viewer
+
+    try:
+        viewer = open_viewer(out, host=host, port=port, max_points=max_points)
+    except StratamapError as exc:
+        _fail(exc)
+    out_console.print(f"stratamap view: {viewer.url}  (Ctrl-C to stop)", highlight=False, soft_wrap=True)
+    sys.stdout.flush()
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
 
 
 models_app = typer.Typer(help="Model libraries (the CAD database completers match against).", no_args_is_help=True)
@@ -394,7 +439,7 @@ def main() -> None:
     try:
         app()
     except StratamapError as exc:
-        console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         raise SystemExit(2) from None
     except OSError as exc:
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""

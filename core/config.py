@@ -1,17 +1,18 @@
 """Pipeline files: YAML structure, ``--set`` overrides, and validation before anything runs.
 
-A pipeline file has three top-level keys::
+A pipeline file has three top-level keys, and an optional fourth::
 
     source: {plugin: synthetic, params: {frames: 40}}
     stages:
       - {plugin: oracle}
       - {plugin: tsdf, params: {voxel_size: 0.02}}
     output: {save_map: true}
+    observers: [{name: rerun, params: {path: run.rrd}}]   # follow the run (``--observe NAME`` adds one)
 
 Validation has three phases, each reporting every problem with its YAML path:
 
 1. structure (this module's pydantic models);
-2. each plugin's own ``Config`` (``stages[1].params.voxel_sise: extra field``);
+2. each plugin's (and observer's) own ``Config`` (``stages[1].params.voxel_sise: extra field``);
 3. data flow: every layer a stage requires is provided by the source or an earlier stage.
 """
 
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from stratamap.core.documents import format_path, read_mapping, validation_problems
 from stratamap.core.errors import ConfigError
-from stratamap.core.registry import PluginInfo, Registry, default_registry
+from stratamap.core.hookspecs import Observer, ObserverConfig
+from stratamap.core.registry import OBSERVERS, PluginInfo, Registry, default_registry
 from stratamap.core.stages import KINDS, Stage, StageConfig
 
 
@@ -61,6 +63,15 @@ class OutputSpec(BaseModel):
     metrics: bool = Field(default=True, description="Evaluate the map against ground truth when the source has it.")
 
 
+class ObserverSpec(BaseModel):
+    """An observer of a run: a plugin by name, and its parameters."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(description="Name of the observer plugin (see `stratamap plugins`).")
+    params: dict[str, Any] = Field(default_factory=dict, description="Parameters of the observer's Config.")
+
+
 class PipelineSpec(BaseModel):
     """A pipeline file."""
 
@@ -69,6 +80,10 @@ class PipelineSpec(BaseModel):
     source: StageSpec = Field(description="The source stage that reads sensor data.")
     stages: list[StageSpec] = Field(default_factory=list, description="Stages run in order after the source.")
     output: OutputSpec = Field(default_factory=OutputSpec, description="Output settings.")
+    observers: list[ObserverSpec] = Field(
+        default_factory=list,
+        description="Observers that follow the run through its events (e.g. rerun: a recording of it).",
+    )
 
 
 @dataclass
@@ -85,11 +100,25 @@ class ResolvedStage:
 
 
 @dataclass
+class ResolvedObserver:
+    """A validated observer: its spec, YAML path, registered class and parsed config."""
+
+    path: str  # "observers[0]"
+    spec: ObserverSpec
+    info: PluginInfo
+    config: ObserverConfig
+
+    def instantiate(self) -> Observer:
+        return self.info.cls(self.config)
+
+
+@dataclass
 class ValidatedPipeline:
     spec: PipelineSpec
     source: ResolvedStage
     stages: list[ResolvedStage]
     origin: str | None = None  # file the pipeline came from
+    observers: list[ResolvedObserver] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------------------
@@ -156,8 +185,30 @@ def apply_override(doc: dict[str, Any], assignment: str) -> None:
         node[last] = value
 
 
-def load_document(path: str | Path, overrides: list[str] | None = None) -> dict[str, Any]:
+def add_observers(doc: dict[str, Any], names: list[str]) -> None:
+    """Append ``{name: NAME}`` to the document's ``observers`` for each name it does not list yet
+    (``stratamap run --observe NAME``); its parameters may then be set with ``--set``."""
+    if not names:
+        return
+    listed = doc.get("observers")
+    if listed is None:
+        listed = doc["observers"] = []
+    if not isinstance(listed, list):
+        raise ConfigError([("observers", "must be a list of {name: ..., params: {...}}")])
+    present = {entry.get("name") for entry in listed if isinstance(entry, dict)}
+    for name in names:
+        if name not in present:
+            listed.append({"name": name})
+            present.add(name)
+
+
+def load_document(
+    path: str | Path, overrides: list[str] | None = None, observe: list[str] | None = None
+) -> dict[str, Any]:
+    """A pipeline file as a mapping, with the ``observe`` names added to its observers and then
+    the ``overrides`` applied (so ``--set observers[0].params...`` reaches an added observer)."""
     doc = read_mapping(path, "pipeline file")
+    add_observers(doc, observe or [])
     for assignment in overrides or []:
         apply_override(doc, assignment)
     return doc
@@ -266,6 +317,8 @@ def validate(
                     if isinstance(value, str) and value and not Path(value).expanduser().exists():
                         problems.append((f"source.params.{name}", f"{value} does not exist"))
         resolved.append(ResolvedStage(path, stage_spec, info, config))
+    observers, observer_problems = _resolve_observers(registry, spec)
+    problems += observer_problems
     if problems:
         raise ConfigError(problems, source=origin)
 
@@ -273,7 +326,30 @@ def validate(
     problems += check_data_flow(source, stages, registry)
     if problems:
         raise ConfigError(problems, source=origin)
-    return ValidatedPipeline(spec, source, stages, origin)
+    return ValidatedPipeline(spec, source, stages, origin, observers)
+
+
+def _resolve_observers(registry: Registry, spec: PipelineSpec) -> tuple[list[ResolvedObserver], list[tuple[str, str]]]:
+    """Each observer's registered class and parsed config, or what is wrong with it. Relative
+    paths in observer parameters stay relative: observers write them inside the run's output."""
+    resolved: list[ResolvedObserver] = []
+    problems: list[tuple[str, str]] = []
+    for i, observer_spec in enumerate(spec.observers):
+        path = f"observers[{i}]"
+        info = registry.stages[OBSERVERS].get(observer_spec.name)
+        if info is None:
+            known = ", ".join(sorted(registry.stages[OBSERVERS])) or "none"
+            broken = [f for f in registry.failures if f.entry_point == observer_spec.name]
+            hint = f"; {broken[0]}" if broken else ""
+            problems.append((f"{path}.name", f"no observer named {observer_spec.name!r} (installed: {known}){hint}"))
+            continue
+        try:
+            config = info.cls.Config.model_validate(observer_spec.params)
+        except ValidationError as exc:
+            problems += validation_problems(exc, prefix=("observers", i, "params"))
+            continue
+        resolved.append(ResolvedObserver(path, observer_spec, info, config))
+    return resolved, problems
 
 
 def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry: Registry) -> list[tuple[str, str]]:
@@ -306,10 +382,14 @@ def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry
 
 
 def load_pipeline(
-    path: str | Path, overrides: list[str] | None = None, registry: Registry | None = None
+    path: str | Path,
+    overrides: list[str] | None = None,
+    registry: Registry | None = None,
+    observe: list[str] | None = None,
 ) -> ValidatedPipeline:
     """Read, override and validate a pipeline file. Relative paths in it are resolved against its
-    folder; those in ``overrides`` against the working folder."""
-    doc = load_document(path, overrides)
+    folder; those in ``overrides`` against the working folder. ``observe``: observer names to add
+    (``--observe``)."""
+    doc = load_document(path, overrides, observe)
     overridden = {format_path(parse_path(a.split("=", 1)[0])) for a in overrides or [] if "=" in a}
     return validate(doc, registry=registry, origin=str(path), base_dir=Path(path).parent, overridden=overridden)

@@ -18,6 +18,10 @@ class ConfigError(StratamapError):
         lines = [f"{where}{path}: {msg}" if path else f"{where}{msg}" for path, msg in problems]
         super().__init__("\n".join(lines))
 
+    def __reduce__(self):
+        # Benchmark workers send errors back by pickling; the default would call __init__ with the message.
+        return (type(self), (self.problems, self.source))
+
 
 class PluginError(StratamapError):
     """A plugin could not be found, loaded or registered."""

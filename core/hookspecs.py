@@ -7,13 +7,19 @@ A plugin module registers its stages by returning their classes::
     @hookimpl
     def stratamap_register_completers():
         return [MyCompleter]
+
+Observers (``stratamap_register_observers``) are :class:`Observer` classes whose methods implement
+the event hooks; a pipeline that names one (``observers:`` in its file, or ``stratamap run
+--observe NAME``) makes an instance for the run and registers it for the run's duration only.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import inspect
+from typing import Any, ClassVar, Generic, TypeVar
 
 import pluggy
+from pydantic import BaseModel, ConfigDict
 
 PROJECT = "stratamap"
 
@@ -44,6 +50,11 @@ def stratamap_register_completers() -> list[type]:
 @hookspec
 def stratamap_register_exporters() -> list[type]:
     """Return exporter stage classes (write the map in formats robot software loads)."""
+
+
+@hookspec
+def stratamap_register_observers() -> list[type]:
+    """Return observer classes (:class:`Observer`: follow a run through the event hooks, e.g. record it)."""
 
 
 @hookspec
@@ -79,3 +90,49 @@ def stratamap_pipeline_step(pipeline: Any, description: str) -> None:
 @hookspec
 def stratamap_stage_progress(stage: Any, completed: int, total: int | None, description: str) -> None:
     """Called by long-running stages to report progress (e.g. frames integrated)."""
+
+
+# ------------------------------------------------------------------------------------------
+# Observers
+
+
+class ObserverConfig(BaseModel):
+    """Base of every observer's parameters: unknown keys are errors, instances are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+ObserverConfigT = TypeVar("ObserverConfigT", bound=ObserverConfig)
+
+
+class Observer(Generic[ObserverConfigT]):
+    """Base class of observers: objects whose ``@hookimpl`` methods implement the event hooks
+    (``stratamap_pipeline_start``, ``stratamap_stage_end``, ...). The pipeline makes one per run from
+    its ``Config`` and registers it with the plugin manager until the run ends; :meth:`close` is
+    called then, whether the run succeeded or failed."""
+
+    config: ObserverConfigT
+
+    kind: ClassVar[str] = "observers"
+    name: ClassVar[str] = ""
+    #: One line shown by ``stratamap plugins``; defaults to the first line of the class docstring.
+    description: ClassVar[str] = ""
+    Config: ClassVar[type[ObserverConfig]] = ObserverConfig
+
+    def __init__(self, config: ObserverConfig | None = None, **params: Any):
+        if config is not None and params:
+            raise TypeError("pass either a Config instance or keyword parameters, not both")
+        config = config if config is not None else self.Config(**params)
+        if not isinstance(config, self.Config):
+            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(config).__name__}")
+        self.config = config  # type: ignore[assignment]  # Config is ObserverConfigT's class
+
+    @classmethod
+    def summary(cls) -> str:
+        if cls.description:
+            return cls.description
+        doc = inspect.getdoc(cls) or ""
+        return doc.strip().splitlines()[0] if doc.strip() else ""
+
+    def close(self) -> None:
+        """Release what the observer holds (open files, sinks); called once after the run, also after a failure."""

@@ -5,15 +5,19 @@ from __future__ import annotations
 import json
 import platform
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import pluggy
+
 from stratamap.core.atomic import atomic_directory, check_output_folder, write_json
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
-from stratamap.core.errors import ConfigError
+from stratamap.core.errors import ConfigError, PluginError
+from stratamap.core.hookspecs import Observer
 from stratamap.core.registry import Registry, default_registry
 from stratamap.core.stages import LAYERS, Exporter, PipelineData, Stage
 
@@ -103,6 +107,8 @@ class Pipeline:
         self.records: list[StageRecord] = []
         self.data: PipelineData | None = None
         self.out_dir: Path | None = None
+        #: The observers of the current (or last) run, made from the pipeline's ``observers``.
+        self.observers: list[Observer] = []
 
     @property
     def hook(self) -> Any:
@@ -134,13 +140,35 @@ class Pipeline:
             )
         shown = Path(out)
         final = check_output_folder(shown, is_run_output, "stratamap run output")
+        # Made before anything is written: an observer that cannot start (a missing library) fails
+        # the run with the output folder untouched.
+        self.observers = [resolved.instantiate() for resolved in self.validated.observers]
         # Everything is written into a staging folder beside the output and swapped in at the end:
         # a failed or interrupted run leaves the previous output exactly as it was, and no new folder.
         with atomic_directory(final) as staging:
             self.out_dir = staging
-            report = self._run_into(staging, shown)
+            with self._observed():
+                report = self._run_into(staging, shown)
         self.out_dir = shown
         return report
+
+    @contextmanager
+    def _observed(self) -> Iterator[None]:
+        """The run's observers registered with the plugin manager for its duration only, then
+        unregistered and closed (also after a failure), before the staging folder is swapped in."""
+        manager = self.registry.plugin_manager
+        try:
+            for observer in self.observers:
+                try:
+                    manager.register(observer)
+                except pluggy.PluginValidationError as exc:  # a hook method whose signature no hook has
+                    raise PluginError(f"observer {observer.name!r} cannot be registered: {exc}") from None
+            yield
+        finally:
+            for observer in self.observers:
+                if manager.is_registered(observer):
+                    manager.unregister(observer)
+                observer.close()
 
     def _run_into(self, staging: Path, shown: Path) -> dict[str, Any]:
         spec = self.validated.spec

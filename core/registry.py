@@ -4,8 +4,9 @@ Every plugin is a module that implements the ``stratamap_register_<kind>`` hook 
 optionally, ``stratamap_evaluate`` to add metric families). Built-in plugins are listed once, in
 ``stratamap.plugins.BUILTIN_PLUGINS``, and registered in code; third-party plugins are modules
 declared under one entry-point group per kind (``stratamap.sources``, ``stratamap.segmenters``,
-``stratamap.mappers``, ``stratamap.completers``, ``stratamap.exporters``). An entry point may
-also name a stage class directly.
+``stratamap.mappers``, ``stratamap.completers``, ``stratamap.exporters``, and
+``stratamap.observers`` for run observers). An entry point may also name a stage or observer class
+directly.
 
 Environment variables:
 
@@ -36,11 +37,17 @@ import pluggy
 
 from stratamap.core import hookspecs
 from stratamap.core.errors import PluginError
+from stratamap.core.hookspecs import Observer
 from stratamap.core.stages import KIND_BASES, KINDS, Stage
 
 DISTRIBUTION = "stratamap"
 AUTOLOAD_ENV = "STRATAMAP_DISABLE_PLUGIN_AUTOLOAD"
 EXTRA_PLUGINS_ENV = "STRATAMAP_PLUGINS"
+#: Observers are a plugin kind beside the five stage kinds: registered and listed the same way,
+#: but never stages of a pipeline (they follow a run through the event hooks).
+OBSERVERS = "observers"
+PLUGIN_KINDS: tuple[str, ...] = (*KINDS, OBSERVERS)
+PLUGIN_BASES: dict[str, type] = {**KIND_BASES, OBSERVERS: Observer}
 
 #: The package whose ``BUILTIN_PLUGINS`` tuple lists stratamap's own plugin modules. They are
 #: registered in code, through the same hooks third parties implement (as pytest and datasette do);
@@ -62,11 +69,11 @@ def group_name(kind: str) -> str:
 
 @dataclass(frozen=True)
 class PluginInfo:
-    """A registered stage class and where it came from."""
+    """A registered stage (or observer) class and where it came from."""
 
     kind: str
     name: str
-    cls: type[Stage]
+    cls: type[Any]
     distribution: str
     module: str
 
@@ -98,15 +105,16 @@ class LoadFailure:
 
 @dataclass
 class Registry:
-    """Stage classes by kind and name, plus the plugin manager that carries event hooks."""
+    """Stage classes by kind and name (observer classes under ``observers``), plus the plugin
+    manager that carries event hooks."""
 
     plugin_manager: pluggy.PluginManager
-    stages: dict[str, dict[str, PluginInfo]] = field(default_factory=lambda: {k: {} for k in KINDS})
+    stages: dict[str, dict[str, PluginInfo]] = field(default_factory=lambda: {k: {} for k in PLUGIN_KINDS})
     failures: list[LoadFailure] = field(default_factory=list)
 
     def get(self, kind: str, name: str) -> PluginInfo:
         if kind not in self.stages:
-            raise PluginError(f"unknown stage kind {kind!r}; kinds are {list(KINDS)}")
+            raise PluginError(f"unknown plugin kind {kind!r}; kinds are {list(PLUGIN_KINDS)}")
         try:
             return self.stages[kind][name]
         except KeyError:
@@ -122,7 +130,12 @@ class Registry:
         return [self.stages[k][name] for k in kinds if name in self.stages[k]]
 
     def all(self) -> list[PluginInfo]:
+        """Every stage class (observers are not stages: see :meth:`observers`)."""
         return [info for kind in KINDS for _, info in sorted(self.stages[kind].items())]
+
+    def observers(self) -> list[PluginInfo]:
+        """Every observer class, by name."""
+        return [info for _, info in sorted(self.stages[OBSERVERS].items())]
 
     @property
     def hook(self) -> Any:
@@ -136,9 +149,9 @@ def _new_plugin_manager() -> pluggy.PluginManager:
 
 
 class _ClassPlugin:
-    """Adapts an entry point that names a stage class directly to the register hook."""
+    """Adapts an entry point that names a stage or observer class directly to the register hook."""
 
-    def __init__(self, cls: type[Stage]):
+    def __init__(self, cls: type[Stage] | type[Observer]):
         self.cls = cls
         self.__name__ = f"{cls.__module__}.{cls.__qualname__}"
         setattr(self, f"stratamap_register_{cls.kind}", hookspecs.hookimpl(lambda: [cls]))
@@ -179,7 +192,7 @@ def build_registry(
     if autoload is None:
         autoload = os.environ.get(AUTOLOAD_ENV, "").strip().lower() in ("", "0", "false", "no")
     if eps is None:
-        eps = [ep for kind in KINDS for ep in entry_points(group=group_name(kind))]
+        eps = [ep for kind in PLUGIN_KINDS for ep in entry_points(group=group_name(kind))]
     if extra_modules is None:
         extra_modules = [m.strip() for m in os.environ.get(EXTRA_PLUGINS_ENV, "").split(",") if m.strip()]
 
@@ -215,7 +228,7 @@ def build_registry(
             continue
         _register_object(pm, module, f"<{EXTRA_PLUGINS_ENV}>", origins, registry, spec)
 
-    for kind in KINDS:
+    for kind in PLUGIN_KINDS:
         hook = getattr(pm.hook, f"stratamap_register_{kind}")
         for impl in hook.get_hookimpls():
             dist, module = origins.get(impl.plugin_name, ("<unknown>", impl.plugin_name))
@@ -237,14 +250,16 @@ def _register_object(
     registry: Registry,
     ep_name: str,
 ) -> None:
-    if inspect.isclass(obj) and issubclass(obj, Stage):
+    if inspect.isclass(obj) and issubclass(obj, (Stage, Observer)):
         plugin: Any = _ClassPlugin(obj)
         module_name = obj.__module__
     elif isinstance(obj, ModuleType):
         plugin, module_name = obj, obj.__name__
     else:
         registry.failures.append(
-            LoadFailure(dist, ep_name, f"entry point must name a module or a Stage class, got {type(obj).__name__}")
+            LoadFailure(
+                dist, ep_name, f"entry point must name a module, a Stage or an Observer class, got {type(obj).__name__}"
+            )
         )
         return
     if pm.is_registered(plugin):
@@ -261,7 +276,7 @@ def _register_object(
 
 
 def _add_stage(registry: Registry, kind: str, cls: Any, dist: str, module: str) -> None:
-    base = KIND_BASES[kind]
+    base = PLUGIN_BASES[kind]
     if not (inspect.isclass(cls) and issubclass(cls, base)):
         registry.failures.append(LoadFailure(dist, module, f"{cls!r} is not a subclass of {base.__name__}"))
         return

@@ -56,6 +56,19 @@ def pipeline_schema(registry: Registry | None = None) -> dict[str, Any]:
     for info in registry.all():
         s = _inline_defs(_stage_schema(info), f"{info.kind}.{info.name}", defs)
         (sources if info.kind == "sources" else stages).append(s)
+    observers = []
+    for info in registry.observers():
+        params = _inline_defs(info.cls.Config.model_json_schema(), f"observers.{info.name}", defs)
+        observers.append(
+            {
+                "type": "object",
+                "title": f"observer {info.name}",
+                "description": info.description,
+                "properties": {"name": {"const": info.name}, "params": params},
+                "required": ["name"],
+                "additionalProperties": False,
+            }
+        )
     output = OutputSpec.model_json_schema()
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -68,6 +81,11 @@ def pipeline_schema(registry: Registry | None = None) -> dict[str, Any]:
                 "description": "Stages run in order after the source.",
                 "type": "array",
                 "items": {"oneOf": stages},
+            },
+            "observers": {
+                "description": "Observers that follow the run (e.g. rerun, which records it).",
+                "type": "array",
+                "items": {"oneOf": observers},
             },
             "output": output,
         },

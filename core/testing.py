@@ -17,6 +17,9 @@ deterministic. Inputs come from a small synthetic scene run through stratamap's 
 A stage whose ``Config`` has required fields sets ``example_params`` on the class: a dict, or a
 classmethod that prepares example inputs (for a file reader: writes a small dataset) and returns
 the parameters.
+
+Observers (``stratamap.core.hookspecs.Observer``) get the checks that apply to them: declarations,
+a config that forbids unknown keys, documents itself and constructs.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
+from stratamap.core.hookspecs import Observer
 from stratamap.core.lazy import lazy_module
 from stratamap.core.stages import KIND_BASES, KINDS, LAYERS, PipelineData, Stage
 
@@ -282,7 +286,24 @@ CHECKS: tuple[Check, ...] = (
 )
 
 
-def all_checks(stage_cls: type[Stage]) -> list[Check]:
+def check_observer_declarations(observer_cls: type[Observer]) -> None:
+    """An observer has a snake_case name, the observers kind and a description."""
+    assert re.fullmatch(r"[a-z][a-z0-9_]*", observer_cls.name or ""), f"name {observer_cls.name!r} must be snake_case"
+    assert observer_cls.kind == "observers", f"kind {observer_cls.kind!r} must be 'observers'"
+    assert observer_cls.summary(), f"{observer_cls.__name__} needs a docstring or a description"
+
+
+OBSERVER_CHECKS: tuple[Check, ...] = (
+    check_observer_declarations,
+    check_config_forbids_extra,
+    check_config_documented,
+    check_config_constructs,
+)
+
+
+def all_checks(stage_cls: type[Stage] | type[Observer]) -> list[Check]:
+    if inspect.isclass(stage_cls) and issubclass(stage_cls, Observer):
+        return list(OBSERVER_CHECKS)
     return list(CHECKS)
 
 
@@ -301,8 +322,8 @@ def parametrize_with_checks(stage_classes: Iterable[type[Stage]]) -> Any:
 
     classes = list(stage_classes)
     for cls in classes:
-        if not (inspect.isclass(cls) and issubclass(cls, Stage)):
-            raise TypeError(f"{cls!r} is not a Stage class")
+        if not (inspect.isclass(cls) and issubclass(cls, (Stage, Observer))):
+            raise TypeError(f"{cls!r} is not a Stage or Observer class")
     params = [(cls, check) for cls in classes for check in all_checks(cls)]
     ids = [f"{cls.kind}.{cls.name}-{check.__name__}" for cls, check in params]
     return pytest.mark.parametrize("stage_cls, check", params, ids=ids)

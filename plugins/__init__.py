@@ -1,4 +1,4 @@
-"""stratamap's built-in plugins: one folder per stage kind, one entry per stage in each.
+"""stratamap's built-in plugins: one folder per stage kind (and ``observers/``), one entry per plugin in each.
 
 ``BUILTIN_PLUGINS`` is the one list of them; :mod:`stratamap.core.registry` registers these
 modules in code, through the same hooks third-party plugins implement (entry points are for
@@ -17,6 +17,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "stratamap.plugins.segmenters.clusters",
     "stratamap.plugins.segmenters.onnx_panoptic",
     "stratamap.plugins.segmenters.plane_crf",
+    "stratamap.plugins.segmenters.detector",
     "stratamap.plugins.mappers.tsdf",
     "stratamap.plugins.mappers.points",
     "stratamap.plugins.mappers.semantic_tsdf",
@@ -35,4 +36,6 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "stratamap.plugins.exporters.mjcf",
     "stratamap.plugins.exporters.sdf",
     "stratamap.plugins.exporters.glb",
+    "stratamap.plugins.exporters.ros2_bag",
+    "stratamap.plugins.observers.rerun",
 )

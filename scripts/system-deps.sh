@@ -2,10 +2,15 @@
 # Installs the system libraries stratamap's Python wheels need on Debian/Ubuntu:
 #   libusb-1.0-0  (Open3D's wheel links against libusb-1.0.so.0)
 #   libgl1, libgomp1 (Open3D's rendering module and OpenMP runtime; present on most images)
-# Idempotent: does nothing when the libraries are already there.
+# With --browser, also Debian's chromium, which the test suite's browser tests drive (`make test` asks
+# for it; `make demo` does not).
+# Idempotent: does nothing when the packages are already there.
 set -euo pipefail
 
 need=()
+if [ "${1:-}" = "--browser" ] && ! command -v chromium >/dev/null 2>&1; then
+    need+=(chromium)
+fi
 have_lib() { ldconfig -p 2>/dev/null | grep -q "$1"; }
 have_lib 'libusb-1.0.so.0' || need+=(libusb-1.0-0)
 have_lib 'libgomp.so.1' || need+=(libgomp1)

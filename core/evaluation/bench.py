@@ -6,8 +6,8 @@ Per scene, the stages every pending variant shares from the start are run once a
 is reused by each variant (a completer comparison maps a scene once). Runs are jobs handed to an
 executor: local worker processes, or Ray tasks on a cluster. Every finished run is one JSON
 record written atomically under ``DIR/records/``, so an interrupted benchmark loses nothing and a
-re-run skips what is done; ``results.json``/``.csv``/``.md`` and the figures are rebuilt from the
-records at the end.
+re-run skips what is done; ``results.json``/``.csv``/``.md``, the figures and ``report.html`` are
+rebuilt from the records at the end. Every run also writes its own ``report.html`` under ``DIR/runs/``.
 
     stratamap bench configs/bench/completion.yaml --out out/bench/completion --workers 2
 """
@@ -151,7 +151,11 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
             continue
         if entry.synthetic is not None:
             syn = entry.synthetic
-            scene_doc = yaml.safe_load(Path(_resolve(syn.scene_file, base)).read_text())
+            from stratamap.core.synthetic.spec import resolve_spec_paths
+
+            scene_path = Path(_resolve(syn.scene_file, base))
+            # The spec travels as a mapping: its relative library paths are made absolute first.
+            scene_doc = resolve_spec_paths(yaml.safe_load(scene_path.read_text()), scene_path.parent)
             scene_doc.update(copy.deepcopy(syn.scene))
             if syn.camera:
                 scene_doc["camera"] = {**scene_doc.get("camera", {}), **syn.camera}
@@ -304,9 +308,29 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
             "details": details,
             "warnings": data.warnings,
         }
+        write_run_report(data, record, stages, pipe.validated.origin, pipe.out_dir)
         write_json(record_path(out, scene["name"], v), record)
         records.append(record)
     return records
+
+
+def write_run_report(
+    data: Any, record: dict[str, Any], stages: list[dict[str, Any]], origin: str, run_dir: Path
+) -> Path:
+    """``run_dir/report.html``: the run's map, objects, metrics and stage timings, as ``stratamap run``
+    writes it (a benchmark's runs bypass ``Pipeline.run`` to share stages, so they write it here)."""
+    from stratamap.core.evaluation.html_report import write_report
+
+    report = {
+        "pipeline": origin,
+        "frames": 0 if data.stream is None else len(data.stream),
+        "seconds_total": record["seconds_total"],
+        "layers": data.map.layer_counts(),
+        "stages": stages,
+        "metrics": record["metrics"],
+        "warnings": record["warnings"],
+    }
+    return write_report(data, report, run_dir)
 
 
 def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -315,6 +339,8 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
     from stratamap.core.pipeline import evaluate
 
     metrics = evaluate(hook, data, details=True)
+    if "detection" in metrics:
+        metrics["detection"].update(detection_by_iou(data.map.instances, data.ground_truth.objects))
     details: dict[str, Any] = {}
     if "completion" in metrics:
         details["completion_objects"] = metrics["completion"].pop("per_object", [])
@@ -360,6 +386,23 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
             phys["free_bodies"] = settled["free_bodies"]
         metrics["physics"] = phys
     return json.loads(json.dumps(metrics, default=_plain)), json.loads(json.dumps(details, default=_plain))
+
+
+def detection_by_iou(instances: Any, gt_objects: Any, iou: float = 0.25) -> dict[str, float]:
+    """Detection F1 with matches by 3D box IoU >= ``iou`` alone (no center-distance criterion),
+    class-aware (``f1_iou25``) and class-agnostic (``f1_iou25_agnostic``: any class, a box per object)."""
+    from stratamap.core.evaluation.detection import match_boxes, prf
+
+    pred = [(i.class_name, i.box) for i in instances]
+    gt = [(o.class_name, o.box()) for o in gt_objects]
+    threshold = iou - 1e-9  # match_boxes keeps IoU strictly above its threshold
+    aware = match_boxes(pred, gt, center_threshold=0.0, iou_threshold=threshold)
+    agnostic = match_boxes([("", b) for _, b in pred], [("", b) for _, b in gt], 0.0, threshold)
+    tag = f"iou{round(iou * 100)}"
+    return {
+        f"f1_{tag}": prf(len(aware), len(pred), len(gt))["f1"],
+        f"f1_{tag}_agnostic": prf(len(agnostic), len(pred), len(gt))["f1"],
+    }
 
 
 def _plain(obj: Any) -> Any:
@@ -466,7 +509,7 @@ def run_bench(
     write_json(out / "results.json", results)
     from stratamap.core.evaluation.bench_report import write_reports
 
-    written = write_reports(results, spec, out)
+    written = write_reports(results, spec, out, bench_file=path)
     return {
         "records": len(records),
         "ran": sum(len(j["variants"]) for j in jobs),

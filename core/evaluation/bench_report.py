@@ -3,7 +3,10 @@
 ``results.csv``: one row per run, metrics flattened to ``family.key`` columns. ``results.md``: a
 table per metric family, variants as columns, mean ± std over scenes, the best value in bold.
 Figures (PNG, matplotlib): Chamfer distance by visibility per completer, PQ by class, the
-navigation figure, and seconds per object against library size when the variants vary it.
+navigation figure, and seconds per object against library size when the variants vary it; a
+figure that cannot be drawn is named with the reason instead. ``report.html``: the same tables
+and figures in one self-contained page, with the benchmark file and a link to each run's own
+``report.html``.
 """
 
 from __future__ import annotations
@@ -11,12 +14,15 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from stratamap.core.atomic import atomic_path, write_text
+from stratamap.core.errors import DataError
 
 #: Families in table order; keys not listed still appear (sorted) after these.
 FAMILIES = [
@@ -79,17 +85,22 @@ def lower_is_better(key: str) -> bool:
     )
 
 
-def write_reports(results: dict[str, Any], spec: Any, out: Path) -> list[Path]:
+def write_reports(results: dict[str, Any], spec: Any, out: Path, bench_file: str | Path | None = None) -> list[Path]:
+    """``results.csv``, ``results.md``, the figures and ``report.html`` (listed last) under ``out``;
+    ``bench_file`` is the benchmark file shown on the page (default: the spec as validated)."""
     records = results["records"]
     variants = [v.name for v in spec.variants]
     rows = [record_row(r) for r in records]
     # Figures first: results.md links the figures this build wrote (it used to glob for PNGs before
     # they existed, so a benchmark's first results.md had no figures section).
-    figures = write_figures(records, variants, out)
+    drawn = draw_figures(records, variants, out)
+    figures = [image for _, image in drawn if isinstance(image, Path)]
+    tables = result_tables(results, spec, rows, variants)
     return [
         write_csv(records, rows, out / "results.csv"),
-        write_markdown(results, spec, rows, variants, out / "results.md", figures=figures),
+        write_markdown(results, spec, rows, variants, out / "results.md", figures=figures, drawn=drawn),
         *figures,
+        write_html(results, spec, tables, drawn, out, bench_file),
     ]
 
 
@@ -114,34 +125,49 @@ def table_values(records, rows, variants) -> dict[str, dict[str, list[float]]]:
     return values
 
 
-def write_markdown(
-    results: dict[str, Any],
-    spec: Any,
-    rows: list[dict[str, float]],
-    variants: list[str],
-    path: Path,
-    figures: list[Path] | None = None,
-) -> Path:
-    """The tables, and a section linking ``figures`` (default: the PNGs beside ``path``)."""
+@dataclass
+class ResultTable:
+    """One table of a benchmark's results, shared by ``results.md`` and ``report.html``: cells as
+    Markdown text, the best value of a row as ``**bold**``."""
+
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+
+    def markdown(self) -> list[str]:
+        lines = [f"## {self.title}", "", "| " + " | ".join(self.header) + " |", "|" + "---|" * len(self.header)]
+        return lines + ["|" + "".join(f" {cell} |" if cell else " |" for cell in row) for row in self.rows] + [""]
+
+
+def summary_lines(results: dict[str, Any], spec: Any, variants: list[str]) -> list[str]:
+    """The paragraphs above the tables: description, counts, skipped scenes."""
+    records = results["records"]
+    scenes = {r["scene"] for r in records}
+    lines = [spec.description.strip()] if spec.description else []
+    lines.append(
+        f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold "
+        "(for each row, lower or higher is better as the metric says)."
+    )
+    if results.get("skipped"):
+        lines.append("Skipped: " + "; ".join(results["skipped"]))
+    return lines
+
+
+def result_tables(
+    results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str]
+) -> list[ResultTable]:
+    """A table per metric family (variants as columns), one per ``per_scene`` metric, and Table IV
+    of each run that classified planes."""
     records = results["records"]
     values = table_values(records, rows, variants)
     scenes = sorted({r["scene"] for r in records})
-    lines = [f"# Benchmark: {spec.name}", ""]
-    if spec.description:
-        lines += [spec.description.strip(), ""]
-    lines += [
-        f"{len(records)} runs: {len(scenes)} scenes x {len(variants)} variants. Mean ± std over scenes; best in bold "
-        "(for each row, lower or higher is better as the metric says).",
-        "",
-    ]
-    if results.get("skipped"):
-        lines += ["Skipped: " + "; ".join(results["skipped"]), ""]
+    tables = []
     families = sorted(
         {k.split(".")[0] for k in values}, key=lambda f: (FAMILIES.index(f) if f in FAMILIES else len(FAMILIES), f)
     )
     for family in families:
         keys = sorted(k for k in values if k.split(".")[0] == family)
-        lines += [f"## {family}", "", "| metric | " + " | ".join(variants) + " |", "|---|" + "---|" * len(variants)]
+        table = ResultTable(family, ["metric", *variants], [])
         for key in keys:
             per = values[key]
             means = {v: float(np.mean(per[v])) if per.get(v) else None for v in variants}
@@ -158,15 +184,10 @@ def write_markdown(
                     continue
                 text = f"{means[v]:.4g} ± {float(np.std(per[v])):.2g}"
                 cells.append(f"**{text}**" if best is not None and np.isclose(means[v], best) else text)
-            lines.append(f"| {key[len(family) + 1 :]} | " + " | ".join(cells) + " |")
-        lines.append("")
+            table.rows.append([key[len(family) + 1 :], *cells])
+        tables.append(table)
     for key in spec.per_scene:
-        lines += [
-            f"## {key} per scene",
-            "",
-            "| scene | " + " | ".join(variants) + " |",
-            "|---|" + "---|" * len(variants),
-        ]
+        table = ResultTable(f"{key} per scene", ["scene", *variants], [])
         for scene in scenes:
             cells = []
             for v in variants:
@@ -176,22 +197,49 @@ def write_markdown(
                 value = record_row(rec).get(key) if rec is not None else None
                 cells.append("–" if value is None else f"{value:.3f}")
             if any(c != "–" for c in cells):
-                lines.append(f"| {scene} | " + " | ".join(cells) + " |")
+                table.rows.append([scene, *cells])
         means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
-        lines += ["| **mean** | " + " | ".join("–" if m is None else f"**{m:.3f}**" for m in means) + " |", ""]
+        table.rows.append(["**mean**", *("–" if m is None else f"**{m:.3f}**" for m in means)])
+        tables.append(table)
     for rec in records:  # plane and furniture labels in the layout of the kitchen paper's Table IV
         if "classification" in rec.get("metrics", {}):
             from stratamap.core.evaluation.classification import format_table
 
-            lines += [
-                f"## Table IV: {rec['scene']} ({rec['variant']})",
-                "",
-                format_table(rec["metrics"]["classification"]),
-                "",
-            ]
+            header, _, *lines = format_table(rec["metrics"]["classification"]).splitlines()
+            tables.append(
+                ResultTable(f"Table IV: {rec['scene']} ({rec['variant']})", _cells(header), [_cells(x) for x in lines])
+            )
+    return tables
+
+
+def _cells(line: str) -> list[str]:
+    """``| a | b |`` as ``["a", "b"]`` (an empty cell stays empty)."""
+    return [cell.strip() for cell in line.strip()[1:-1].split("|")]
+
+
+def write_markdown(
+    results: dict[str, Any],
+    spec: Any,
+    rows: list[dict[str, float]],
+    variants: list[str],
+    path: Path,
+    figures: list[Path] | None = None,
+    drawn: list[tuple[str, Path | str]] | None = None,
+) -> Path:
+    """The tables, and a section linking ``figures`` (default: the PNGs beside ``path``) and saying
+    why any figure of ``drawn`` could not be drawn."""
+    lines = [f"# Benchmark: {spec.name}", ""]
+    for paragraph in summary_lines(results, spec, variants):
+        lines += [paragraph, ""]
+    for table in result_tables(results, spec, rows, variants):
+        lines += table.markdown()
     names = sorted(p.name for p in (path.parent.glob("*.png") if figures is None else figures))
+    failed = [(name, image) for name, image in drawn or [] if not isinstance(image, Path)]
     if names:
         lines += ["## Figures", ""] + [f"![{name}]({name})" for name in names] + [""]
+    if failed:
+        lines += ([] if names else ["## Figures", ""]) + [f"- {name} not drawn: {reason}" for name, reason in failed]
+        lines.append("")
     return write_text(path, "\n".join(lines))
 
 
@@ -204,37 +252,39 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
+def chamfer_figure(records: list[dict[str, Any]], variants: list[str], out: Path) -> Path | None:
+    """Chamfer-L1 by visibility, one line per completer variant."""
     import matplotlib.pyplot as plt
 
-    written: list[Path] = []
-    # Chamfer-L1 by visibility, one line per completer variant.
     objects = {
         v: [o for r in records if r["variant"] == v for o in r.get("details", {}).get("completion_objects", [])]
         for v in variants
     }
-    if any(objects.values()):
-        bins = np.linspace(0, 1, 6)
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for v, objs in objects.items():
-            if not objs:
-                continue
-            vis = np.array([o["visibility"] for o in objs])
-            cd = np.array([o["chamfer_l1"] for o in objs])
-            idx = np.clip(np.digitize(vis, bins) - 1, 0, len(bins) - 2)
-            centers = [(bins[i] + bins[i + 1]) / 2 for i in range(len(bins) - 1) if (idx == i).any()]
-            medians = [float(np.median(cd[idx == i])) for i in range(len(bins) - 1) if (idx == i).any()]
-            ax.plot(centers, medians, marker="o", label=v)
-        ax.set_xlabel("visibility (share of the true surface observed)")
-        ax.set_ylabel("Chamfer-L1 to the true shape (m, median)")
-        ax.set_title("Completion error by visibility")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        written.append(_save(fig, out / "chamfer_by_visibility.png"))
-    # PQ by class.
+    if not any(objects.values()):
+        return None
+    bins = np.linspace(0, 1, 6)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for v, objs in objects.items():
+        if not objs:
+            continue
+        vis = np.array([o["visibility"] for o in objs])
+        cd = np.array([o["chamfer_l1"] for o in objs])
+        idx = np.clip(np.digitize(vis, bins) - 1, 0, len(bins) - 2)
+        centers = [(bins[i] + bins[i + 1]) / 2 for i in range(len(bins) - 1) if (idx == i).any()]
+        medians = [float(np.median(cd[idx == i])) for i in range(len(bins) - 1) if (idx == i).any()]
+        ax.plot(centers, medians, marker="o", label=v)
+    ax.set_xlabel("visibility (share of the true surface observed)")
+    ax.set_ylabel("Chamfer-L1 to the true shape (m, median)")
+    ax.set_title("Completion error by visibility")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _save(fig, out / "chamfer_by_visibility.png")
+
+
+def pq_figure(records: list[dict[str, Any]], variants: list[str], out: Path) -> Path | None:
+    """Panoptic quality by class, one bar per variant."""
+    import matplotlib.pyplot as plt
+
     pq = {
         v: [
             r["details"]["pq_by_class"]
@@ -244,34 +294,52 @@ def write_figures(records: list[dict[str, Any]], variants: list[str], out: Path)
         for v in variants
     }
     classes = sorted({c for rows in pq.values() for row in rows for c in row})
-    if classes:
-        fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes)), 4))
-        width = 0.8 / max(1, sum(1 for rows in pq.values() if rows))
-        k = 0
-        for v, rows in pq.items():
-            if not rows:
-                continue
-            # A class in no scene of this variant (neither true nor predicted) has no PQ: no bar, not a 0.
-            means = [
-                float(np.mean([row[c] for row in rows if row.get(c) is not None]))
-                if any(row.get(c) is not None for row in rows)
-                else np.nan
-                for c in classes
-            ]
-            ax.bar(np.arange(len(classes)) + k * width, means, width, label=v)
-            k += 1
-        ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=45, ha="right")
-        ax.set_ylabel("PQ")
-        ax.set_title("Panoptic quality by class")
-        ax.legend()
-        written.append(_save(fig, out / "pq_by_class.png"))
-    nav = navigation_figure(records, out)
-    if nav is not None:
-        written.append(nav)
-    scaling = scaling_figure(records, out)
-    if scaling is not None:
-        written.append(scaling)
-    return written
+    if not classes:
+        return None
+    fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes)), 4))
+    width = 0.8 / max(1, sum(1 for rows in pq.values() if rows))
+    k = 0
+    for v, rows in pq.items():
+        if not rows:
+            continue
+        # A class in no scene of this variant (neither true nor predicted) has no PQ: no bar, not a 0.
+        means = [
+            float(np.mean([row[c] for row in rows if row.get(c) is not None]))
+            if any(row.get(c) is not None for row in rows)
+            else np.nan
+            for c in classes
+        ]
+        ax.bar(np.arange(len(classes)) + k * width, means, width, label=v)
+        k += 1
+    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=45, ha="right")
+    ax.set_ylabel("PQ")
+    ax.set_title("Panoptic quality by class")
+    ax.legend()
+    return _save(fig, out / "pq_by_class.png")
+
+
+def draw_figures(records: list[dict[str, Any]], variants: list[str], out: Path) -> list[tuple[str, Path | str]]:
+    """Each figure the records call for, as (file name, the PNG written) or (file name, why it could
+    not be drawn): one figure that fails costs the benchmark neither its tables nor its other figures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from stratamap.core.evaluation.html_page import drawn
+
+    drawers = (
+        ("chamfer_by_visibility.png", chamfer_figure, (records, variants, out)),
+        ("pq_by_class.png", pq_figure, (records, variants, out)),
+        ("navigation.png", navigation_figure, (records, out)),
+        ("seconds_vs_library.png", scaling_figure, (records, out)),
+    )
+    figures: list[tuple[str, Path | str]] = []
+    for name, draw, args in drawers:
+        image = drawn(draw, *args)
+        if isinstance(image, str):  # a PNG left by an earlier build no longer shows these records
+            (out / name).unlink(missing_ok=True)
+        if image is not None:
+            figures.append((name, image))
+    return figures
 
 
 def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
@@ -284,9 +352,12 @@ def navigation_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
     if rec is None:
         return None
     npz = out / "runs" / safe(rec["scene"]) / safe(rec["variant"]) / "navigation.npz"
-    if not npz.is_file():
-        return None
-    grids = np.load(npz)
+    if not npz.is_file():  # e.g. the run was a Ray task on a machine that does not share this folder
+        raise DataError(f"{npz.relative_to(out)} not found (written beside the run that planned the paths)")
+    try:
+        grids = np.load(npz)
+    except (OSError, ValueError) as exc:  # numpy's words for a damaged archive name no file
+        raise DataError(f"{npz.relative_to(out)}: expected a NumPy .npz archive of the planning grids") from exc
     fig, axes = plt.subplots(1, 2, figsize=(11, 5))
     for ax, (title, key, hit) in zip(
         axes,
@@ -357,6 +428,60 @@ def scaling_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
     ax.set_title("Completion cost against library size")
     ax.legend()
     return _save(fig, out / "seconds_vs_library.png")
+
+
+def _html_cell(cell: str) -> Any:
+    """A Markdown cell of a :class:`ResultTable` for HTML: ``**best**`` in bold."""
+    from stratamap.core.evaluation.html_page import bold
+
+    match = re.fullmatch(r"\*\*(.*)\*\*", cell)
+    return bold(match.group(1)) if match else cell
+
+
+def write_html(
+    results: dict[str, Any],
+    spec: Any,
+    tables: list[ResultTable],
+    figures: list[tuple[str, Path | str]],
+    out: Path,
+    bench_file: str | Path | None = None,
+) -> Path:
+    """``out/report.html``, the benchmark for a person, self-contained (figures embedded): the tables
+    of results.md, the figures (or why one could not be drawn), every run with a link to its own
+    report.html, and the benchmark file that produced it."""
+    import yaml
+
+    from stratamap.core.evaluation.bench import safe
+    from stratamap.core.evaluation.html_page import escape, figure, file_data_uri, link, page, table
+
+    variants = [v.name for v in spec.variants]
+    parts = [f"<h1>Benchmark: {escape(spec.name)}</h1>"]
+    parts += [f"<p>{escape(paragraph)}</p>" for paragraph in summary_lines(results, spec, variants)]
+    if results.get("versions"):
+        parts.append("<p>versions: " + escape(", ".join(f"{k} {v}" for k, v in results["versions"].items())) + "</p>")
+    for t in tables:
+        cells = [[_html_cell(cell) for cell in row] for row in t.rows]
+        parts.append(f"<h2>{escape(t.title)}</h2>" + table(t.header, cells, "results"))
+    for name, image in figures:
+        parts.append(figure(name, file_data_uri(image) if isinstance(image, Path) else image))
+    runs = []
+    for rec in results["records"]:
+        report = f"runs/{safe(rec['scene'])}/{safe(rec['variant'])}/report.html"
+        runs.append(
+            [
+                rec["scene"],
+                rec["variant"],
+                f"{rec.get('seconds_total', 0.0):.1f}",
+                f"{rec.get('peak_memory_mb', 0.0):.0f}",
+                link(report, "report.html") if (out / report).is_file() else "–",
+            ]
+        )
+    parts.append("<h2>Runs</h2>" + table(["scene", "variant", "seconds", "peak memory (MB)", "report"], runs, "runs"))
+    config, shown = yaml.safe_dump(spec.model_dump(mode="json"), sort_keys=False), "the benchmark, as validated"
+    if bench_file is not None and Path(bench_file).is_file():  # as written, comments included
+        config, shown = Path(bench_file).read_text(), str(bench_file)
+    parts.append(f"<h2>Benchmark file</h2><p>{escape(shown)}</p><pre>{escape(config)}</pre>")
+    return write_text(out / "report.html", page(f"stratamap benchmark: {spec.name}", parts))
 
 
 def records_equal(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> bool:

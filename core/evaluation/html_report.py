@@ -9,35 +9,17 @@ joints), metrics, stage timings and warnings. It is written by the built-in impl
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from stratamap.core.atomic import write_text
+from stratamap.core.evaluation.html_page import dict_table, drawn, figure, page, png_data_uri
 from stratamap.core.hookspecs import hookimpl
 
 MAX_POINTS = 60_000  # drawn in the top-down views; more add nothing visible
-
-
-def _png(fig: Any) -> str:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
-def _drawn(draw: Any, *args: Any) -> str | None:
-    """A figure as a data URI, or why it could not be drawn: a figure never costs the run its output."""
-    try:
-        return draw(*args)
-    except Exception as exc:  # the page says what went wrong instead
-        return f"{type(exc).__name__}: {exc}"
 
 
 def _subsample(n: int) -> np.ndarray:
@@ -100,7 +82,7 @@ def top_down(data: Any, by: str) -> str | None:
     ax.set_ylabel("y (m)")
     title = "classes" if by == "class" else "instances"
     ax.set_title(f"top-down, coloured by {title}; red arrows: supporter -> supported")
-    return _png(fig)
+    return png_data_uri(fig)
 
 
 def occupancy_layers(data: Any) -> str | None:
@@ -125,7 +107,7 @@ def occupancy_layers(data: Any) -> str | None:
         ax.imshow(shown, origin="lower", cmap="gray", vmin=0, vmax=1, extent=extent)
         ax.set_title(f"{name} ({grid.resolution:g} m cells)")
         ax.set_aspect("equal")
-    return _png(fig)
+    return png_data_uri(fig)
 
 
 def object_rows(data: Any) -> list[dict[str, Any]]:
@@ -150,14 +132,6 @@ def object_rows(data: Any) -> list[dict[str, Any]]:
     return rows
 
 
-def _table(rows: list[dict[str, Any]], cls: str) -> str:
-    if not rows:
-        return "<p>none</p>"
-    head = "".join(f"<th>{html.escape(str(k))}</th>" for k in rows[0])
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row.values()) + "</tr>" for row in rows)
-    return f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
-
-
 def _metric_rows(metrics: dict[str, Any]) -> list[dict[str, Any]]:
     rows = []
     for family, values in metrics.items():
@@ -170,37 +144,29 @@ def _metric_rows(metrics: dict[str, Any]) -> list[dict[str, Any]]:
 def render(data: Any, report: dict[str, Any]) -> str:
     """The whole page."""
     figures = [
-        ("Map by class", _drawn(top_down, data, "class")),
-        ("Map by instance", _drawn(top_down, data, "instance")),
-        ("Occupancy layers", _drawn(occupancy_layers, data)),
+        ("Map by class", drawn(top_down, data, "class")),
+        ("Map by instance", drawn(top_down, data, "instance")),
+        ("Occupancy layers", drawn(occupancy_layers, data)),
     ]
     stages = [
         {"stage": s["name"], "plugin": s["plugin"], "kind": s["kind"], "seconds": f"{s['seconds']:.2f}"}
         for s in report.get("stages", [])
     ]
     parts = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>stratamap run report</title>",
-        "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
-        "td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}img{max-width:100%}</style></head><body>",
         f"<h1>stratamap run report</h1><p>pipeline: {html.escape(str(report.get('pipeline')))}; "
         f"{report.get('frames', 0)} frames; {report.get('seconds_total', 0):.1f} s; "
         f"layers: {html.escape(json_line(report.get('layers', {})))}</p>",
     ]
-    for title, image in figures:
-        if image is not None and image.startswith("data:"):
-            parts.append(f'<h2>{title}</h2><figure><img class="figure" alt="{title}" src="{image}"></figure>')
-        elif image is not None:
-            parts.append(f"<h2>{title}</h2><p>not drawn: {html.escape(image)}</p>")
-    parts.append("<h2>Objects</h2>" + _table(object_rows(data), "objects"))
-    parts.append("<h2>Metrics</h2>" + _table(_metric_rows(report.get("metrics", {})), "metrics"))
-    parts.append("<h2>Stages</h2>" + _table(stages, "stages"))
+    parts += [figure(title, image) for title, image in figures]
+    parts.append("<h2>Objects</h2>" + dict_table(object_rows(data), "objects"))
+    parts.append("<h2>Metrics</h2>" + dict_table(_metric_rows(report.get("metrics", {})), "metrics"))
+    parts.append("<h2>Stages</h2>" + dict_table(stages, "stages"))
     warnings = report.get("warnings", [])
     parts.append(
         "<h2>Warnings</h2>"
         + ("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>" if warnings else "<p>none</p>")
     )
-    parts.append("</body></html>\n")
-    return "".join(parts)
+    return page("stratamap run report", parts)
 
 
 def json_line(value: Any) -> str:
@@ -210,9 +176,14 @@ def json_line(value: Any) -> str:
     return "; ".join(f"{k} {json_line(v) if isinstance(v, dict) else v}" for k, v in value.items())
 
 
+def write_report(data: Any, report: dict[str, Any], folder: str | Path) -> Path:
+    """``folder/report.html`` for the run whose blackboard is ``data`` and whose report is ``report``."""
+    return write_text(Path(folder) / "report.html", render(data, report))
+
+
 @hookimpl
 def stratamap_pipeline_end(pipeline: Any, report: dict) -> None:
     """Write report.html beside report.json (when the pipeline writes a report)."""
     if not pipeline.validated.spec.output.report or pipeline.out_dir is None or pipeline.data is None:
         return
-    write_text(Path(pipeline.out_dir) / "report.html", render(pipeline.data, report))
+    write_report(pipeline.data, report, pipeline.out_dir)

@@ -21,6 +21,13 @@ The same loader reads
   face -y; one such folder or a folder of them;
 * a single ``.urdf`` file (``package://`` URIs resolved through ``package.xml``), as one
   articulated model; missing meshes fall back to collision geometry and are reported.
+
+Part colours come from the models themselves (:func:`mesh_face_colors`): a mesh's own per-face or
+per-vertex colours, its texture sampled at each face (the image box-filtered first, so a face takes
+the mean colour of its neighbourhood), its material's diffuse colour (MTL ``Kd``), else the URDF
+``<material><color>`` of its visual, else :data:`NEUTRAL_ALBEDO`. PartNet-Mobility folders shipped
+without their texture images take each face's colour from the nearest of the coloured point
+samples every PartNet-Mobility object carries (``point_sample/*rgba*.txt``).
 """
 
 from __future__ import annotations
@@ -62,6 +69,11 @@ PARTNET_CLASSES = {
     "Dishwasher": "cabinet",
 }
 
+#: Colour of parts whose source gives none (a light, slightly warm grey, like unpainted furniture).
+NEUTRAL_ALBEDO = (0.72, 0.71, 0.68)
+#: Texture images are box-filtered to at most this many cells a side before faces sample them.
+TEXTURE_CELLS = 32
+
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 #: PartNet-Mobility URDFs are z-up in their base frame (the base joint turns the y-up meshes) and
 #: face -x; a quarter turn about z brings the front to -y, stratamap's canonical front.
@@ -76,6 +88,9 @@ class LibraryPart:
     semantic: str = ""
     file: Path | None = None
     mesh: trimesh.Trimesh | None = None  # loaded on first use when ``file`` is set
+    #: (F, 3) colour of each face in [0, 1] when the source colours faces differently (textures,
+    #: several materials); ``albedo`` is then their area-weighted mean.
+    face_colors: np.ndarray | None = None
 
     def load(self) -> trimesh.Trimesh:
         if self.mesh is None:
@@ -394,6 +409,11 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
         part = LibraryPart("mesh", file=file)
         try:
             mesh = part.load()
+            colors = mesh_face_colors(mesh)
+            if colors is not None:
+                part.albedo = mean_color(mesh, colors)
+                part.face_colors = None if np.ptp(colors, axis=0).max() < 1e-3 else colors.astype(np.float32)
+            mesh = part.mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
             if up_axis == "y":
                 mesh.apply_transform(Y_UP_TO_Z_UP)
             elif up_axis != "z":
@@ -430,42 +450,86 @@ def model_from_urdf(
     transform: np.ndarray | None = None,
     semantics: dict[str, str] | None = None,
     package_roots: dict[str, Path] | None = None,
+    links: list[str] | None = None,
+    sample_colors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LibraryModel:
     """An articulated URDF as a library model: one part per visual mesh (in the root frame at
     q = 0, then ``transform``), the URDF's joints, origin at the bottom center. Missing meshes
-    fall back to collision geometry; every problem is kept in ``params["warnings"]``."""
+    fall back to collision geometry; every problem is kept in ``params["warnings"]``.
+
+    ``links`` keeps only the subtrees under these links (one cabinet of a whole kitchen), merged
+    into the model's root link. Parts take the colours their meshes carry, else their URDF
+    material's; ``sample_colors`` (points in the mesh files' own frame, RGB in [0, 1]) colours each
+    face from its nearest samples instead (PartNet-Mobility objects whose textures are absent)."""
     from stratamap.core.io.urdf import read_urdf
 
     urdf = read_urdf(urdf_path, package_roots)
     transform = np.eye(4) if transform is None else transform
-    root = urdf.root
     poses = urdf.link_poses()
+    parent_of = {j.child: j.parent for j in urdf.joints}
+    if links:
+        unknown = [name for name in links if name not in urdf.links]
+        if unknown:
+            raise DataError(f"{urdf_path}: no link named {unknown[:5]}; links are e.g. {sorted(urdf.links)[:12]}")
+        children: dict[str, list[str]] = {}
+        for j in urdf.joints:
+            children.setdefault(j.parent, []).append(j.child)
+        selected, stack = set(links), list(links)
+        while stack:
+            for child in children.get(stack.pop(), []):
+                if child not in selected:
+                    selected.add(child)
+                    stack.append(child)
+        tops = {name for name in selected if parent_of.get(name) not in selected}
+    else:
+        selected, tops = set(urdf.links), {urdf.root}
+    material_colors = urdf_visual_colors(urdf_path)
     parts: list[LibraryPart] = []
-    rng = np.random.default_rng(int(hashlib.sha256(model_id.encode()).hexdigest()[:8], 16))
     for link, visuals in urdf.links.items():
+        if link not in selected:
+            continue
+        declared = material_colors.get(link, [])
         for k, vis in enumerate(visuals):
             mesh = vis.mesh.copy()
+            face_colors = None
+            if sample_colors is not None and Path(vis.source).is_file():
+                face_colors = colors_from_samples(Path(vis.source), *sample_colors)
+            if face_colors is None:
+                face_colors = mesh_face_colors(mesh)
+            # Colours are kept per face; the geometry itself goes on without visuals (concatenating
+            # textured meshes would pack their images into atlases for nothing).
+            mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
             mesh.apply_transform(transform @ poses[link])
+            if face_colors is not None:
+                albedo = mean_color(mesh, face_colors)
+            elif len(declared) == len(visuals) and declared[k] is not None:
+                albedo = declared[k]
+            else:
+                albedo = NEUTRAL_ALBEDO
+            uniform = face_colors is None or np.ptp(face_colors, axis=0).max() < 1e-3
             parts.append(
                 LibraryPart(
                     f"{link}_{k}",
-                    "body" if link == root else link,
-                    tuple(np.round(rng.uniform(0.3, 0.8, 3), 3)),
+                    "body" if link in tops else link,
+                    albedo,
                     (semantics or {}).get(link, ""),
                     mesh=mesh,
+                    face_colors=None if uniform else face_colors.astype(np.float32),
                 )
             )
     if not parts:
-        raise DataError(f"{urdf_path}: no link has a usable mesh")
+        raise DataError(f"{urdf_path}: no link has a usable mesh" + (f" under {links}" if links else ""))
     joints = []
     for j in urdf.joints:
-        origin = transform @ j.origin if j.parent == root else j.origin
+        if j.child not in selected or j.parent not in selected:
+            continue
+        origin = transform @ poses[j.parent] @ j.origin if j.parent in tops else j.origin
         joints.append(
             Joint(
                 j.name,
                 j.type,
-                "body" if j.parent == root else j.parent,
-                "body" if j.child == root else j.child,
+                "body" if j.parent in tops else j.parent,
+                "body" if j.child in tops else j.child,
                 origin,
                 j.axis,
                 j.lower,
@@ -475,11 +539,131 @@ def model_from_urdf(
     bounds = _canonicalize(parts, joints, "body")
     mesh = trimesh.util.concatenate([p.load() for p in parts])
     params: dict[str, Any] = {"urdf": str(urdf_path)}
+    if links:
+        params["links"] = list(links)
     if urdf.warnings:
         params["warnings"] = list(urdf.warnings)
     return LibraryModel(
         model_id, class_name, family, params, parts, joints, bounds, feature_planes(mesh), source=str(urdf_path)
     )
+
+
+# ------------------------------------------------------------------------------------------
+# Colours
+
+
+def mean_color(mesh: trimesh.Trimesh, face_colors: np.ndarray) -> tuple[float, float, float]:
+    """Area-weighted mean of per-face colours."""
+    area = np.asarray(mesh.area_faces, dtype=float)
+    weights = area if area.sum() > 0 else np.ones(len(area))
+    mean = (np.asarray(face_colors, float) * weights[:, None]).sum(0) / weights.sum()
+    return tuple(float(v) for v in np.round(np.clip(mean, 0.0, 1.0), 4))  # type: ignore[return-value]
+
+
+def mesh_face_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """(F, 3) colours in [0, 1] that a loaded mesh carries (face or vertex colours, a texture sampled
+    at each face's UV centroid, a material's diffuse colour), or None when it carries none."""
+    visual = getattr(mesh, "visual", None)
+    kind = getattr(visual, "kind", None)
+    n = len(mesh.faces)
+    if kind == "face":
+        return np.asarray(visual.face_colors, float)[:, :3] / 255.0
+    if kind == "vertex":
+        return np.asarray(visual.vertex_colors, float)[mesh.faces][:, :, :3].mean(1) / 255.0
+    if kind != "texture":
+        return None
+    material = getattr(visual, "material", None)
+    image = getattr(material, "image", None)
+    uv = getattr(visual, "uv", None)
+    if image is not None and uv is not None and len(uv) == len(mesh.vertices):
+        return sample_texture(image, np.asarray(uv, float), np.asarray(mesh.faces))
+    color = getattr(material, "main_color", None)
+    if color is None:
+        return None
+    return np.tile(np.asarray(color, float)[:3] / 255.0, (n, 1))
+
+
+def sample_texture(image: Any, uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The colour of a texture at each face's UV centroid, the image box-filtered to at most
+    :data:`TEXTURE_CELLS` cells a side (a face takes the mean colour around it, not one texel)."""
+    from PIL import Image
+
+    rgb = image.convert("RGB")
+    cells = (min(rgb.width, TEXTURE_CELLS), min(rgb.height, TEXTURE_CELLS))
+    pixels = np.asarray(rgb.resize(cells, Image.Resampling.BOX), dtype=float) / 255.0
+    h, w = pixels.shape[:2]
+    center = uv[faces].mean(1)
+    # UVs repeat outside [0, 1] (tiled textures); v runs up the image.
+    u, v = np.mod(center[:, 0], 1.0), np.mod(center[:, 1], 1.0)
+    col = np.clip((u * w).astype(int), 0, w - 1)
+    row = np.clip(((1.0 - v) * h).astype(int), 0, h - 1)
+    return pixels[row, col]
+
+
+def colors_from_samples(mesh_file: Path, points: np.ndarray, colors: np.ndarray, k: int = 6) -> np.ndarray | None:
+    """Each face of ``mesh_file`` (in the file's own frame) coloured by the mean of its ``k``
+    nearest coloured samples; None when the file cannot be read."""
+    from scipy.spatial import cKDTree
+
+    from stratamap.core.io.mesh import read_mesh
+
+    try:
+        raw = read_mesh(mesh_file, "visual mesh")
+    except DataError:
+        return None
+    centers = np.asarray(raw.vertices)[np.asarray(raw.faces)].mean(1)
+    _, idx = cKDTree(points).query(centers, k=min(k, len(points)))
+    idx = idx.reshape(len(centers), -1)
+    return colors[idx].mean(1)
+
+
+def urdf_visual_colors(path: Path) -> dict[str, list[tuple[float, float, float] | None]]:
+    """link -> the ``<material><color rgba>`` of each of its visuals with geometry (None where a
+    visual names no colour); named materials may be defined once at the top level."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError):
+        return {}
+
+    def rgb(material: ET.Element | None) -> tuple[float, float, float] | None:
+        color = material.find("color") if material is not None else None
+        try:
+            values = [float(v) for v in (color.get("rgba", "") if color is not None else "").split()]
+        except ValueError:
+            return None
+        return tuple(float(np.clip(v, 0, 1)) for v in values[:3]) if len(values) == 4 else None  # type: ignore[return-value]
+
+    named = {m.get("name"): rgb(m) for m in root.findall("material")}
+    out: dict[str, list[tuple[float, float, float] | None]] = {}
+    for link in root.findall("link"):
+        colors = []
+        for vis in link.findall("visual"):
+            if vis.find("geometry") is None:
+                continue
+            material = vis.find("material")
+            colors.append(rgb(material) or (named.get(material.get("name")) if material is not None else None))
+        out[link.get("name", "")] = colors
+    return out
+
+
+def partnet_sample_colors(folder: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The coloured point samples of a PartNet-Mobility object whose texture images are absent
+    (points in its mesh files' frame, RGB in [0, 1]); None when its images are there or no
+    samples are."""
+    if (folder / "images").is_dir():
+        return None
+    files = sorted((folder / "point_sample").glob("*rgba*.txt"))
+    if not files:
+        return None
+    try:
+        data = np.loadtxt(files[0], ndmin=2)
+    except ValueError as exc:
+        raise DataError(f"{files[0]}: expected rows of x y z nx ny nz r g b a ({exc})") from exc
+    if data.shape[1] < 9 or len(data) == 0:
+        raise DataError(f"{files[0]}: expected rows of x y z nx ny nz r g b a, got {data.shape[1]} columns")
+    return data[:, :3], np.clip(data[:, 6:9] / 255.0, 0.0, 1.0)
 
 
 def load_partnet(folder: Path) -> LibraryModel:
@@ -502,8 +686,11 @@ def load_partnet(folder: Path) -> LibraryModel:
         f"partnet_{category or 'unknown'}",
         PARTNET_TO_CANONICAL,
         semantics,
+        sample_colors=partnet_sample_colors(folder),
     )
-    model.params.update({"partnet_id": folder.name, "category": category})
+    # PartNet-Mobility meshes have no units (chair 179 is 1.61 tall as shipped): users of the
+    # model scale it (the scene specs do, to the class's typical height).
+    model.params.update({"partnet_id": folder.name, "category": category, "units": None})
     return model
 
 

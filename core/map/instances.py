@@ -38,3 +38,58 @@ def instances_from_semantics(
             )
         )
     return out
+
+
+def plausible(class_name: str, points: np.ndarray, margin: float = 1.3) -> bool:
+    """Whether an object of these points can be of this class by its size (core/map/priors.py): its
+    farthest point from the centroid within ``margin`` times the class's largest extent, and its
+    longest horizontal side within ``margin`` times the class's longest. Classes whose objects come in
+    any length (tables, counters, shelves, sofas, benches) and classes without a prior always pass."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES
+
+    size = CLASS_SIZES.get(class_name)
+    if size is None or class_name in ANY_LENGTH or len(points) == 0:
+        return True
+    pts = np.asarray(points, np.float64)
+    reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
+    if reach > margin * size.extent[1]:
+        return False
+    if size.max_length is not None:
+        box = gravity_aligned_box(pts)
+        if float(np.max(box.size[:2])) > margin * size.max_length:
+            return False
+    return True
+
+
+def veto_implausible_classes(
+    points: np.ndarray,
+    point_class: np.ndarray,
+    point_instance: np.ndarray,
+    vocabulary,
+    fallback: str = "object",
+    margin: float = 1.3,
+) -> tuple[np.ndarray, list[dict]]:
+    """Size priors veto impossible labels (a 2.2 m chair): each instance whose majority class its size
+    rules out takes the next most voted thing class it fits, else ``fallback``. Returns the new point
+    classes and one record per vetoed instance (id, from, to, reach)."""
+    point_class = np.asarray(point_class).copy()
+    vetoed = []
+    if fallback not in vocabulary:
+        return point_class, vetoed
+    for iid in np.unique(point_instance[point_instance > 0]):
+        sel = np.flatnonzero(point_instance == iid)
+        votes = np.bincount(point_class[sel], minlength=len(vocabulary))
+        order = [int(c) for c in np.argsort(-votes, kind="stable") if votes[c] > 0 and vocabulary.is_thing[c]]
+        if not order:
+            continue
+        first = vocabulary.name(order[0])
+        if plausible(first, points[sel], margin):
+            continue
+        chosen = next(
+            (vocabulary.name(c) for c in order[1:] if plausible(vocabulary.name(c), points[sel], margin)), fallback
+        )
+        point_class[sel] = vocabulary.id(chosen)
+        pts = points[sel]
+        reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
+        vetoed.append({"instance": int(iid), "from": first, "to": chosen, "reach_m": round(reach, 3)})
+    return point_class, vetoed

@@ -37,6 +37,9 @@ CLASS_SIZES: dict[str, ClassSize] = {
     "plant": ClassSize((0.1, 0.7)),
 }
 
+#: Classes whose single objects come in any length: their size never rules a label out.
+ANY_LENGTH: tuple[str, ...] = ("table", "desk", "shelf", "counter", "sofa", "bench")
+
 #: Classes whose objects do not stand on one another: two of them one above the other are one
 #: object (a swivel chair's base and seat, a table's legs and top).
 NOT_STACKED: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")

@@ -33,6 +33,9 @@ class ModelPart:
     albedo: tuple[float, float, float]
     semantic: str = ""  # e.g. "seat", "leg", "door", "handle", "knob", "drawer_front"
     link: str = ROOT_LINK
+    #: (F, 3) per-face colours in [0, 1] of models from libraries whose faces differ in colour
+    #: (textures, several materials); ``albedo`` is their mean. None: one colour, ``albedo``.
+    face_colors: np.ndarray | None = None
 
 
 @dataclass

@@ -20,6 +20,7 @@ import numpy as np
 
 from stratamap.core.geometry.transforms import apply, make_pose
 from stratamap.core.synthetic.models import FAMILIES, Model, make_model
+from stratamap.core.synthetic.spec import LibrarySource
 
 #: class -> placement rule
 PLACEMENT = {
@@ -105,11 +106,22 @@ def overlaps(a: np.ndarray, b: np.ndarray, clearance: float = 0.01) -> bool:
 
 
 class Placer:
-    def __init__(self, scene_type: str, room: tuple[float, float, float], seed: int):
+    def __init__(
+        self,
+        scene_type: str,
+        room: tuple[float, float, float],
+        seed: int,
+        sources: dict[str, list[LibrarySource]] | None = None,
+    ):
         self.type = scene_type
         self.room = np.asarray(room, float)
         self.seed = seed
         self.rng = np.random.default_rng([seed, 7919])
+        #: class -> the model libraries its objects come from (classes absent are generated).
+        self.sources = sources or {}
+        #: class -> (library, model) pairs its objects take in turn, from a random start.
+        self._library_models: dict[str, list] = {}
+        self._library_turn: dict[str, int] = {}
         self.objects: list[Placed] = []
         self._model_index = 0
         self.skipped: dict[str, int] = {}
@@ -119,6 +131,24 @@ class Placer:
     # ---- models ------------------------------------------------------------------------
 
     def model_for(self, class_name: str, family: str | None = None) -> Model:
+        if class_name in self.sources and family is None:
+            from stratamap.core.synthetic.library_objects import candidates, to_scene_model
+
+            if class_name not in self._library_models:
+                sources = self.sources[class_name]
+                self._library_models[class_name] = [
+                    (source, model)
+                    for k, source in enumerate(sources)
+                    for model in candidates(
+                        source, class_name, f"objects.{class_name}.library" + (f"[{k}]" if len(sources) > 1 else "")
+                    )
+                ]
+                self._library_turn[class_name] = int(self.rng.integers(len(self._library_models[class_name])))
+            options = self._library_models[class_name]
+            source, model = options[self._library_turn[class_name] % len(options)]
+            self._library_turn[class_name] += 1
+            self._model_index += 1
+            return to_scene_model(model, class_name, source, self.rng)
         if family is None:
             weights = FAMILY_WEIGHTS.get(self.type, {}).get(class_name)
             if weights:
@@ -260,6 +290,16 @@ class Placer:
                 slots.append((host, np.array([-L / 2 - 0.25, 0.0]), np.pi / 2, 0.0))
                 slots.append((host, np.array([L / 2 + 0.25, 0.0]), -np.pi / 2, 0.0))
                 slots.append((host, np.array([0.0, -W / 2 - 0.3]), np.pi, 0.0))
+            elif c == "table" and host.model.family not in FAMILIES:
+                # A table from a model library: seats along the sides of its box, as at a rectangular table.
+                L, W = host.model.size[:2]
+                n_side = max(1, int((L - 0.2) // 0.65))
+                for x in (np.arange(n_side) - (n_side - 1) / 2) * (L - 0.2) / n_side:
+                    slots.append((host, np.array([x, -W / 2]), np.pi, 1.0))
+                    slots.append((host, np.array([x, W / 2]), 0.0, 1.0))
+                if W > 0.5:
+                    slots.append((host, np.array([-L / 2, 0.0]), np.pi / 2, 0.6))
+                    slots.append((host, np.array([L / 2, 0.0]), -np.pi / 2, 0.6))
         return slots
 
     def place_seat(self, model: Model, slots: list, tries: int = 2) -> Placed | None:
@@ -376,8 +416,15 @@ class Placer:
         return None
 
 
-def place_objects(scene_type: str, room: tuple[float, float, float], objects: dict[str, int], seed: int) -> Placer:
-    placer = Placer(scene_type, room, seed)
+def place_objects(
+    scene_type: str,
+    room: tuple[float, float, float],
+    objects: dict[str, int],
+    seed: int,
+    sources: dict[str, list[LibrarySource]] | None = None,
+) -> Placer:
+    """Place ``objects`` (counts by class) by the rules; classes in ``sources`` come from those libraries."""
+    placer = Placer(scene_type, room, seed, sources)
     for cls in ORDER:
         if objects.get(cls, 0) > 0:
             placer.place(cls, objects[cls])

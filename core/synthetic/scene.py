@@ -1,4 +1,5 @@
-"""Procedural scenes: a room, furniture placed by the rules of its type, and the scene's ground truth."""
+"""Procedural scenes: a room, furniture (generated or from model libraries) placed by the rules of its type, and
+the scene's ground truth."""
 
 from __future__ import annotations
 
@@ -95,10 +96,14 @@ class Scene:
 
     def all_meshes(self) -> list[tuple[str, int, trimesh.Trimesh, tuple[float, float, float]]]:
         """(class, instance id, world mesh, albedo) of every layout element and object part."""
-        out = [(el.class_name, 0, el.mesh, el.albedo) for el in self.layout]
+        return [(c, i, mesh, albedo) for c, i, mesh, albedo, _ in self.colored_meshes()]
+
+    def colored_meshes(self) -> list[tuple[str, int, trimesh.Trimesh, tuple[float, float, float], np.ndarray | None]]:
+        """As :meth:`all_meshes`, with each part's per-face colours (None where it has one colour)."""
+        out = [(el.class_name, 0, el.mesh, el.albedo, None) for el in self.layout]
         for obj in self.objects:
             for part, mesh in obj.world_parts():
-                out.append((obj.class_name, obj.id, mesh, part.albedo))
+                out.append((obj.class_name, obj.id, mesh, part.albedo, part.face_colors))
         return out
 
 
@@ -134,7 +139,7 @@ def room_layout(room: tuple[float, float, float]) -> list[LayoutElement]:
 def generate_scene(spec: SceneSpec) -> Scene:
     """Place the spec's objects in its room by the rules of its type (deterministic in the seed)."""
     room = spec.resolved_room_size()
-    placer = place_objects(spec.type, room, spec.resolved_objects(), spec.seed)
+    placer = place_objects(spec.type, room, spec.resolved_objects(), spec.seed, spec.resolved_sources())
     scene = Scene(spec=spec, layout=room_layout(room), skipped=placer.skipped)
     scene.objects = [PlacedObject(p.id, p.model, p.pose, p.parent) for p in placer.objects]
     return scene

@@ -10,17 +10,36 @@ Example (``configs/scenes/office.yaml``)::
     trajectory: {type: walk, frames: 120}
     noise: {depth: kinect}
     laser: {height: 0.25}
+
+Objects may come from a model library instead of the generator (see docs/generalization.md):
+per class, ``objects: {chair: {count: 3, library: {path: ../data/partnet_mobility, models: ["179"]}}}``,
+or for every class at once, a top-level ``library: {path: ...}``. Relative library paths are
+resolved against the spec file's folder; ``pybullet_data:table/table.urdf`` names a file of the
+``pybullet_data`` package. Such objects are placed by the same rules as generated ones, scaled
+to metres (sources without units, PartNet-Mobility, to the class's typical height) and rendered
+in their own colours.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
-from stratamap.core.documents import load_model
+from stratamap.core.documents import read_mapping, validation_problems
+from stratamap.core.errors import ConfigError
 from stratamap.core.map.sensors import CameraIntrinsics
 
 SCENE_TYPES = ("room", "office", "meeting_room", "kitchen", "lounge", "corridor")
@@ -177,6 +196,114 @@ class GroundTruthSpec(_Spec):
     )
 
 
+PYBULLET_DATA_PREFIX = "pybullet_data:"
+
+
+def resolve_library_path(value: str, base: Path | None) -> Path:
+    """A library path as written in a spec: ``pybullet_data:REL`` (a file of the pybullet_data
+    package), absolute, or relative to ``base`` (the spec file's folder; the working folder when
+    None). Raises ValueError when it does not exist."""
+    if value.startswith(PYBULLET_DATA_PREFIX):
+        import importlib.util
+
+        found = importlib.util.find_spec("pybullet_data")
+        if found is None or not found.submodule_search_locations:
+            raise ValueError(f"{value!r} needs the pybullet_data package (pip install pybullet)")
+        path = Path(list(found.submodule_search_locations)[0]) / value[len(PYBULLET_DATA_PREFIX) :]
+    else:
+        path = Path(value).expanduser()
+        if not path.is_absolute():
+            path = (base or Path.cwd()) / path
+    if not path.exists():
+        where = f" (relative paths are resolved against {base})" if base is not None else ""
+        raise ValueError(f"{value!r} not found{where}: expected a model library folder or a .urdf file")
+    return path.resolve()
+
+
+class LibrarySource(_Spec):
+    """Where objects come from when they are not generated: a model library folder (PartNet-Mobility
+    objects, stratamap's own format, meshes with classes.csv) or one URDF file."""
+
+    path: str = Field(
+        description=(
+            "Library folder or .urdf file; relative to the spec file's folder, or pybullet_data:REL for a file of "
+            "the pybullet_data package."
+        )
+    )
+    models: list[str] | None = Field(
+        default=None,
+        description=(
+            "Ids of the models to draw from (PartNet folder names such as '179' work too); default: every model "
+            "of the object's class in the library."
+        ),
+    )
+    links: list[str] | None = Field(
+        default=None,
+        description="URDF only: the links whose subtrees make the object (one cabinet of a whole kitchen).",
+    )
+    front: Literal["-y", "+y", "-x", "+x"] = Field(
+        default="-y",
+        description="The side of the model that is its front (doors, the seat's open side), turned to face the room.",
+    )
+    height: float | tuple[float, float] | None = Field(
+        default=None,
+        description="Scale each object uniformly to this height, or to a height drawn from [low, high], metres.",
+    )
+    scale: float | None = Field(
+        default=None, gt=0, description="Scale factor to metres; default 1, or the class's typical height if unitless."
+    )
+    up_axis: Literal["z", "y"] = Field(default="z", description="Up axis of the meshes of a mesh folder.")
+
+    @field_validator("path")
+    @classmethod
+    def _exists(cls, value: str, info: ValidationInfo) -> str:
+        base = (info.context or {}).get("base_dir")
+        return str(resolve_library_path(value, Path(base) if base else None))
+
+    @field_validator("height")
+    @classmethod
+    def _positive_height(cls, value: float | tuple[float, float] | None) -> float | tuple[float, float] | None:
+        low, high = (value, value) if isinstance(value, (int, float)) else (value or (1.0, 1.0))
+        if not 0 < low <= high:
+            raise ValueError(f"height must be positive (a range as [low, high] with low <= high), got {value}")
+        return value
+
+    @model_validator(mode="after")
+    def _links_need_urdf(self) -> LibrarySource:
+        if self.links and not self.path.lower().endswith(".urdf"):
+            raise ValueError("`links` selects parts of a .urdf file; `path` is not one")
+        if self.height is not None and self.scale is not None:
+            raise ValueError("give `height` or `scale`, not both")
+        return self
+
+
+#: Tags of the union branches below; dropped from error locations (``objects.chair.library.path``).
+_BRANCH_TAGS = ("<one library>", "<libraries>", "<count>", "<entry>")
+
+Libraries = Annotated[
+    Annotated[LibrarySource, Tag("<one library>")] | Annotated[list[LibrarySource], Tag("<libraries>")],
+    Discriminator(lambda value: "<libraries>" if isinstance(value, list) else "<one library>"),
+]
+
+
+class ObjectSpec(_Spec):
+    """How many objects of a class, and where their models come from."""
+
+    count: int = Field(ge=0, le=64, description="Number of objects of this class.")
+    library: Libraries | None = Field(
+        default=None,
+        description=(
+            "Draw the models from this library, or from these in turn (default: the spec's `library`, else generate)."
+        ),
+    )
+
+
+ObjectEntry = Annotated[
+    Annotated[int, Tag("<count>")] | Annotated[ObjectSpec, Tag("<entry>")],
+    Discriminator(lambda value: "<entry>" if isinstance(value, (dict, ObjectSpec)) else "<count>"),
+]
+
+
 class SceneSpec(_Spec):
     """A procedural scene: type, room, objects, seed, sensors, trajectory and noise."""
 
@@ -186,7 +313,13 @@ class SceneSpec(_Spec):
     room_size: tuple[float, float, float] | None = Field(
         default=None, description="Interior length (x), width (y), height (z) in metres; default per type."
     )
-    objects: dict[str, int] | None = Field(default=None, description="Object counts by class; default per type.")
+    objects: dict[str, ObjectEntry] | None = Field(
+        default=None,
+        description="Object counts by class, or {count, library} to draw a class from a library; default per type.",
+    )
+    library: LibrarySource | None = Field(
+        default=None, description="Draw every class that names no library of its own from this model library."
+    )
     seed: int = Field(default=0, description="Seed of every random choice: same spec and seed, same files bit for bit.")
     camera: CameraSpec = Field(default_factory=CameraSpec, description="The RGB-D camera.")
     trajectory: TrajectorySpec = Field(default_factory=TrajectorySpec, description="The camera path.")
@@ -199,7 +332,7 @@ class SceneSpec(_Spec):
 
     @field_validator("objects")
     @classmethod
-    def _known_classes(cls, value: dict[str, int] | None) -> dict[str, int] | None:
+    def _known_classes(cls, value: dict[str, ObjectEntry] | None) -> dict[str, ObjectEntry] | None:
         if value is None:
             return value
         from stratamap.core.synthetic.placement import PLACEMENT
@@ -207,7 +340,8 @@ class SceneSpec(_Spec):
         unknown = sorted(set(value) - set(PLACEMENT))
         if unknown:
             raise ValueError(f"unknown object classes {unknown}; known: {sorted(PLACEMENT)}")
-        for name, count in value.items():
+        for name, entry in value.items():
+            count = entry.count if isinstance(entry, ObjectSpec) else entry
             if count < 0 or count > 64:
                 raise ValueError(f"count of {name!r} must be between 0 and 64, got {count}")
         return value
@@ -216,8 +350,57 @@ class SceneSpec(_Spec):
         return tuple(self.room_size or SCENE_DEFAULTS[self.type][0])  # type: ignore[return-value]
 
     def resolved_objects(self) -> dict[str, int]:
-        return dict(self.objects if self.objects is not None else SCENE_DEFAULTS[self.type][1])
+        objects = self.objects if self.objects is not None else SCENE_DEFAULTS[self.type][1]
+        return {name: (entry.count if isinstance(entry, ObjectSpec) else entry) for name, entry in objects.items()}
+
+    def resolved_sources(self) -> dict[str, list[LibrarySource]]:
+        """The model libraries of each class drawn from them (classes absent are generated)."""
+        objects = self.objects if self.objects is not None else SCENE_DEFAULTS[self.type][1]
+        out = {}
+        for name, entry in objects.items():
+            source = entry.library if isinstance(entry, ObjectSpec) else None
+            source = source or self.library
+            if source is not None:
+                out[name] = source if isinstance(source, list) else [source]
+        return out
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> SceneSpec:
-        return load_model(cls, path, "scene spec")
+        """A spec file; its relative library paths are resolved against the file's folder."""
+        path = Path(path)
+        doc = read_mapping(path, "scene spec")
+        return cls.from_document(doc, path.parent, source=str(path))
+
+    @classmethod
+    def from_document(cls, doc: dict[str, Any], base_dir: Path | None, source: str | None = None) -> SceneSpec:
+        """A spec from its YAML mapping, relative library paths resolved against ``base_dir``."""
+        try:
+            return cls.model_validate(doc, context={"base_dir": str(base_dir) if base_dir else None})
+        except ValidationError as exc:
+            problems = [
+                (".".join(part for part in key.split(".") if part not in _BRANCH_TAGS), message)
+                for key, message in validation_problems(exc)
+            ]
+            raise ConfigError(problems, source=source) from None
+
+
+def resolve_spec_paths(doc: dict[str, Any], base_dir: Path) -> dict[str, Any]:
+    """A copy of a spec's YAML mapping whose relative library paths are made absolute against
+    ``base_dir`` (for specs read from a file and then passed on as a mapping, as benchmarks do)."""
+    import copy
+
+    out = copy.deepcopy(doc)
+
+    def fix(library: Any) -> None:
+        if isinstance(library, dict) and isinstance(library.get("path"), str):
+            value = library["path"]
+            if not value.startswith(PYBULLET_DATA_PREFIX) and not Path(value).expanduser().is_absolute():
+                library["path"] = str((base_dir / value).resolve())
+
+    fix(out.get("library"))
+    objects = out.get("objects")
+    for entry in objects.values() if isinstance(objects, dict) else []:
+        libraries = entry.get("library") if isinstance(entry, dict) else None
+        for library in libraries if isinstance(libraries, list) else [libraries]:
+            fix(library)
+    return out

@@ -159,7 +159,7 @@ def test_cli_plugins_json_lists_all_kinds():
     result = runner.invoke(app, ["plugins", "--json"])
     assert result.exit_code == 0
     entries = json.loads(result.stdout)
-    assert {e["kind"] for e in entries} == {"sources", "segmenters", "mappers", "completers", "exporters"}
+    assert {e["kind"] for e in entries} == {"sources", "segmenters", "mappers", "completers", "exporters", "observers"}
     assert all({"kind", "name", "distribution", "description"} <= set(e) for e in entries)
 
 

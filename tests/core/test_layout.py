@@ -5,7 +5,8 @@
    geometry -> errors, atomic.
 2. An algorithm lives beside the stage that uses it; no plugin imports another plugin (code shared
    by stages of one kind is an underscore module of that kind).
-3. Every non-underscore entry of ``plugins/<kind>/`` registers exactly one stage.
+3. Every non-underscore entry of ``plugins/<kind>/`` registers exactly one stage (of ``plugins/observers/``:
+   exactly one observer), named like the entry.
 """
 
 from __future__ import annotations
@@ -15,8 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from stratamap.core.registry import build_registry
-from stratamap.core.stages import KINDS
+from stratamap.core.registry import PLUGIN_KINDS, build_registry
 from tests.conftest import REPO
 
 PACKAGES = {"core": "stratamap.core", "plugins": "stratamap.plugins"}
@@ -43,6 +43,7 @@ CORE_RANKS = {
     "pipeline": 4,
     "testing": 4,
     "evaluation": 5,
+    "viewer": 5,
     "cli": 6,
 }
 
@@ -133,7 +134,12 @@ def _entries(kind: str) -> list[str]:
     return sorted(n for n in names if not n.startswith("_"))
 
 
-@pytest.mark.parametrize("kind", KINDS)
+def test_every_plugin_folder_is_a_kind():
+    folders = sorted(p.name for p in (REPO / "plugins").iterdir() if (p / "__init__.py").exists())
+    assert folders == sorted(PLUGIN_KINDS)
+
+
+@pytest.mark.parametrize("kind", PLUGIN_KINDS)
 def test_each_plugin_entry_registers_exactly_one_stage(kind):
     registry = build_registry(eps=[], extra_modules=[], autoload=True)
     by_module: dict[str, list[str]] = {}

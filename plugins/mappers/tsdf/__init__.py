@@ -22,7 +22,7 @@ from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
-from stratamap.core.map.instances import instances_from_semantics
+from stratamap.core.map.instances import instances_from_semantics, veto_implausible_classes
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
@@ -69,6 +69,13 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
+    size_veto: bool = Field(
+        default=True,
+        description=(
+            "Class size priors (core/map/priors.py) veto impossible labels: an instance too large for its class "
+            "(a 2.2 m chair) takes its next most voted class that fits, else 'object'."
+        ),
+    )
     instances: Literal["labels", "masks"] = Field(
         default="labels",
         description=(
@@ -285,7 +292,12 @@ class TSDFMapper(Mapper[TSDFConfig]):
         if len(small):
             drop = np.isin(point_instance, small)
             point_class[drop], point_instance[drop] = 0, 0
+        vetoed: list[dict] = []
+        if cfg.size_veto:
+            point_class, vetoed = veto_implausible_classes(points, point_class, point_instance, vocab)
         semantics = Semantics(point_class, point_instance, vocab)
+        if vetoed:
+            self.note("size_vetoes", vetoed)
         self.note(
             "panoptic",
             {

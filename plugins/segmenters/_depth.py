@@ -1,0 +1,427 @@
+"""Per-frame geometric segmentation of depth images, and panoptic labels from it and 2D detections.
+
+The functional-scenes paper (section 3.1) segments every depth frame geometrically before any
+label is attached: surfaces are cut where the depth jumps and where two surfaces meet in a concave
+crease (a chair leg on the floor, a cup on a table, the floor against a wall), never along convex
+edges (a table top's rim). Each segment is then one piece of one object or of the room, so a 2D
+detection only has to say *which* segments are its object: the segments lying mostly inside its
+box or mask, near its main segment in 3D. What a box or a mask spills onto (the wall and the floor
+behind a chair) is a segment of its own and goes to the background. Layout (floor, wall, ceiling)
+comes from the segments' gravity-aligned planes, so segmenters that do not know it still give it.
+
+Everything works on an image grid ``stride`` times coarser than the frame (a 640 x 480 frame at
+stride 2: 320 x 240 cells), then labels are taken back to the frame's resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stratamap.core.lazy import lazy_module
+from stratamap.core.map.sensors import CameraIntrinsics
+
+ndimage = lazy_module("scipy.ndimage")
+spatial = lazy_module("scipy.spatial")
+
+
+@dataclass(frozen=True)
+class DepthSegmentParams:
+    """How depth frames are cut into geometric segments (see the module docstring)."""
+
+    stride: int = 2
+    smoothing: int = 2  # half-width (cells) of the box filter on points before normals
+    jump_ratio: float = 0.03  # depth step between neighbours, as a share of the depth, that cuts
+    jump_floor: float = 0.01  # metres added to the step threshold (sensor quantization at short range)
+    concave_deg: float = 25.0  # concave creases sharper than this cut
+    min_cells: int = 20  # segments smaller than this (cells) are dropped
+
+
+@dataclass(frozen=True)
+class LayoutParams:
+    """What makes a segment floor, wall or ceiling in a gravity-aligned (z up) world."""
+
+    tilt_deg: float = 20.0  # a surface within this of horizontal (or vertical) counts as such
+    floor_band: float = 0.12  # metres above the floor height that still are floor
+    ceiling_min: float = 1.9  # metres above the floor: downward surfaces higher than this are ceiling
+    wall_min_height: float = 1.0  # metres: vertical planar segments this tall are walls...
+    wall_min_width: float = 2.0  # ...or this wide while reaching above wall_wide_top
+    wall_wide_top: float = 1.3  # metres above the floor (a counter's front is wide but low)
+    planar_rms: float = 0.03  # metres: the RMS distance to its plane a wall or floor segment stays under
+
+
+@dataclass
+class FrameGeometry:
+    """A depth frame on the coarse grid: camera-frame points and normals, and their segments."""
+
+    points: np.ndarray  # (h, w, 3) camera frame, smoothed; 0 where invalid
+    normals: np.ndarray  # (h, w, 3) unit, towards the camera; 0 where invalid
+    valid: np.ndarray  # (h, w) bool
+    segments: np.ndarray  # (h, w) int32, 0 = none
+    stride: int
+    world_points: np.ndarray | None = None  # (h, w, 3), set by segment_stats
+
+
+def _box_mean(values: np.ndarray, weights: np.ndarray, radius: int) -> np.ndarray:
+    size = 2 * radius + 1
+    w = ndimage.uniform_filter(weights.astype(np.float64), size=size, mode="constant")
+    if values.ndim == 3:
+        num = np.stack(
+            [ndimage.uniform_filter(values[..., k] * weights, size=size, mode="constant") for k in range(3)], -1
+        )
+        return num / np.maximum(w, 1e-12)[..., None]
+    return ndimage.uniform_filter(values * weights, size=size, mode="constant") / np.maximum(w, 1e-12)
+
+
+def frame_geometry(depth: np.ndarray, intrinsics: CameraIntrinsics, params: DepthSegmentParams) -> FrameGeometry:
+    """Points, normals and geometric segments of one depth image (metres, 0 or NaN = no return)."""
+    s = max(1, int(params.stride))
+    z = np.nan_to_num(np.asarray(depth, np.float64)[::s, ::s], nan=0.0, posinf=0.0, neginf=0.0)
+    h, w = z.shape
+    valid = z > 0
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    u, v = xs * s, ys * s
+    raw = np.stack([(u - intrinsics.cx) * z / intrinsics.fx, (v - intrinsics.cy) * z / intrinsics.fy, z], -1)
+
+    # Depth jumps on the raw points (smoothing would blur them into slopes).
+    thresh = params.jump_ratio * z + params.jump_floor
+    cut = ~valid.copy()
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        step = np.abs(z[tuple(a)] - z[tuple(b)]) > np.minimum(thresh[tuple(a)], thresh[tuple(b)])
+        both = valid[tuple(a)] & valid[tuple(b)]
+        jump = step & both
+        cut[tuple(a)] |= jump
+        cut[tuple(b)] |= jump
+
+    # Normals from points smoothed within one surface: a box filter over cells that are not cut
+    # keeps a chair's edge from averaging with the wall behind it.
+    inside = valid & ~cut
+    pts = _box_mean(raw, inside.astype(np.float64), params.smoothing)
+    pts[~valid] = 0.0
+    r = max(1, params.smoothing)
+    dx = np.zeros_like(pts)
+    dy = np.zeros_like(pts)
+    dx[:, r:-r] = pts[:, 2 * r :] - pts[:, : -2 * r]
+    dy[r:-r, :] = pts[2 * r :, :] - pts[: -2 * r, :]
+    n = np.cross(dx, dy)
+    norm = np.linalg.norm(n, axis=-1)
+    ok = valid & (norm > 1e-12)
+    n = np.where(ok[..., None], n / np.maximum(norm, 1e-12)[..., None], 0.0)
+    flip = np.einsum("hwc,hwc->hw", n, pts) > 0  # face the camera
+    n[flip] *= -1
+
+    # Concave creases: (n_b - n_a) . (p_b - p_a) < 0 with a sharp enough angle, for cells a and b
+    # 2r either side of a cell: far enough that neither normal's support crosses the crease.
+    cos_min = np.cos(np.radians(params.concave_deg))
+    span = 2 * r
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(0, -2 * span), slice(2 * span, None)
+        na, nb, pa, pb = n[tuple(a)], n[tuple(b)], pts[tuple(a)], pts[tuple(b)]
+        both = ok[tuple(a)] & ok[tuple(b)]
+        concave = np.einsum("hwc,hwc->hw", nb - na, pb - pa) < 0
+        sharp = np.einsum("hwc,hwc->hw", na, nb) < cos_min
+        crease = both & concave & sharp
+        mid = [slice(None), slice(None)]
+        mid[axis] = slice(span, -span)
+        cut[tuple(mid)] |= crease
+
+    # Cells with no normal (the frame's rim) cannot be judged: they are cut too, and regrown below.
+    cut |= ~ok
+    segments, _ = ndimage.label(~cut)
+    segments = segments.astype(np.int32)
+    # Small pieces (noise at edges) are dropped; cut cells then join the segment they are nearest
+    # to when their depth continues it, so creases do not leave unlabelled bands.
+    counts = np.bincount(segments.ravel())
+    small = counts < params.min_cells
+    small[0] = True
+    segments[small[segments]] = 0
+    holes = valid & (segments == 0)
+    if holes.any() and (segments > 0).any():
+        _, (iy, ix) = ndimage.distance_transform_edt(segments == 0, return_indices=True)
+        near = segments[iy, ix]
+        continuous = np.abs(z[iy, ix] - z) <= thresh * 2
+        grow = holes & continuous & (np.hypot(iy - ys, ix - xs) <= 2 * span + 1)
+        segments[grow] = near[grow]
+    pts = np.where(valid[..., None], np.where(ok[..., None], pts, raw), 0.0)
+    return FrameGeometry(pts, n, valid, segments, s)
+
+
+@dataclass
+class SegmentStats:
+    """Per segment (index = segment id): size, world centroid, mean world normal and extents."""
+
+    cells: np.ndarray
+    centroid: np.ndarray  # (n, 3)
+    normal: np.ndarray  # (n, 3) mean unit normal (not renormalised: its length says how planar)
+    z_low: np.ndarray
+    z_high: np.ndarray
+    width: np.ndarray  # horizontal extent along the segment's main horizontal direction
+    rms: np.ndarray  # RMS distance to the segment's least-squares plane
+    z_std: np.ndarray  # standard deviation of the heights
+
+
+def segment_stats(geometry: FrameGeometry, camera_to_world: np.ndarray) -> SegmentStats:
+    labels = geometry.segments.ravel()
+    n_seg = int(labels.max()) + 1 if labels.size else 1
+    rot, t = camera_to_world[:3, :3], camera_to_world[:3, 3]
+    p = geometry.points.reshape(-1, 3) @ rot.T + t
+    geometry.world_points = p.reshape(geometry.points.shape)
+    nw = geometry.normals.reshape(-1, 3) @ rot.T
+    keep = labels > 0
+    lab, p, nw = labels[keep], p[keep], nw[keep]
+    cells = np.bincount(lab, minlength=n_seg).astype(np.float64)
+    den = np.maximum(cells, 1)[:, None]
+    centroid = np.stack([np.bincount(lab, p[:, k], n_seg) for k in range(3)], -1) / den
+    normal = np.stack([np.bincount(lab, nw[:, k], n_seg) for k in range(3)], -1) / den
+    z_low = np.full(n_seg, np.inf)
+    z_high = np.full(n_seg, -np.inf)
+    np.minimum.at(z_low, lab, p[:, 2])
+    np.maximum.at(z_high, lab, p[:, 2])
+    # Covariance per segment, for the plane fit and the horizontal extent.
+    d = p - centroid[lab]
+    cov = np.zeros((n_seg, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(lab, d[:, i] * d[:, j], n_seg) / den[:, 0]
+    evals = np.linalg.eigvalsh(cov)  # ascending
+    rms = np.sqrt(np.maximum(evals[:, 0], 0))
+    horiz = cov[:, :2, :2]
+    hev = np.linalg.eigvalsh(horiz)
+    width = 4.0 * np.sqrt(np.maximum(hev[:, -1], 0))  # +-2 sigma of a uniform spread ~ its length
+    z_std = np.sqrt(np.maximum(cov[:, 2, 2], 0))
+    return SegmentStats(cells, centroid, normal, z_low, z_high, width, rms, z_std)
+
+
+def layout_segments(stats: SegmentStats, floor_height: float, params: LayoutParams) -> dict[str, np.ndarray]:
+    """Boolean masks over segment ids: which segments are floor, wall and ceiling."""
+    length = np.linalg.norm(stats.normal, axis=1)
+    unit = stats.normal / np.maximum(length, 1e-12)[:, None]
+    flat = length > 0.8  # a planar segment's normals agree
+    cos_t = np.cos(np.radians(params.tilt_deg))
+    sin_t = np.sin(np.radians(params.tilt_deg))
+    rel_high = stats.z_high - floor_height
+    rel_low = stats.z_low - floor_height
+    planar = stats.rms <= params.planar_rms
+    # Pieces lying wholly within a few centimetres of the floor are floor whatever their normals (the
+    # floor's fragments between chair legs are small and noisy; no object is that flat on the floor).
+    lying = (np.abs(stats.centroid[:, 2] - floor_height) < params.floor_band / 3) & (
+        stats.z_std < params.floor_band / 6
+    )
+    floor = (flat & (unit[:, 2] > cos_t) & (rel_high < params.floor_band)) | lying
+    ceiling = flat & (unit[:, 2] < -cos_t) & (rel_low > params.ceiling_min)
+    tall = (rel_high - np.maximum(rel_low, 0)) >= params.wall_min_height
+    wide = (stats.width >= params.wall_min_width) & (rel_high >= params.wall_wide_top)
+    wall = flat & planar & (np.abs(unit[:, 2]) < sin_t) & (tall | wide)
+    wall &= ~floor & ~ceiling
+    for mask in (floor, wall, ceiling):
+        mask[0] = False
+    return {"floor": floor, "wall": wall, "ceiling": ceiling}
+
+
+@dataclass
+class Region:
+    """One 2D detection: a class id, a score and where it is (a box in frame pixels or a mask)."""
+
+    class_id: int
+    score: float
+    box: tuple[float, float, float, float] | None = None  # x1, y1, x2, y2 in frame pixels
+    mask: np.ndarray | None = None  # (H, W) bool at the frame's resolution
+    extent: float = 1.0  # metres: the farthest an object of this class reaches from its main segment
+
+
+def suppress_duplicates(regions: list[Region], iou: float = 0.75, contained: float = 0.8) -> list[Region]:
+    """Drop boxes that describe an object a more confident box already describes: any class with a
+    box overlap of ``iou`` or more (a table also called a desk), or the same class lying ``contained``
+    inside it (a second chair box around the chair's back). Masks are kept as they are."""
+    kept: list[Region] = []
+    for region in sorted(regions, key=lambda r: -r.score):
+        if region.box is not None:
+            x1, y1, x2, y2 = region.box
+            area = max(x2 - x1, 0) * max(y2 - y1, 0)
+            duplicate = False
+            for other in kept:
+                if other.box is None:
+                    continue
+                ox1, oy1, ox2, oy2 = other.box
+                inter = max(min(x2, ox2) - max(x1, ox1), 0) * max(min(y2, oy2) - max(y1, oy1), 0)
+                union = area + max(ox2 - ox1, 0) * max(oy2 - oy1, 0) - inter
+                if inter >= iou * max(union, 1e-9) or (
+                    other.class_id == region.class_id and inter >= contained * max(area, 1e-9)
+                ):
+                    duplicate = True
+                    break
+            if duplicate:
+                continue
+        kept.append(region)
+    return kept
+
+
+def _region_masks(regions: list[Region], shape: tuple[int, int], stride: int) -> list[np.ndarray | None]:
+    h, w = shape
+    out: list[np.ndarray | None] = []
+    for region in regions:
+        if region.mask is not None:
+            out.append(np.asarray(region.mask, bool)[::stride, ::stride][:h, :w])
+        elif region.box is not None:
+            x1, y1, x2, y2 = region.box
+            inside = np.zeros((h, w), bool)
+            r0, r1 = int(np.floor(max(y1, 0) / stride)), int(np.ceil(min(y2, h * stride) / stride))
+            c0, c1 = int(np.floor(max(x1, 0) / stride)), int(np.ceil(min(x2, w * stride) / stride))
+            inside[r0:r1, c0:c1] = True
+            out.append(inside)
+        else:
+            out.append(None)
+    return out
+
+
+def _segment_boxes(labels: np.ndarray, n_seg: int) -> np.ndarray:
+    """(n, 4) row0, col0, row1, col1 (exclusive) of each segment on the grid."""
+    rows, cols = np.nonzero(labels)
+    lab = labels[rows, cols]
+    box = np.zeros((n_seg, 4))
+    box[:, :2] = np.inf
+    np.minimum.at(box[:, 0], lab, rows)
+    np.minimum.at(box[:, 1], lab, cols)
+    np.maximum.at(box[:, 2], lab, rows + 1)
+    np.maximum.at(box[:, 3], lab, cols + 1)
+    return box
+
+
+def assign_regions(
+    geometry: FrameGeometry,
+    stats: SegmentStats,
+    layout: dict[str, np.ndarray],
+    regions: list[Region],
+    inside_ratio: float = 0.5,
+    gap: float = 0.1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Segment -> (class id, instance id) arrays (instance ids are region indices + 1).
+
+    A segment is a candidate of a region when at least ``inside_ratio`` of it lies inside the
+    region. Each region first gets one core segment: pairs are taken best first by how well the
+    segment fits the region (IoU of the segment's image box with a box, or of its pixels with a
+    mask), so that where boxes overlap (a chair before a table) each one's core is the segment it
+    frames best, not the largest one it happens to contain. Regions then grow through their other
+    free candidates that come within ``gap`` (metres) of a segment they hold, nearest first, up to
+    their class's ``extent`` from the core. Layout segments (floor, wall, ceiling) are never taken."""
+    n_seg = len(stats.cells)
+    seg_class = np.zeros(n_seg, np.int64)
+    seg_instance = np.zeros(n_seg, np.int64)
+    labels = geometry.segments
+    free = np.ones(n_seg, bool)
+    for name in ("floor", "wall", "ceiling"):
+        free &= ~layout[name]
+    free[0] = False
+    if not regions or not free.any():
+        return seg_class, seg_instance
+    masks = _region_masks(regions, labels.shape, geometry.stride)
+    seg_box = _segment_boxes(labels, n_seg)
+    seg_area = (seg_box[:, 2] - seg_box[:, 0]).clip(0) * (seg_box[:, 3] - seg_box[:, 1]).clip(0)
+    candidates: list[np.ndarray] = []
+    pairs: list[tuple[float, float, int, int]] = []
+    for k, (region, inside) in enumerate(zip(regions, masks, strict=True)):
+        if inside is None:
+            candidates.append(np.zeros(0, np.int64))
+            continue
+        in_count = np.bincount(labels[inside], minlength=n_seg)[:n_seg]
+        cand = np.flatnonzero((in_count >= inside_ratio * np.maximum(stats.cells, 1)) & free)
+        candidates.append(cand)
+        if region.mask is not None:
+            area = float(inside.sum())
+            fit = in_count[cand] / np.maximum(stats.cells[cand] + area - in_count[cand], 1)
+        else:
+            rows, cols = np.nonzero(inside)
+            r0, c0, r1, c1 = rows.min(), cols.min(), rows.max() + 1, cols.max() + 1
+            b = seg_box[cand]
+            ih = (np.minimum(b[:, 2], r1) - np.maximum(b[:, 0], r0)).clip(0)
+            iw = (np.minimum(b[:, 3], c1) - np.maximum(b[:, 1], c0)).clip(0)
+            inter = ih * iw
+            fit = inter / np.maximum(seg_area[cand] + (r1 - r0) * (c1 - c0) - inter, 1)
+        pairs.extend((float(f), region.score, k, int(c)) for f, c in zip(fit, cand, strict=True))
+    core = np.full(len(regions), -1)
+    taken = ~free
+    for _, _, k, seg in sorted(pairs, key=lambda p: (-p[0], -p[1], p[2], p[3])):
+        if core[k] < 0 and not taken[seg]:
+            core[k] = seg
+            taken[seg] = True
+    for k in np.flatnonzero(core >= 0):
+        seg_class[core[k]] = regions[k].class_id
+        seg_instance[core[k]] = k + 1
+    claims: dict[int, list[int]] = {}
+    for k, cand in enumerate(candidates):
+        if core[k] < 0:
+            continue
+        for seg in cand:
+            if not taken[seg]:
+                claims.setdefault(int(seg), []).append(k)
+    if not claims:
+        return seg_class, seg_instance
+    # Objects are connected: a region grows from its core through the claimed segments that come
+    # within ``gap`` of what it already holds (a leg under a table top, a chair's back above its
+    # seat), nearest first across all regions, and no farther than its class reaches from the core.
+    # A chair standing near a table, inside the table's box but apart from it, is not taken.
+    points = _segment_points(geometry, stats, max_points=400)
+    involved = sorted({*claims, *(int(c) for c in core[core >= 0])})
+    trees = {seg: spatial.cKDTree(points[seg]) for seg in involved}
+    near: dict[tuple[int, int], float] = {}
+
+    def distance(a: int, b: int) -> float:
+        key = (a, b) if a < b else (b, a)
+        if key not in near:
+            near[key] = float(trees[a].query(points[b], k=1)[0].min())
+        return near[key]
+
+    members = {int(k): [int(core[k])] for k in np.flatnonzero(core >= 0)}
+    open_segments = set(claims)
+    while open_segments:
+        best = None
+        for seg in open_segments:
+            for k in claims[seg]:
+                if np.linalg.norm(stats.centroid[seg] - stats.centroid[core[k]]) > regions[k].extent:
+                    continue
+                d = min(distance(seg, m) for m in members[k])
+                if d <= gap and (best is None or (d, seg, k) < best):
+                    best = (d, seg, k)
+        if best is None:
+            break
+        _, seg, k = best
+        members[k].append(seg)
+        seg_class[seg] = regions[k].class_id
+        seg_instance[seg] = k + 1
+        open_segments.discard(seg)
+    return seg_class, seg_instance
+
+
+def _segment_points(geometry: FrameGeometry, stats: SegmentStats, max_points: int = 0) -> dict[int, np.ndarray]:
+    """World points of every segment (the same world frame as ``stats``); at most ``max_points`` each
+    (an even subsample) when set."""
+    labels = geometry.segments.ravel()
+    pts = geometry.world_points.reshape(-1, 3) if geometry.world_points is not None else None
+    if pts is None:
+        raise ValueError("segment_stats must run before assign_regions (it sets the world points)")
+    order = np.argsort(labels, kind="stable")
+    ids, starts = np.unique(labels[order], return_index=True)
+    bounds = np.append(starts, len(order))
+    out = {}
+    for j, i in enumerate(ids):
+        if i <= 0:
+            continue
+        sel = order[bounds[j] : bounds[j + 1]]
+        if max_points and len(sel) > max_points:
+            sel = sel[np.linspace(0, len(sel) - 1, max_points).astype(int)]
+        out[int(i)] = pts[sel]
+    return out
+
+
+def to_frame(values: np.ndarray, stride: int, shape: tuple[int, int]) -> np.ndarray:
+    """Coarse-grid values back at the frame's resolution (nearest cell)."""
+    h, w = shape
+    rows = np.minimum(np.arange(h) // stride, values.shape[0] - 1)
+    cols = np.minimum(np.arange(w) // stride, values.shape[1] - 1)
+    return values[rows][:, cols]

@@ -1,0 +1,254 @@
+"""Segmenter ``detector``: a 2D box detector trained on real photographs, made panoptic by per-frame
+depth segmentation.
+
+Each frame is cut into geometric segments (depth jumps and concave creases; see
+:mod:`stratamap.plugins.segmenters._depth`); floor, walls and ceiling come from the segments'
+gravity-aligned planes; every detection, most confident first, takes the free segments lying mostly
+inside its box near its largest one. What a box only spills onto (the wall and floor behind a
+chair, another object behind it) stays background, so a box detector becomes an instance
+segmenter without label bleeding.
+
+With no ``model`` given, the shipped detector is used: MediaPipe's SSD MobileNetV2 trained on Open
+Images V4 (24 classes, Apache-2.0), converted to ONNX by ``scripts/build_detector.py``; its
+provenance and license are beside it in ``models/``. Detector labels are mapped to the map's
+vocabulary by name (``class_map``); a label the vocabulary lacks becomes ``object``, never dropped.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
+from stratamap.core.errors import DataError
+from stratamap.core.map.priors import CLASS_SIZES
+from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.plugins.segmenters import _depth
+
+MODELS = Path(__file__).resolve().parent / "models"
+SHIPPED = MODELS / "objectron_ssd_oidv4.onnx"
+
+#: Open Images names of the shipped detector that are map classes under another name.
+OPEN_IMAGES_TO_MAP = {
+    "Chair": "chair",
+    "Table": "table",
+    "Desk": "desk",
+    "Laptop": "laptop",
+    "Computer monitor": "monitor",
+    "Mug": "cup",
+    "Coffee cup": "cup",
+    "Bottle": "bottle",
+    "Book": "book",
+    "Box": "box",
+}
+
+
+class DepthSegmentsConfig(BaseModel):
+    """How each depth frame is cut into geometric segments."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    stride: int = Field(
+        default=2, ge=1, le=8, description="Segment on a grid this many times coarser than the frame (speed)."
+    )
+    smoothing: int = Field(
+        default=2, ge=1, le=8, description="Half-width in grid cells of the point smoothing before normals."
+    )
+    jump_ratio: float = Field(
+        default=0.03, gt=0, le=0.5, description="A depth step above this share of the depth separates surfaces."
+    )
+    concave_deg: float = Field(
+        default=25.0,
+        gt=0,
+        lt=90,
+        description="Concave creases sharper than this separate surfaces (a leg on the floor, a cup on a table).",
+    )
+    min_cells: int = Field(default=20, ge=1, description="Segments of fewer grid cells are dropped as noise.")
+
+
+class LayoutConfig(BaseModel):
+    """What makes a segment floor, wall or ceiling (in the gravity-aligned world, z up)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    floor_height: float | None = Field(
+        default=None,
+        description="Height of the floor (m); default: the lowest large upward-facing surface of the frames.",
+    )
+    tilt_deg: float = Field(
+        default=20.0, gt=0, lt=45, description="Surfaces within this of horizontal or vertical count as such."
+    )
+    floor_band: float = Field(default=0.12, ge=0, description="Upward surfaces at most this high above it are floor.")
+    ceiling_min: float = Field(
+        default=1.9, gt=0, description="Downward surfaces higher than this above the floor are ceiling."
+    )
+    wall_min_height: float = Field(
+        default=1.0, gt=0, description="Vertical planar surfaces spanning this much height are wall."
+    )
+    wall_min_width: float = Field(
+        default=2.0,
+        gt=0,
+        description="...or this much width while reaching above wall_wide_top (a counter's front is wide but low).",
+    )
+    wall_wide_top: float = Field(default=1.3, gt=0, description="See wall_min_width (m above the floor).")
+
+
+class DetectorConfig(StageConfig):
+    path_fields = ("model",)
+
+    model: str | None = Field(
+        default=None,
+        description="ONNX detector with a JSON sidecar naming its layout; default: the shipped Open Images SSD.",
+    )
+    score_threshold: float = Field(default=0.3, ge=0.0, le=1.0, description="Detections scoring less are ignored.")
+    nms_iou: float = Field(default=0.5, gt=0.0, le=1.0, description="Non-maximum suppression IoU within a class.")
+    class_map: dict[str, str] = Field(
+        default_factory=dict,
+        description="Rename detector labels to map classes, e.g. {'Kitchen appliance': 'appliance'} (adds to the "
+        "built-in Open Images renames).",
+    )
+    inside_ratio: float = Field(
+        default=0.5,
+        gt=0.0,
+        le=1.0,
+        description="A segment joins a detection when at least this share of it lies inside the box.",
+    )
+    reach_scale: float = Field(
+        default=1.2,
+        gt=0.0,
+        description="A segment joins only within this times its class's largest extent (core/map/priors.py) of the "
+        "detection's main segment.",
+    )
+    join_gap: float = Field(
+        default=0.1,
+        gt=0.0,
+        description="A detection grows from its main segment through segments this close (m) to what it holds: "
+        "an object's parts touch, a chair standing near a table is apart from it.",
+    )
+    depth_segments: DepthSegmentsConfig = Field(
+        default_factory=DepthSegmentsConfig, description="Geometric segmentation of each depth frame."
+    )
+    layout: LayoutConfig = Field(default_factory=LayoutConfig, description="Floor, wall and ceiling from planes.")
+    threads: int = Field(default=1, ge=1, description="onnxruntime intra-op threads (1: bit-for-bit repeatable).")
+
+
+def vocabulary_class(label: str, renames: dict[str, str], vocab: Vocabulary) -> str:
+    """The map class of a detector label: renamed, else the label itself in snake case, else ``object``."""
+    name = renames.get(label)
+    if name is None:
+        name = label.strip().lower().replace(" ", "_")
+    return name if name in vocab else "object"
+
+
+class DetectorSegmenter(Segmenter[DetectorConfig]):
+    """Per-frame panoptic labels from a photograph-trained box detector and depth segmentation."""
+
+    name = "detector"
+    Config = DetectorConfig
+    requires = frozenset({"frames"})
+    provides = frozenset({"frame_labels"})
+
+    def _detector(self):
+        from stratamap.plugins.segmenters.detector.box_detector import BoxDetector
+
+        path = Path(self.config.model).expanduser() if self.config.model else SHIPPED
+        if not path.is_file():
+            raise DataError(f"detector: model file not found: {path}")
+        return path, BoxDetector(path, threads=self.config.threads)
+
+    def segment(self, data: PipelineData) -> dict[str, Any]:
+        cfg = self.config
+        stream = data.stream
+        if stream is None or not stream.frames:
+            raise DataError(
+                "detector: the stream has no RGB-D frames (point clouds need a 3D segmenter such as `clusters`)"
+            )
+        if stream.intrinsics is None:
+            raise DataError(f"detector: {stream.name!r} has no camera intrinsics")
+        missing = [f.index for f in stream.frames if f.pose is None]
+        if missing:
+            raise DataError(
+                f"detector: frames {missing[:5]} of {stream.name!r} have no pose; the source must give poses "
+                "(ground truth or odometry) so that floor and walls can be told by gravity"
+            )
+        vocab = data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default()
+        renames = {**OPEN_IMAGES_TO_MAP, **cfg.class_map}
+        path, detector = self._detector()
+        seg_params = _depth.DepthSegmentParams(**cfg.depth_segments.model_dump())
+        lay = cfg.layout
+        floor = lay.floor_height if lay.floor_height is not None else self._floor_height(stream, seg_params, lay)
+        layout_params = _depth.LayoutParams(
+            tilt_deg=lay.tilt_deg,
+            floor_band=lay.floor_band,
+            ceiling_min=lay.ceiling_min,
+            wall_min_height=lay.wall_min_height,
+            wall_min_width=lay.wall_min_width,
+            wall_wide_top=lay.wall_wide_top,
+        )
+        stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
+        out = FrameLabels(segmenter=self.name, tracked_instances=False)
+        counts: dict[str, int] = {}
+        for frame in self.progress(stream.frames, description="detector"):
+            detections = detector.detect(np.asarray(frame.rgb), cfg.score_threshold, cfg.nms_iou)
+            regions = []
+            for box, label, score in zip(detections.boxes, detections.labels, detections.scores, strict=True):
+                name = vocabulary_class(label, renames, vocab)
+                counts[name] = counts.get(name, 0) + 1
+                size = CLASS_SIZES.get(name)
+                extent = (size.extent[1] if size else 1.0) * cfg.reach_scale
+                regions.append(_depth.Region(vocab.id(name), float(score), box=tuple(map(float, box)), extent=extent))
+            regions = _depth.suppress_duplicates(regions)
+            geometry = _depth.frame_geometry(np.asarray(frame.depth), stream.intrinsics, seg_params)
+            stats = _depth.segment_stats(geometry, np.asarray(frame.pose))
+            layout = _depth.layout_segments(stats, floor, layout_params)
+            seg_class, seg_instance = _depth.assign_regions(
+                geometry, stats, layout, regions, cfg.inside_ratio, cfg.join_gap
+            )
+            for name, class_id in stuff.items():
+                seg_class[layout[name]] = class_id
+            shape = np.asarray(frame.depth).shape[:2]
+            cls = _depth.to_frame(seg_class[geometry.segments], geometry.stride, shape)
+            ins = _depth.to_frame(seg_instance[geometry.segments], geometry.stride, shape)
+            out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
+        self.note("model", {"path": str(path), "floor_height": round(float(floor), 4), "detections": counts})
+        return {"frame_labels": out}
+
+    def _floor_height(
+        self, stream: Any, seg_params: _depth.DepthSegmentParams, lay: LayoutConfig, samples: int = 8
+    ) -> float:
+        """0 where the source put the floor there (gravity alignment, synthetic scenes), else the lowest height
+        holding a fifth of the upward-facing planar surface seen in a sample of frames."""
+        if "gravity_alignment" in stream.metadata or "scene_spec" in stream.metadata:
+            return 0.0
+        frames = stream.frames
+        picks = np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).round().astype(int))
+        heights, weights = [], []
+        cos_t = np.cos(np.radians(lay.tilt_deg))
+        for i in picks:
+            frame = frames[int(i)]
+            geometry = _depth.frame_geometry(np.asarray(frame.depth), stream.intrinsics, seg_params)
+            stats = _depth.segment_stats(geometry, np.asarray(frame.pose))
+            length = np.linalg.norm(stats.normal, axis=1)
+            up = (length > 0.8) & (stats.normal[:, 2] / np.maximum(length, 1e-12) > cos_t)
+            up[0] = False
+            heights.extend(stats.centroid[up, 2].tolist())
+            weights.extend(stats.cells[up].tolist())
+        if not heights:
+            self.warn("no upward-facing surface in the frames: no floor labelled")
+            return float("-inf")
+        order = np.argsort(heights)
+        h = np.asarray(heights)[order]
+        w = np.asarray(weights)[order]
+        for k in range(len(h)):
+            if w[np.abs(h - h[k]) <= 0.05].sum() >= 0.2 * w.sum():
+                return float(h[k])
+        return float(h[0])
+
+
+@hookimpl
+def stratamap_register_segmenters():
+    return [DetectorSegmenter]
