@@ -96,6 +96,16 @@ def stratamap_stage_progress(stage: Any, completed: int, total: int | None, desc
 # Observers
 
 
+def configured(owner: Any, config: Any, params: dict[str, Any]) -> Any:
+    """The config of a stage or observer built either from a ``Config`` instance or from keyword parameters."""
+    if config is not None and params:
+        raise TypeError("pass either a Config instance or keyword parameters, not both")
+    config = config if config is not None else owner.Config(**params)
+    if not isinstance(config, owner.Config):
+        raise TypeError(f"{type(owner).__name__} expects a {owner.Config.__name__}, got {type(config).__name__}")
+    return config
+
+
 class ObserverConfig(BaseModel):
     """Base of every observer's parameters: unknown keys are errors, instances are immutable."""
 
@@ -120,12 +130,7 @@ class Observer(Generic[ObserverConfigT]):
     Config: ClassVar[type[ObserverConfig]] = ObserverConfig
 
     def __init__(self, config: ObserverConfig | None = None, **params: Any):
-        if config is not None and params:
-            raise TypeError("pass either a Config instance or keyword parameters, not both")
-        config = config if config is not None else self.Config(**params)
-        if not isinstance(config, self.Config):
-            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(config).__name__}")
-        self.config = config  # type: ignore[assignment]  # Config is ObserverConfigT's class
+        self.config = configured(self, config, params)  # type: ignore[assignment]  # Config is ObserverConfigT's
 
     @classmethod
     def summary(cls) -> str:

@@ -31,6 +31,7 @@ from typing import Any, ClassVar, Generic, Literal, TypeVar, get_args, get_origi
 
 from pydantic import BaseModel, ConfigDict, model_validator
 
+from stratamap.core.hookspecs import configured
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.layers import (
     MAP_LAYERS,
@@ -149,12 +150,7 @@ class Stage(Generic[ConfigT]):
     provides: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, config: StageConfig | None = None, **params: Any):
-        if config is not None and params:
-            raise TypeError("pass either a Config instance or keyword parameters, not both")
-        config = config if config is not None else self.Config(**params)
-        if not isinstance(config, self.Config):
-            raise TypeError(f"{type(self).__name__} expects a {self.Config.__name__}, got {type(config).__name__}")
-        self.config = config  # type: ignore[assignment]  # Config is ConfigT's class, which a ClassVar cannot say
+        self.config = configured(self, config, params)  # type: ignore[assignment]  # a ClassVar cannot say ConfigT
         self._hook = None  # set by the pipeline: the pluggy hook relay for progress events
         self._data: PipelineData | None = None
 

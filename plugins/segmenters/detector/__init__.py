@@ -181,14 +181,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         seg_params = _depth.DepthSegmentParams(**cfg.depth_segments.model_dump())
         lay = cfg.layout
         floor = lay.floor_height if lay.floor_height is not None else self._floor_height(stream, seg_params, lay)
-        layout_params = _depth.LayoutParams(
-            tilt_deg=lay.tilt_deg,
-            floor_band=lay.floor_band,
-            ceiling_min=lay.ceiling_min,
-            wall_min_height=lay.wall_min_height,
-            wall_min_width=lay.wall_min_width,
-            wall_wide_top=lay.wall_wide_top,
-        )
+        layout_params = _depth.LayoutParams(**lay.model_dump(exclude={"floor_height"}))
         stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         counts: dict[str, int] = {}
