@@ -93,3 +93,50 @@ def veto_implausible_classes(
         reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
         vetoed.append({"instance": int(iid), "from": first, "to": chosen, "reach_m": round(reach, 3)})
     return point_class, vetoed
+
+
+def merge_overlapping_instances(
+    points: np.ndarray, point_instance: np.ndarray, iou: float = 0.5
+) -> tuple[np.ndarray, list[list[int]]]:
+    """Two objects do not fill the same space: thing instances whose gravity-aligned boxes overlap at
+    3D IoU ``iou`` or more are one object (a counter whose front frames called it a table and whose top
+    frames a desk). Returns the new instance ids (each group takes its largest member's id) and the
+    groups merged."""
+    from stratamap.core.geometry.boxes import box_iou_3d
+
+    point_instance = np.asarray(point_instance).copy()
+    ids = [int(i) for i in np.unique(point_instance[point_instance > 0])]
+    if len(ids) < 2:
+        return point_instance, []
+    members = {i: np.flatnonzero(point_instance == i) for i in ids}
+    boxes = {i: gravity_aligned_box(points[members[i]]) for i in ids if len(members[i]) >= 4}
+    parent = {i: i for i in boxes}
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    keys = sorted(boxes)
+    lows = np.array([boxes[i].center - boxes[i].size.max() / 2 for i in keys])
+    highs = np.array([boxes[i].center + boxes[i].size.max() / 2 for i in keys])
+    for a in range(len(keys)):
+        near = np.flatnonzero(np.all((lows[a + 1 :] <= highs[a]) & (highs[a + 1 :] >= lows[a]), axis=1)) + a + 1
+        for b in near:
+            if box_iou_3d(boxes[keys[a]], boxes[keys[b]]) >= iou:
+                ra, rb = root(keys[a]), root(keys[b])
+                if ra != rb:
+                    parent[rb] = ra
+    groups: dict[int, list[int]] = {}
+    for i in keys:
+        groups.setdefault(root(i), []).append(i)
+    merged = []
+    for group in groups.values():
+        if len(group) < 2:
+            continue
+        keep = max(group, key=lambda i: (len(members[i]), -i))
+        for i in group:
+            point_instance[members[i]] = keep
+        merged.append(sorted(group))
+    return point_instance, merged

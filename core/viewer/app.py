@@ -73,8 +73,12 @@ class MapViewer:
         shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
         return f"http://{shown}:{self.server.get_port()}"
 
-    def stop(self) -> None:
-        self.server.stop()
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop serving; a server still closing connections after ``timeout`` seconds is left to the
+        process's exit (its threads are daemons), so Ctrl-C always ends ``stratamap view`` promptly."""
+        stopper = threading.Thread(target=self.server.stop, daemon=True)
+        stopper.start()
+        stopper.join(timeout)
 
     # ---------------------------------------------------------------- scene
 

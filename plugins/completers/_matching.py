@@ -7,6 +7,7 @@ the points of the geometry G within ``epsilon`` of a completed model, O the comp
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import time
@@ -22,6 +23,7 @@ from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
 from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
+from stratamap.core.map.instances import plausible
 from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
 from stratamap.core.stages import Completer, PipelineData, StageConfig
 
@@ -68,6 +70,29 @@ class MatcherConfig(StageConfig):
     )
     cache_dir: str | None = Field(
         default=None, description="Folder for the model index cache (default: $STRATAMAP_CACHE or ~/.cache/stratamap)."
+    )
+    recognize: list[str] = Field(
+        default_factory=lambda: ["object"],
+        description=(
+            "Recognition by matching: objects of these classes (no class, as a detector's unknown labels become) "
+            "are matched against every class of the library and take the best model's class when its fit passes "
+            "recognize_fit; [] turns it off."
+        ),
+    )
+    recognize_weak: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Objects whose class won less than this share of their points' votes are matched against every class too "
+            "(their own included) and take the best-fitting one; 0 (the default) turns it off: a detector's votes "
+            "say more than a shape fit against library models unlike the object."
+        ),
+    )
+    recognize_fit: float = Field(
+        default=0.03,
+        gt=0.0,
+        description="Largest mean distance (m) from the observed points to a model for recognition to take its class.",
     )
 
 
@@ -300,10 +325,52 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             out["augmented"] = aug
         return out
 
+    def recognize(self, insts: ObjectInstances, index: ModelIndex, data: PipelineData) -> None:
+        """Recognition by matching: an object with no class (or a weakly voted one) is matched against
+        every class of the library its size allows, and takes the class of the best-fitting model when
+        that fit is within ``recognize_fit``. The attempt is recorded in ``attributes['recognition']``."""
+        cfg = self.config
+        todo = [
+            inst
+            for inst in insts
+            if len(inst.points) >= cfg.min_points
+            and (inst.class_name in cfg.recognize or (cfg.recognize_weak > 0 and inst.score < cfg.recognize_weak))
+        ]
+        if not todo:
+            return
+        classes = [c for c in index.classes() if c not in cfg.recognize]
+
+        def best_class(inst: ObjectInstance) -> tuple[str, Match] | None:
+            base = object_base(inst, data)
+            best = None
+            for name in classes:
+                if not plausible(name, inst.points):
+                    continue
+                match = self.match(dataclasses.replace(inst, class_name=name), base, index, data)
+                fit = None if match is None else match.details.get("fit_m", match.score)
+                if fit is not None and (best is None or (match.score, name) < (best[1].score, best[0])):
+                    best = (name, match)
+            return best
+
+        recognized = 0
+        for inst, found in self.map_objects(todo, best_class):
+            record: dict[str, Any] = {"from": inst.class_name, "vote_share": round(float(inst.score), 3)}
+            if found is not None:
+                name, match = found
+                fit = float(match.details.get("fit_m", match.score))
+                record.update({"best_class": name, "model": match.model_id, "fit_m": round(fit, 4)})
+                if fit <= cfg.recognize_fit and name != inst.class_name:
+                    record["class"] = name
+                    inst.class_name = name
+                    recognized += 1
+            inst.attributes["recognition"] = record
+        self.note("recognition", {"attempted": len(todo), "recognized": recognized})
+
     def complete(self, data: PipelineData) -> dict[str, Any]:
         cfg = self.config
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
+        self.recognize(insts, index, data)
         todo = self.select(insts, index)
         results = self.map_objects(todo, lambda inst: self.match(inst, object_base(inst, data), index, data))
         for inst, match in results:

@@ -1,22 +1,38 @@
-"""Segmenter ``clusters``: model-free 3D instances from geometry alone (the point-cloud-only case).
+"""Segmenter ``clusters``: model-free 3D instances from geometry first (point clouds and fused maps).
 
-1. Dominant planes: iterative RANSAC finds horizontal planes holding a large share of the points
-   (the floor, a tabletop) and large vertical ones (walls); their inliers, and what lies below a
-   supporting plane, become layout and leave the object search.
-2. The rest is split where surfaces meet concavely. Neighbouring points (within ``radius``) stay
-   connected when their surfaces are locally convex, ``(n_i - n_j) . (x_i - x_j) >= 0`` for normals
-   facing the sensor (a sphere or a box corner), or nearly coplanar; the concave crease where a box
-   stands on another, or leans on a wall, cuts the link (the point-level form of locally convex
-   connected patches, LCCP). ``method: euclidean`` links every pair within ``radius`` instead.
-3. Constrained planar cuts (after CPC, Schoeler et al. 2015): where a segment holds sharp concave
-   creases between patches, the planes of the faces along them (the top of a box another box
-   stands on) are tried as cuts through the whole segment; one is made when most patch edges it
-   severs are concave, which also separates faces the crease alone does not (two boxes' flush
-   sides). Curved concave surfaces (a bowl's inside) have no sharp creases and no face to cut along.
-4. Connected components with at least ``min_points`` points are instances; their class comes from
-   ``class_rules`` (first rule whose size and height ranges fit) or is ``object``.
+1. Scale. Every distance follows the map's resolution: the working grid is the map's voxel size
+   (a TSDF map's ``geometry.voxel_size``), or ``spacing_factor`` times a raw cloud's median point
+   spacing; the neighbour radius, normal radius, patch size and cut distance are multiples of it,
+   and the smallest instance is an area. The same scene mapped at two voxel sizes gives the same
+   instances, and a 2 cm room map gets 2 cm-scale parameters instead of a Kinect tabletop's.
+2. Layout (``_layout.find_layout``, gravity-aligned planes): floor, walls and ceiling become stuff
+   and leave the object search, so they are never a thing; so do an object's cells flush on a
+   layout plane, and objects lying mostly near one (``layout_share``: what the plane fit left at
+   corners and edges). Horizontal surfaces at table and counter heights are *support surfaces*:
+   kept out of the clustering too, so what stands on them comes apart from them, and then given
+   back to their object (below).
+3. Convexity-aware clustering of the rest (``method: convex``). Neighbouring cells (within
+   ``radius_voxels``) stay connected when their surfaces are locally convex,
+   ``(n_i - n_j) . (x_i - x_j) >= 0`` for normals facing the sensor, or nearly coplanar; the
+   concave crease where a box stands on another, or leans on something, cuts the link (the
+   point-level form of locally convex connected patches, LCCP, on supervoxel-like patches).
+   ``method: euclidean`` links every pair within the radius instead.
+4. Constrained planar cuts (after CPC, Schoeler et al. 2015): where a segment holds sharp concave
+   creases between patches, the planes of the faces along them are tried as cuts through the
+   whole segment; one is made when most patch edges it severs are concave (two boxes' flush sides).
+5. Support surfaces get their object back: a segment touching a support surface *stands on it*
+   when its foot is at the surface's height and it rises above it (a cup, a monitor, a box: its
+   own instance); otherwise it is part of the support's object (a table's legs and edge, a cabinet
+   under its counter top, a chair's back posts), joined through further touching segments that lie
+   below the surface and under its convex hull (``below_share``).
+6. Instances are the joined segments of at least ``min_area`` (and ``min_cells`` cells). Each
+   takes its class from the fused per-point class votes already on the map (the ``semantics``
+   layer a previous segmenter or the ``tsdf`` mapper left) when there are any: the majority class
+   of its points; a majority of a stuff class makes it stuff. Without votes a support's object
+   with a top of ``table_min_area`` is a ``table``, others follow ``class_rules`` or are ``object``.
 
-Works on a voxel-downsampled copy (``voxel_size``) and writes the labels back to every point.
+Memory and time are near-linear in the points: a voxel grid, k-d tree neighbour pairs within a
+few voxels, sparse connected components; no all-pairs step. Deterministic: no random sampling.
 """
 
 from __future__ import annotations
@@ -28,13 +44,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.geometry.points import ransac_plane, voxel_downsample
+from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, LayoutParams, find_layout
 
 
 class ClassRule(BaseModel):
-    """Name a cluster by its size: the first rule that fits wins."""
+    """Name a cluster by its size: the first rule that fits wins (used when the map has no class votes)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -48,19 +65,33 @@ class ClustersConfig(StageConfig):
     method: Literal["convex", "euclidean"] = Field(
         default="convex", description="convex: cut concave creases between touching objects; euclidean: distance only."
     )
-    voxel_size: float = Field(
-        default=0.005, gt=0.0, description="Work on a voxel-downsampled copy with this cell size, metres."
+    voxel_size: float | None = Field(
+        default=None,
+        gt=0.0,
+        description=(
+            "Working grid, metres. Default: the map's voxel size (geometry.voxel_size, set by tsdf), else "
+            "spacing_factor times the cloud's median point spacing."
+        ),
     )
-    radius: float = Field(default=0.012, gt=0.0, description="Points closer than this are neighbours, metres.")
-    normal_radius: float = Field(default=0.02, gt=0.0, description="Radius of the normal estimate, metres.")
+    spacing_factor: float = Field(
+        default=3.4,
+        gt=0.0,
+        description="Working grid of a raw cloud (no voxel size) in median point spacings (raw points are noisy).",
+    )
+    gravity: Literal["z", "none"] = Field(
+        default="z",
+        description="z: the map is gravity-aligned, z up (stratamap's world); none: no floor, wall or ceiling named.",
+    )
+    radius_voxels: float = Field(default=2.4, gt=0.0, description="Cells closer than this are neighbours, in voxels.")
+    normal_radius_voxels: float = Field(default=4.0, gt=0.0, description="Radius of the normal estimate, in voxels.")
     smooth_deg: float = Field(
         default=12.0,
         ge=0.0,
         le=90.0,
         description="Neighbours whose normals differ by less than this stay linked even when slightly concave.",
     )
-    patch_size: float = Field(
-        default=0.02, gt=0.0, description="Cell size of the supervoxel patches the convexity test works on, metres."
+    patch_voxels: float = Field(
+        default=4.0, gt=0.0, description="Cell size of the supervoxel patches the convexity test works on, in voxels."
     )
     patch_normal_deg: float = Field(
         default=20.0,
@@ -74,21 +105,59 @@ class ClustersConfig(StageConfig):
         le=1.0,
         description="Share of point links across a patch boundary that must be convex (or smooth) to merge.",
     )
-    concavity_tolerance: float = Field(
-        default=0.2, ge=0.0, description="Concavity tolerated (noise), as a fraction of the neighbour distance."
+    concavity_tolerance: float | None = Field(
+        default=None,
+        ge=0.0,
+        description=(
+            "Concavity tolerated (noise), as a fraction of the neighbour distance. Default: 0.2 for a raw cloud (set "
+            "on mOSD/learn), 0.4 for a voxel map (set on held-out fused maps: normals over few coarse voxels bend)."
+        ),
     )
-    plane_distance: float = Field(
-        default=0.01, gt=0.0, description="RANSAC inlier distance of the dominant planes, metres."
+    min_area: float = Field(
+        default=0.0015, gt=0.0, description="Smallest instance, as surface area (cells times voxel area), m^2."
     )
-    plane_share: float = Field(
-        default=0.15, gt=0.0, le=1.0, description="A dominant plane holds at least this share of the points."
+    min_cells: int = Field(default=18, ge=1, description="Smallest instance in working-grid cells (noise).")
+    below_share: float = Field(
+        default=0.7,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "A segment touching a support's object, wholly below the support, joins it when this share of its "
+            "footprint lies in the support's convex hull (a table's legs; not a chair pushed beside it)."
+        ),
     )
-    max_planes: int = Field(default=3, ge=0, description="Dominant planes removed at most.")
-    min_points: int = Field(default=300, ge=1, description="Smallest instance, in points of the input cloud.")
+    layout_share: float = Field(
+        default=0.6,
+        gt=0.0,
+        le=1.0,
+        description=(
+            "An object with this share of its cells near one floor, wall or ceiling plane is that stuff (what the "
+            "plane fit left at corners and edges; a poster)."
+        ),
+    )
+    layout_voxels: float = Field(
+        default=3.0, gt=0.0, description="Near a floor, wall or ceiling plane: within this distance, in voxels."
+    )
+    table_min_area: float = Field(
+        default=0.3,
+        gt=0.0,
+        description="Without class votes, a support's object with a top this large is a table, m^2.",
+    )
+    layout: LayoutParams = Field(
+        default_factory=LayoutParams, description="Floor, wall, ceiling and support-surface detection."
+    )
     cut_min_links: int = Field(
         default=5,
         ge=0,
         description="Concave patch edges (creases) a segment needs before planar cuts are tried (0: no cuts).",
+    )
+    cut_concavity_tolerance: float | None = Field(
+        default=None,
+        ge=0.0,
+        description=(
+            "Concavity that makes a patch edge a crease for the planar cuts, as concavity_tolerance (default: the "
+            "same; stricter makes more cuts, also spurious ones through clean boxes)."
+        ),
     )
     cut_concave_share: float = Field(
         default=0.5,
@@ -96,10 +165,10 @@ class ClustersConfig(StageConfig):
         le=1.0,
         description="Share of the patch edges a cut severs that must be concave for the cut to be made.",
     )
-    cut_distance: float = Field(
-        default=0.015,
+    cut_distance_voxels: float = Field(
+        default=3.0,
         gt=0.0,
-        description="Crease edges (patch centroid midpoints) this close to a candidate plane support it, metres.",
+        description="Crease edges (patch centroid midpoints) this close to a candidate plane support it, in voxels.",
     )
     cut_crease_deg: float = Field(
         default=45.0,
@@ -115,18 +184,54 @@ class ClustersConfig(StageConfig):
     )
     cut_depth: int = Field(default=2, ge=0, description="Cuts applied in sequence at most per segment.")
     class_rules: list[ClassRule] = Field(
-        default_factory=list, description="Size rules naming clusters; unmatched clusters are `object`."
+        default_factory=list, description="Size rules naming clusters when the map has no class votes."
     )
 
 
-def estimate_normals(points: np.ndarray, radius: float, viewpoint: np.ndarray) -> np.ndarray:
-    """PCA normals within ``radius`` (Open3D), turned to face ``viewpoint``."""
+def working_voxel(points: np.ndarray, map_voxel: float | None, cfg: ClustersConfig) -> float:
+    """The grid everything scales with: the configured one, the map's, or a raw cloud's spacing
+    (median nearest-neighbour distance over an evenly strided sample) times ``spacing_factor``."""
+    from scipy.spatial import cKDTree
+
+    if cfg.voxel_size is not None:
+        return cfg.voxel_size
+    if map_voxel:
+        return float(map_voxel)
+    if len(points) < 2:
+        return 0.01
+    sample = points[:: max(1, len(points) // 20000)]
+    spacing = cKDTree(points).query(sample, k=2)[0][:, 1]
+    spacing = spacing[spacing > 0]
+    return float(cfg.spacing_factor * np.median(spacing)) if len(spacing) else 0.01
+
+
+def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
+    """Where the map was seen from: the camera positions of posed frames, a static cloud's sensor
+    (``world_transform``), else a point 2 m above the map's centre."""
+    stream = data.stream
+    if stream is not None:
+        poses = getattr(stream.frames, "poses", None)
+        if poses is None:
+            poses = [f.pose for f in stream.frames]
+        centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
+        if len(centres):
+            return centres[:: max(1, len(centres) // 200)]
+        if stream.points is not None:
+            transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
+            return transform[:3, 3][None]
+    return (cells.mean(axis=0) + [0.0, 0.0, 2.0])[None]
+
+
+def estimate_normals(points: np.ndarray, radius: float, views: np.ndarray) -> np.ndarray:
+    """PCA normals within ``radius`` (Open3D), each turned to face the nearest of ``views``."""
     import open3d as o3d
+    from scipy.spatial import cKDTree
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
-    normals = np.asarray(cloud.normals)
-    flip = np.einsum("ij,ij->i", normals, viewpoint - points) < 0
+    normals = np.asarray(cloud.normals).copy()
+    nearest = views[cKDTree(views).query(points)[1]]
+    flip = np.einsum("ij,ij->i", normals, nearest - points) < 0
     normals[flip] *= -1
     return normals
 
@@ -165,13 +270,23 @@ class PatchGraph(NamedTuple):
     size: np.ndarray  # points per patch
     edges: np.ndarray  # (edges, 2) adjacent patch pairs
     convex: np.ndarray  # per edge: convex or flat, and most point links across it agree
+    crease: np.ndarray  # per edge: concave at the cuts' stricter tolerance (planar cuts follow these)
 
 
-def patch_graph(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg: ClustersConfig) -> PatchGraph:
-    """Smooth patches inside coarse cells, and which adjacent patches meet convexly. A patch pair's
-    boundary is convex when the patches' mean normals and centroids say so and most point links
-    across it agree; one noisy link cannot join two objects."""
-    cell = np.floor(points / cfg.patch_size).astype(np.int64)
+def patch_graph(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pairs: np.ndarray,
+    cfg: ClustersConfig,
+    patch_size: float,
+    tolerance: float,
+    cut_tolerance: float,
+) -> PatchGraph:
+    """Smooth patches inside coarse cells of side ``patch_size`` (metres), and which adjacent
+    patches meet convexly at concavity ``tolerance`` (and at ``cut_tolerance``, for the cuts). A
+    patch pair's boundary is convex when the patches' mean normals and centroids say so and most
+    point links across it agree; one noisy link cannot join two objects."""
+    cell = np.floor(points / patch_size).astype(np.int64)
     same_cell = np.all(cell[pairs[:, 0]] == cell[pairs[:, 1]], axis=1)
     smooth = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) >= np.cos(
         np.radians(cfg.patch_normal_deg)
@@ -186,18 +301,28 @@ def patch_graph(points: np.ndarray, normals: np.ndarray, pairs: np.ndarray, cfg:
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     a, b = patch[pairs[:, 0]], patch[pairs[:, 1]]
     between = a != b
-    link_ok = convex_links(points, normals, pairs[between], cfg.smooth_deg, cfg.concavity_tolerance)
     lo, hi = np.minimum(a[between], b[between]), np.maximum(a[between], b[between])
     key = lo * n_patch + hi
     keys, inverse = np.unique(key, return_inverse=True)
-    votes = np.bincount(inverse, weights=link_ok.astype(float)) / np.bincount(inverse)
     pa, pb = keys // n_patch, keys % n_patch
     diff = centroid[pa] - centroid[pb]
     dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
-    convex = np.einsum("ij,ij->i", normal[pa] - normal[pb], diff) >= -cfg.concavity_tolerance * dist
+    convexity = np.einsum("ij,ij->i", normal[pa] - normal[pb], diff)
     flat = np.einsum("ij,ij->i", normal[pa], normal[pb]) >= np.cos(np.radians(cfg.smooth_deg))
+
+    def kept(tolerance: float) -> np.ndarray:
+        link_ok = convex_links(points, normals, pairs[between], cfg.smooth_deg, tolerance)
+        votes = np.bincount(inverse, weights=link_ok.astype(float)) / np.bincount(inverse)
+        return ((convexity >= -tolerance * dist) | flat) & (votes >= cfg.convex_votes)
+
     return PatchGraph(
-        patch, centroid, normal, count, np.stack([pa, pb], 1), (convex | flat) & (votes >= cfg.convex_votes)
+        patch,
+        centroid,
+        normal,
+        count,
+        np.stack([pa, pb], 1),
+        kept(tolerance),
+        ~kept(cut_tolerance),
     )
 
 
@@ -207,7 +332,7 @@ def convex_segments(graph: PatchGraph) -> np.ndarray:
 
 
 def _cut_side(
-    graph: PatchGraph, members: np.ndarray, n: np.ndarray, p0: np.ndarray, cfg: ClustersConfig
+    graph: PatchGraph, members: np.ndarray, n: np.ndarray, p0: np.ndarray, cfg: ClustersConfig, cut_distance: float
 ) -> np.ndarray | None:
     """Which of a segment's patches lie beyond the face plane (n, p0), the plane first refit to
     the face; None when the plane follows no real face or leaves one side empty."""
@@ -215,7 +340,7 @@ def _cut_side(
     cos_par, cos_crease = np.cos(np.radians(cfg.smooth_deg)), np.cos(np.radians(cfg.cut_crease_deg))
     # A crease patch's normal is bent by its neighbour across the crease: refit the plane to the
     # face's patches (near it, facing its way), twice.
-    for tolerance in (2 * cfg.cut_distance, cfg.cut_distance):
+    for tolerance in (2 * cut_distance, cut_distance):
         face = members[(np.abs((centroid[members] - p0) @ n) <= tolerance) & (normal[members] @ n >= cos_par)]
         if len(face) < 3:
             break
@@ -226,7 +351,7 @@ def _cut_side(
     offset = (centroid[members] - p0) @ n
     # Patches on the plane turned less than a crease from it belong to the face (its rim and
     # crease patches have normals bent by their neighbours), hence to the solid behind it.
-    on_face = (np.abs(offset) <= cfg.cut_distance) & (normal[members] @ n >= cos_crease)
+    on_face = (np.abs(offset) <= cut_distance) & (normal[members] @ n >= cos_crease)
     side = (offset > 0) & ~on_face
     # A cut follows a real face (the top a box stands on), not a curved surface's tangent plane
     # (a bowl's concave inside).
@@ -235,17 +360,18 @@ def _cut_side(
     return side
 
 
-def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) -> np.ndarray:
+def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig, cut_distance: float) -> np.ndarray:
     """Split segments along planes through their concave creases (CPC's idea, simplified).
 
     Candidate planes: for every concave edge inside a segment, the plane of each of its two
     patches. A candidate's support is the concave edges lying on it (midpoint within
-    ``cut_distance``) with one patch facing its way. The best supported plane cuts the segment
+    ``cut_distance``, metres) with one patch facing its way. The best supported plane cuts the segment
     when at least ``cut_concave_share`` of the patch edges it severs are concave: a box's own
     faces meet at convex edges, so a plane through its top severs convex edges only. Patches on
     the plane facing its way are the face itself and stay with the solid behind it. Returns a
     segment id per patch."""
-    centroid, normal, edges, convex = graph.centroid, graph.normal, graph.edges, graph.convex
+    # Creases at the cuts' own (stricter) tolerance: merging forgives noise, cutting follows real creases.
+    centroid, normal, edges, convex = graph.centroid, graph.normal, graph.edges, ~graph.crease
     labels = segments.copy()
     next_label = int(labels.max()) + 1 if len(labels) else 0
     cos_par, cos_crease = np.cos(np.radians(cfg.smooth_deg)), np.cos(np.radians(cfg.cut_crease_deg))
@@ -267,7 +393,7 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
             score = np.zeros(len(cand_n), np.int64)
             for start in range(0, len(cand_n), 256):  # candidates x creases, in chunks (large maps)
                 n, p = cand_n[start : start + 256], cand_p[start : start + 256]
-                near = np.abs(n @ mid.T - np.einsum("ij,ij->i", n, p)[:, None]) <= cfg.cut_distance
+                near = np.abs(n @ mid.T - np.einsum("ij,ij->i", n, p)[:, None]) <= cut_distance
                 aligned = (np.abs(n @ normal[ca].T) >= cos_par) | (np.abs(n @ normal[cb].T) >= cos_par)
                 score[start : start + 256] = (near & aligned).sum(1)
             members = np.flatnonzero(labels == seg)
@@ -280,10 +406,10 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
                     break
                 n, p0 = cand_n[best], cand_p[best]
                 # Distinct planes only: the support of one crease repeats the same plane many times.
-                if any(abs(n @ m) >= cos_par and abs(n @ p0 - d) <= cfg.cut_distance for m, d in tried):
+                if any(abs(n @ m) >= cos_par and abs(n @ p0 - d) <= cut_distance for m, d in tried):
                     continue
                 tried.append((n, float(n @ p0)))
-                side = _cut_side(graph, members, n, p0, cfg)
+                side = _cut_side(graph, members, n, p0, cfg, cut_distance)
                 if side is None:
                     continue
                 side_of[:] = False
@@ -304,119 +430,328 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig) ->
     return _components(len(labels), edges[same])
 
 
+class Supports(NamedTuple):
+    """Which working cells belong to which support surface, and the surfaces' heights and areas."""
+
+    of_cell: np.ndarray  # support index per cell, -1 none
+    height: np.ndarray
+    area: np.ndarray
+
+
+def absorb_lines(cells: np.ndarray, segment: np.ndarray, pairs: np.ndarray, voxel: float) -> np.ndarray:
+    """Segments that are a line of cells (a box's edge or a rim the normals could not place; second
+    principal spread under half a voxel) join the neighbouring segment they share most links with."""
+    n = int(segment.max()) + 1 if len(segment) else 0
+    if n == 0:
+        return segment
+    count = np.bincount(segment, minlength=n).astype(float)
+    mean = np.stack([np.bincount(segment, weights=cells[:, k], minlength=n) for k in range(3)], 1) / count[:, None]
+    centred = cells - mean[segment]
+    cov = (
+        np.stack(
+            [
+                np.stack(
+                    [np.bincount(segment, weights=centred[:, a] * centred[:, b], minlength=n) for b in range(3)], 1
+                )
+                for a in range(3)
+            ],
+            1,
+        )
+        / count[:, None, None]
+    )
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(cov)[:, 1], 0.0))
+    line = spread < 0.5 * voxel
+    a, b = segment[pairs[:, 0]], segment[pairs[:, 1]]
+    cross = a != b
+    a, b = np.concatenate([a[cross], b[cross]]), np.concatenate([b[cross], a[cross]])
+    keep = line[a] & ~line[b]
+    if not keep.any():
+        return segment
+    links, counts = np.unique(np.stack([a[keep], b[keep]], 1), axis=0, return_counts=True)
+    order = np.lexsort((links[:, 1], -counts, links[:, 0]))  # per line segment: most links first
+    links = links[order]
+    first = np.unique(links[:, 0], return_index=True)[1]
+    target = np.arange(n)
+    target[links[first, 0]] = links[first, 1]
+    return target[segment]
+
+
+def _hull_equations(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Half-planes ``a @ p + b <= 0`` of the 2D convex hull of ``xy`` (a point's box if degenerate)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        eq = ConvexHull(xy).equations
+        return eq[:, :2], eq[:, 2]
+    except (QhullError, ValueError):
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        return np.array([[1.0, 0], [-1, 0], [0, 1], [0, -1]]), np.array([-hi[0], lo[0], -hi[1], lo[1]])
+
+
+def join_supports(
+    cells: np.ndarray,
+    segment: np.ndarray,
+    supports: Supports,
+    pairs: np.ndarray,
+    voxel: float,
+    cfg: ClustersConfig,
+    has_floor: bool = True,
+) -> np.ndarray:
+    """Give each support surface its object back. ``segment``: segment id per cell (-1 for cells
+    not clustered: stuff and supports); ``pairs``: neighbouring cells. Returns an object id per
+    cell (-1 for stuff): segments standing on a support stay apart from it, the rest of what touches
+    it (edges, legs, the body under a counter top, and what touches those below the surface) joins it.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_seg = int(segment.max()) + 1 if (segment >= 0).any() else 0
+    n_sup = len(supports.height)
+    z = cells[:, 2]
+    clustered = segment >= 0
+    # A segment's foot and top, and its size.
+    bottom, top = np.full(n_seg, np.inf), np.full(n_seg, -np.inf)
+    np.minimum.at(bottom, segment[clustered], z[clustered])
+    np.maximum.at(top, segment[clustered], z[clustered])
+    count = np.bincount(segment[clustered], minlength=n_seg)
+    node = np.where(clustered, segment, np.where(supports.of_cell >= 0, n_seg + supports.of_cell, -1))
+    a, b = node[pairs[:, 0]], node[pairs[:, 1]]
+    touching = (a >= 0) & (b >= 0) & (a != b)
+    edges = np.unique(np.sort(np.stack([a[touching], b[touching]], 1), axis=1), axis=0)
+    links: list[tuple[int, int]] = []
+    if n_sup and n_seg:
+        # Each support's footprint: the convex hull of its top, so the hole an object's shadow
+        # leaves in the scanned top still counts as on it; grown by a voxel for its rim.
+        hulls = [_hull_equations(cells[supports.of_cell == k, :2]) for k in range(n_sup)]
+        order = np.argsort(segment, kind="stable")
+        starts = np.searchsorted(segment[order], np.arange(n_seg + 1))
+        rise = 2.5 * voxel
+        stand_tol = 2.0 * cfg.layout.plane_voxels * voxel
+
+        def inside(seg: int, sup: int) -> float:
+            xy = cells[order[starts[seg] : starts[seg + 1]], :2]
+            a, b = hulls[sup]
+            return float(((xy @ a.T + b) <= voxel).all(axis=1).mean())
+
+        sup_edges = edges[(edges[:, 0] < n_seg) & (edges[:, 1] >= n_seg)]
+        stands = np.zeros(n_seg, bool)
+        for seg, sup_node in sup_edges:
+            sup = sup_node - n_seg
+            # Its foot at the surface and rising above it: it stands there (a cup, or a box at the edge
+            # of a partly seen table, its footprint out of the hull). What reaches below is the table's.
+            if bottom[seg] >= supports.height[sup] - stand_tol and top[seg] >= supports.height[sup] + rise:
+                stands[seg] = True
+        owners: list[list[int]] = [[] for _ in range(n_seg)]  # the supports a segment joined
+        for seg, sup_node in sup_edges:
+            if not stands[seg]:
+                links.append((int(seg), int(sup_node)))
+                owners[seg].append(int(sup_node - n_seg))
+        # What touches a joined segment and lies wholly below one of its supports (legs under the
+        # edge) joins too.
+        seg_edges = edges[edges[:, 1] < n_seg]
+        grown = True
+        while grown:  # each round joins at least one segment, so at most n_seg rounds
+            grown = False
+            for s1, s2 in np.concatenate([seg_edges, seg_edges[:, ::-1]]):
+                if not owners[s1] or owners[s2] or stands[s2]:
+                    continue
+                for sup in owners[s1]:
+                    if top[s2] <= supports.height[sup] + stand_tol and inside(s2, sup) >= cfg.below_share:
+                        owners[s2].append(sup)
+                        links.append((int(s2), int(n_seg + sup)))
+                        grown = True
+                        break
+        if not has_floor:
+            # No floor (a tabletop scan): what lies wholly below the largest support is its
+            # furniture (its edge, legs, what stands under it); the scan sees nothing else there.
+            main = int(np.argmax(supports.area))
+            below = np.flatnonzero((top <= supports.height[main] + stand_tol) & ~stands & (count > 0))
+            links += [(int(seg), n_seg + main) for seg in below]
+    n = n_seg + n_sup
+    pairs_ = np.array(links, np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(pairs_)), (pairs_[:, 0], pairs_[:, 1])), shape=(n, n))
+    obj = connected_components(graph, directed=False)[1].astype(np.int64)
+    return np.where(node >= 0, obj[np.maximum(node, 0)], -1)
+
+
 class ClustersSegmenter(Segmenter[ClustersConfig]):
-    """Model-free instances: dominant planes removed, then convexity-aware (or Euclidean) clustering."""
+    """Model-free instances: gravity-aligned layout as stuff, convexity-aware clustering around support surfaces."""
 
     name = "clusters"
     Config = ClustersConfig
     requires = frozenset({"geometry"})
+    optional = frozenset({"semantics"})
     provides = frozenset({"semantics", "instances"})
 
     @classmethod
     def example_params(cls) -> dict:
-        return {"min_points": 20, "voxel_size": 0.01, "radius": 0.025, "normal_radius": 0.04}
+        return {"min_cells": 5}
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        from scipy.spatial import cKDTree
-
         from stratamap.core.map.instances import instances_from_semantics
+        from stratamap.plugins.segmenters._layout import neighbour_pairs
 
         cfg = self.config
         geometry = data.map.geometry
         if geometry is None or len(geometry.points) == 0:
             raise DataError("clusters: the geometry layer has no points")
-        vocab = data.map.vocabulary or (
-            data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default()
+        points = geometry.points
+        votes = (
+            data.map.semantics if data.map.semantics is not None and len(data.map.semantics) == len(points) else None
+        )
+        vocab = (
+            votes.vocabulary
+            if votes is not None
+            else data.map.vocabulary
+            or (data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default())
         )
         for rule in cfg.class_rules:
             if rule.class_name not in vocab or not vocab.is_thing[vocab.id(rule.class_name)]:
                 raise DataError(
                     f"clusters: class_rules names {rule.class_name!r}, which is not a thing class of the vocabulary"
                 )
-        points = geometry.points
-        cells, cell_of_point = voxel_downsample(points, cfg.voxel_size)
-        weight = np.bincount(cell_of_point, minlength=len(cells))
-        stream = data.stream
-        transform = np.asarray((stream.metadata.get("world_transform") if stream is not None else None) or np.eye(4))
-        viewpoint = (
-            transform[:3, 3] if stream is not None and stream.points is not None else cells.mean(axis=0) + [0, 0, 2.0]
-        )
+        voxel = working_voxel(points, geometry.voxel_size, cfg)
+        cells, cell_of_point = voxel_downsample(points, voxel)
+        views = viewpoints(data, cells)
+        normals = estimate_normals(cells, cfg.normal_radius_voxels * voxel, views)
 
-        # 1. Dominant planes.
-        layout = np.zeros(len(cells), np.int32)  # class id of layout cells, 0 = still free
-        free = np.ones(len(cells), bool)
-        for k in range(cfg.max_planes):
-            idx = np.flatnonzero(free)
-            if len(idx) < 3:
-                break
-            normal, d, inliers = ransac_plane(cells[idx], cfg.plane_distance, iterations=300, seed=k)
-            if weight[idx[inliers]].sum() < cfg.plane_share * len(points):
-                break
-            horizontal = abs(normal[2]) >= 0.9
-            name = "table" if horizontal else "wall"
-            if name not in vocab:
-                name = "floor" if horizontal else "wall"
-            layout[idx[inliers]] = vocab.id(name) if name in vocab else 0
-            free[idx[inliers]] = False
-            if horizontal:  # what lies below a support plane is not on it
-                height = cells @ (normal if normal[2] > 0 else -normal) + (d if normal[2] > 0 else -d)
-                below = free & (height < -cfg.plane_distance)
-                layout[below] = layout[idx[inliers][0]]
-                free[below] = False
+        # 1. Layout: floor, walls, ceiling (stuff) and support surfaces (objects' tops).
+        layout = find_layout(
+            cells, voxel, normals=normals, gravity=cfg.gravity == "z", params=cfg.layout, viewpoints=views
+        )
+        supports = Supports(
+            np.full(len(cells), -1, np.int64),
+            np.array([s.height for s in layout.supports]),
+            np.array([s.area for s in layout.supports]),
+        )
+        for k, surface in enumerate(layout.supports):
+            supports.of_cell[surface.indices] = k
+        stuff = layout.labels != NONE
+        free = np.flatnonzero(~stuff & (supports.of_cell < 0))
         # 2. Clustering of the rest.
-        idx = np.flatnonzero(free)
-        labels = np.full(len(cells), -1, np.int64)
-        if len(idx):
-            sub = cells[idx]
-            pairs = cKDTree(sub).query_pairs(cfg.radius, output_type="ndarray")
-            if cfg.method == "convex" and len(pairs):
-                graph = patch_graph(sub, estimate_normals(sub, cfg.normal_radius, viewpoint), pairs, cfg)
+        segment = np.full(len(cells), -1, np.int64)
+        objects = np.flatnonzero(~stuff)
+        pairs = objects[neighbour_pairs(cells[objects], cfg.radius_voxels * voxel)]
+        if len(free):
+            local = np.full(len(cells), -1, np.int64)
+            local[free] = np.arange(len(free))
+            free_pairs = local[pairs]
+            free_pairs = free_pairs[(free_pairs >= 0).all(axis=1)]
+            if cfg.method == "convex" and len(free_pairs):
+                # Normals again without the layout and support cells: a table top no longer bends the
+                # normals at the foot of what stands on it.
+                free_normals = estimate_normals(cells[free], cfg.normal_radius_voxels * voxel, views)
+                tolerance = cfg.concavity_tolerance
+                if tolerance is None:
+                    tolerance = 0.4 if geometry.voxel_size else 0.2
+                cut_tolerance = tolerance if cfg.cut_concavity_tolerance is None else cfg.cut_concavity_tolerance
+                graph = patch_graph(
+                    cells[free], free_normals, free_pairs, cfg, cfg.patch_voxels * voxel, tolerance, cut_tolerance
+                )
                 comp = convex_segments(graph)
                 if cfg.cut_min_links > 0:
-                    comp = planar_cuts(graph, comp, cfg)
+                    comp = planar_cuts(graph, comp, cfg, cfg.cut_distance_voxels * voxel)
                 comp = comp[graph.patch]
             else:
-                comp = _components(len(sub), pairs)
-            labels[idx] = comp
-        # 3. Instances: big enough components, numbered by size (deterministic), named by rules.
-        point_label = labels[cell_of_point]
-        comp_ids, comp_sizes = np.unique(point_label[point_label >= 0], return_counts=True)
-        order = np.lexsort((comp_ids, -comp_sizes))
-        class_ids = layout[cell_of_point].astype(np.int32)
+                comp = _components(len(free), free_pairs)
+            segment[free] = absorb_lines(cells[free], comp, free_pairs, voxel)
+        # 3. Support surfaces get their objects back; objects standing on them stay apart.
+        obj = join_supports(cells, segment, supports, pairs, voxel, cfg, layout.floor_height is not None)
+
+        # Cells of an object lying on a layout plane and facing its way are the plane's (where the
+        # object touches a wall, the normals there are bent and the layout fit left them out).
+        tol = cfg.layout.plane_voxels * voxel
+        for plane in layout.planes:
+            flush = (obj >= 0) & plane.near(cells, tol) & (np.abs(normals @ plane.normal) >= np.cos(np.radians(45.0)))
+            obj[flush] = -1
+            layout.labels[flush] = plane.label
+        # 4. Instances: large enough objects, numbered by size (deterministic), named by votes or geometry.
+        point_obj = obj[cell_of_point]
+        min_cells = max(cfg.min_cells, int(np.ceil(cfg.min_area / voxel**2)))
+        n_obj = int(obj.max()) + 1 if (obj >= 0).any() else 0
+        cell_count = np.bincount(obj[obj >= 0], minlength=n_obj)
+        kept = np.flatnonzero(cell_count >= min_cells)
+        kept = kept[np.lexsort((kept, -cell_count[kept]))]
+        stuff_ids = np.array([vocab.id(n) if n in vocab else 0 for n in LAYOUT_NAMES], np.int32)
+        stuff_ids[NONE] = 0
+        class_ids = stuff_ids[layout.labels[cell_of_point]]
         instance_ids = np.zeros(len(points), np.int32)
-        next_id = 1
-        if (class_ids > 0).any():
-            for cid in np.unique(class_ids[class_ids > 0]):
-                if vocab.is_thing[int(cid)]:
-                    instance_ids[class_ids == cid] = next_id
-                    next_id += 1
-        support_z = (
-            float(np.percentile(points[class_ids > 0, 2], 90)) if (class_ids > 0).any() else float(points[:, 2].min())
+        vote_table = self._vote_table(point_obj, votes, n_obj, len(vocab)) if votes is not None else None
+        top_area = np.zeros(n_obj)
+        if len(supports.area):
+            has = (supports.of_cell >= 0) & (obj >= 0)
+            np.maximum.at(top_area, obj[has], supports.area[supports.of_cell[has]])
+        base_z = (
+            layout.floor_height
+            if layout.floor_height is not None
+            else float(supports.height.min())
+            if len(supports.height)
+            else float(points[:, 2].min())
         )
-        kept = 0
-        for k in order:
-            if comp_sizes[k] < cfg.min_points:
-                break
-            mask = point_label == comp_ids[k]
-            class_ids[mask] = vocab.id(self._class_of(points[mask], support_z, cfg))
-            instance_ids[mask] = next_id
-            next_id += 1
-            kept += 1
+        on_plane = self._on_layout_planes(cells, obj, layout, n_obj, cfg.layout_voxels * voxel)
+        next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
+        for k in kept:
+            mask = point_obj == k
+            name = None
+            label = int(np.argmax(on_plane[k]))
+            if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
+                class_ids[mask] = stuff_ids[label]
+                on_layout += 1
+                continue
+            if vote_table is not None and vote_table[k].sum() > 0:
+                name = vocab.name(int(np.argmax(vote_table[k])))
+            if name is None:
+                name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
+            class_ids[mask] = vocab.id(name)
+            if vocab.is_thing[vocab.id(name)]:
+                instance_ids[mask] = next_id
+                next_id += 1
+                things += 1
+            else:
+                turned_stuff += 1
         self.note(
             "segments",
-            {"planes": int(len(np.unique(layout[layout > 0]))), "clusters": int(len(comp_ids)), "instances": kept},
+            {
+                "voxel_size": round(voxel, 5),
+                "floor_height": None if layout.floor_height is None else round(layout.floor_height, 3),
+                "walls": layout.walls,
+                "supports": len(layout.supports),
+                "segments": int(segment.max()) + 1 if (segment >= 0).any() else 0,
+                "instances": things,
+                "stuff_by_votes": turned_stuff,
+                "stuff_on_planes": on_layout,
+            },
         )
         semantics = Semantics(class_ids, instance_ids, vocab)
         return {"semantics": semantics, "instances": instances_from_semantics(points, geometry.colors, semantics, 1)}
 
     @staticmethod
-    def _class_of(pts: np.ndarray, support_z: float, cfg: ClustersConfig) -> str:
+    def _on_layout_planes(cells: np.ndarray, obj: np.ndarray, layout: Any, n_obj: int, distance: float) -> np.ndarray:
+        """Per object and layout label, how many of its cells lie near a plane of that label."""
+        table = np.zeros((n_obj, len(LAYOUT_NAMES)), np.int64)
+        member = obj >= 0
+        for plane in layout.planes:
+            near = member & plane.near(cells, distance)
+            table[:, plane.label] += np.bincount(obj[near], minlength=n_obj)
+        return table
+
+    @staticmethod
+    def _vote_table(point_obj: np.ndarray, votes: Semantics, n_obj: int, n_classes: int) -> np.ndarray:
+        """Per object, how many of its points each class was fused for (unknown left out)."""
+        voted = (point_obj >= 0) & (votes.class_ids > 0) & (votes.class_ids < n_classes)
+        key = point_obj[voted] * n_classes + votes.class_ids[voted]
+        return np.bincount(key, minlength=n_obj * n_classes).reshape(n_obj, n_classes)
+
+    @staticmethod
+    def _class_of(pts: np.ndarray, top_area: float, base_z: float, vocab: Vocabulary, cfg: ClustersConfig) -> str:
+        if top_area >= cfg.table_min_area and "table" in vocab and vocab.is_thing[vocab.id("table")]:
+            return "table"
         extent = float(np.max(pts.max(axis=0) - pts.min(axis=0)))
-        top = float(pts[:, 2].max() - support_z)
+        top = float(pts[:, 2].max() - base_z)
         for rule in cfg.class_rules:
             if rule.min_extent <= extent <= rule.max_extent and top <= rule.max_height:
                 return rule.class_name
-        return "object"
+        return "object" if "object" in vocab else next(vocab.name(i) for i in vocab.thing_ids())
 
 
 @hookimpl

@@ -22,7 +22,11 @@ from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
-from stratamap.core.map.instances import instances_from_semantics, veto_implausible_classes
+from stratamap.core.map.instances import (
+    instances_from_semantics,
+    merge_overlapping_instances,
+    veto_implausible_classes,
+)
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
 from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
@@ -69,6 +73,15 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     min_instance_points: int = Field(default=30, ge=1, description="Instances with fewer surface points are dropped.")
+    overlap_merge: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Two objects do not fill the same space: instances whose gravity-aligned boxes overlap at this 3D IoU "
+            "or more become one (the class most of its points hold); 0 turns it off."
+        ),
+    )
     size_veto: bool = Field(
         default=True,
         description=(
@@ -292,6 +305,10 @@ class TSDFMapper(Mapper[TSDFConfig]):
         if len(small):
             drop = np.isin(point_instance, small)
             point_class[drop], point_instance[drop] = 0, 0
+        if cfg.overlap_merge > 0:
+            point_instance, overlapping = merge_overlapping_instances(points, point_instance, cfg.overlap_merge)
+            if overlapping:
+                self.note("overlapping_instances_merged", overlapping)
         vetoed: list[dict] = []
         if cfg.size_veto:
             point_class, vetoed = veto_implausible_classes(points, point_class, point_instance, vocab)

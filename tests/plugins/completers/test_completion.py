@@ -249,3 +249,25 @@ def test_glb_is_y_up_and_sdf_keeps_joints(tmp_path):
     assert sorted(j.get("type") for j in model.findall("joint")) == sorted(j.type for j in counter.joints)
     for uri in sdf.iter("uri"):
         assert (tmp_path / uri.text).is_file()
+
+
+def test_an_object_with_no_class_is_recognized_by_matching():
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
+    chair, table = make_model("four_leg_chair", 0, 2), make_model("round_table", 0, 2)
+    name = register_library("recognition", ModelLibrary([model_to_library(chair), model_to_library(table)]))
+    pts = trimesh.sample.sample_surface(chair.mesh(), 3000, seed=0)[0] + [2.0, 1.0, 0.0]
+    blob = np.random.default_rng(0).uniform([4, 4, 0], [4.4, 4.4, 0.4], (600, 3))  # fits no model
+    data = PipelineData()
+    data.map.instances = ObjectInstances(
+        [
+            ObjectInstance(1, "object", pts, gravity_aligned_box(pts)),
+            ObjectInstance(2, "object", blob, gravity_aligned_box(blob)),
+        ]
+    )
+    out = ICPMatchCompleter(library=name).run(data)["instances"]
+    assert out[1].class_name == "chair" and out[1].completion is not None
+    record = out[1].attributes["recognition"]
+    assert record["from"] == "object" and record["class"] == "chair" and record["fit_m"] <= 0.03
+    assert out[2].class_name == "object" and "class" not in out[2].attributes["recognition"]
+    assert data.notes["icp_match"]["recognition"] == {"attempted": 2, "recognized": 1}

@@ -11,9 +11,7 @@ import pytest
 
 from stratamap.core.map.sensors import RGBDFrame, SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.core.pipeline import run_stages
 from stratamap.core.stages import PipelineData
-from tests.conftest import shared_data
 
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
@@ -184,112 +182,6 @@ def test_shipped_model_loads_in_plain_onnxruntime_as_documented():
     assert [list(o.shape) for o in outs] == [meta["outputs"][n]["shape"] for n in meta["outputs"]]
 
 
-def test_clusters_separates_objects_on_a_table():
-    import trimesh
-
-    from stratamap.core.evaluation.metrics import evaluate
-    from stratamap.core.map.groundtruth import GroundTruth
-    from stratamap.core.map.layers import Geometry
-    from stratamap.plugins.segmenters.clusters import ClustersSegmenter
-
-    vocab = Vocabulary.default()
-    rng = np.random.default_rng(0)
-    table = np.c_[rng.uniform(-0.6, 0.6, (20000, 2)), rng.normal(0, 0.002, 20000)]
-    parts, inst = [table], [np.ones(len(table), int)]
-    meshes = [
-        trimesh.creation.box(extents=(0.2, 0.15, 0.1)),
-        trimesh.creation.cylinder(radius=0.05, height=0.15),
-        trimesh.creation.box(extents=(0.1, 0.1, 0.2)),
-    ]
-    offsets = [(-0.3, 0.0, 0.05), (0.1, 0.1, 0.075), (0.35, -0.2, 0.1)]
-    camera = np.array([0.0, -1.2, 0.9])  # one view, as a Kinect scan: only surfaces facing the camera
-    for k, (mesh, off) in enumerate(zip(meshes, offsets, strict=True)):
-        pts, faces = trimesh.sample.sample_surface_even(mesh, 6000, seed=k)
-        pts = pts + off
-        facing = np.einsum("ij,ij->i", mesh.face_normals[faces], camera - pts) > 0
-        pts = pts[facing & (pts[:, 2] > 0.002)]
-        parts.append(pts)
-        inst.append(np.full(len(pts), k + 2))
-    points = np.concatenate(parts)
-    inst = np.concatenate(inst)
-    cls = np.where(inst == 1, vocab.id("table"), vocab.id("object")).astype(np.int32)
-    pose = np.eye(4)
-    pose[:3, 3] = camera
-    stream = SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
-    data = PipelineData(
-        stream=stream,
-        ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)),
-    )
-    data.map.geometry = Geometry(points=points)
-    out = ClustersSegmenter(min_points=200).run(data)
-    data.map.semantics, data.map.instances = out["semantics"], out["instances"]
-    metrics = evaluate(data)
-    assert metrics["instances"]["f1"] == 1.0
-    assert sorted(i.class_name for i in out["instances"]) == ["object", "object", "object", "table"]
-
-
-def test_clusters_cuts_a_box_standing_flush_on_another():
-    """A box on a larger box, flush on one side: the flush faces join the two convexly (LCCP keeps
-    one segment), the crease around the upper box's foot proposes the lower box's top as a cut
-    plane, and the cut separates them. Without cuts they stay one."""
-    import trimesh
-
-    from stratamap.core.evaluation.metrics import evaluate
-    from stratamap.core.map.groundtruth import GroundTruth
-    from stratamap.core.map.layers import Geometry
-    from stratamap.plugins.segmenters.clusters import ClustersSegmenter
-
-    vocab = Vocabulary.default()
-    rng = np.random.default_rng(0)
-    table = np.c_[rng.uniform(-0.6, 0.6, (30000, 2)), rng.normal(0, 0.001, 30000)]
-    camera = np.array([-0.9, -1.0, 1.0])
-    lower, upper = trimesh.creation.box(extents=(0.3, 0.2, 0.1)), trimesh.creation.box(extents=(0.1, 0.2, 0.1))
-    parts, inst = [table], [np.ones(len(table), int)]
-    for k, (mesh, off) in enumerate(((lower, (0.0, 0.0, 0.05)), (upper, (0.1, 0.0, 0.15)))):
-        pts, faces = trimesh.sample.sample_surface_even(mesh, 30000, seed=k)
-        pts = pts + off
-        keep = (np.einsum("ij,ij->i", mesh.face_normals[faces], camera - pts) > 0) & (pts[:, 2] > 0.002)
-        if k == 0:
-            keep &= ~((pts[:, 2] > 0.099) & (pts[:, 0] > 0.05))  # the lower top under the upper box
-        parts.append(pts[keep] + rng.normal(0, 0.001, (keep.sum(), 3)))
-        inst.append(np.full(keep.sum(), k + 2))
-    points, inst = np.concatenate(parts), np.concatenate(inst)
-    cls = np.where(inst == 1, vocab.id("table"), vocab.id("object")).astype(np.int32)
-    pose = np.eye(4)
-    pose[:3, 3] = camera
-    stream = SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
-
-    def f1(**params) -> float:
-        data = PipelineData(
-            stream=stream,
-            ground_truth=GroundTruth(vocabulary=vocab, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)),
-        )
-        data.map.geometry = Geometry(points=points)
-        out = ClustersSegmenter(min_points=200, **params).run(data)
-        data.map.semantics, data.map.instances = out["semantics"], out["instances"]
-        return evaluate(data)["instances"]["f1"]
-
-    assert f1(cut_min_links=0) < 1.0
-    assert f1() == 1.0
-
-
-@pytest.mark.slow
-def test_clusters_on_real_tabletop_scans_reaches_f1_08():
-    """mOSD learn split (the test split is kept for reported evaluation)."""
-    from stratamap.core.evaluation.metrics import evaluate
-    from stratamap.plugins.mappers.points import PointsMapper
-    from stratamap.plugins.segmenters.clusters import ClustersSegmenter
-    from stratamap.plugins.sources.pointcloud import PointCloudSource
-
-    folder = shared_data("mosd", "learn")
-    f1 = []
-    for path in sorted(folder.glob("*.pcd")):
-        source = PointCloudSource(path=str(path), label_scheme="mosd", up_axis="-y", up_tolerance_deg=60)
-        data = run_stages([source, PointsMapper(normals_radius=0.0), ClustersSegmenter()])
-        f1.append(evaluate(data)["instances"]["f1"])
-    assert len(f1) >= 5 and np.mean(f1) >= 0.8, f1
-
-
 def test_semantic_boundary_speckle_filter_removes_stray_classes():
     """A 3-pixel blob of another class inside a region takes the region's class when filtered."""
     from stratamap.plugins.segmenters.onnx_panoptic.adapters import semantic_boundary
@@ -398,20 +290,3 @@ def test_semantic_boundary_leaves_unsure_regions_unknown():
         == 1
     ).all()
     assert inst.max() == 0
-
-
-def test_patch_graph_keys_do_not_overflow_on_large_maps():
-    """A fused room map has more than 46,341 patches: patch-pair keys must not overflow int32 (they
-    did, and `clusters` crashed with 'negative axis 0 index' on a real office map)."""
-    from stratamap.plugins.segmenters.clusters import ClustersConfig, patch_graph
-
-    cfg = ClustersConfig()
-    n = 60_000  # points in a row, one per patch cell, each linked to its neighbours
-    points = np.zeros((n, 3))
-    points[:, 0] = np.arange(n) * cfg.patch_size * 1.01
-    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
-    pairs = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
-    graph = patch_graph(points, normals, pairs, cfg)
-    assert len(graph.centroid) == n and len(graph.edges) == n - 1
-    assert graph.edges.min() >= 0 and graph.edges.max() == n - 1
-    assert np.array_equal(np.sort(graph.edges, axis=1), pairs)

@@ -1,0 +1,281 @@
+"""The `clusters` segmenter, geometry first: floor, walls and ceiling of a room are stuff and never a
+thing; a table (top and legs), a cup on it and a chair are separate instances; distances follow the
+map's voxel size; names come from fused class votes; large maps, tabletop scans (no floor), and the
+real mOSD Kinect scans (learn split; the test split is kept for the reported figure)."""
+
+from __future__ import annotations
+
+import resource
+
+import numpy as np
+import pytest
+
+from stratamap.core.map.layers import Geometry, Semantics
+from stratamap.core.map.sensors import SensorStream
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.stages import PipelineData
+from stratamap.plugins.segmenters.clusters import ClustersConfig, ClustersSegmenter, patch_graph
+from tests.conftest import shared_data
+from tests.plugins.segmenters.test_layout_planes import box_surface, synthetic_room
+
+VOCAB = Vocabulary.default()
+STUFF = ("floor", "wall", "ceiling")
+
+
+def segment(points: np.ndarray, voxel_size: float | None, votes: Semantics | None = None, **params):
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=voxel_size)
+    data.map.semantics = votes
+    return ClustersSegmenter(**params).run(data)
+
+
+def instance_of(names: np.ndarray, out: dict, name: str) -> tuple[int, float]:
+    """The instance holding most of the points named ``name``, and the share of them it holds."""
+    ids = out["semantics"].instance_ids[names == name]
+    best = int(np.bincount(ids).argmax())
+    return best, float((ids == best).mean())
+
+
+def check_room(points: np.ndarray, names: np.ndarray, out: dict) -> None:
+    sem = out["semantics"]
+    stuff = np.isin(names, STUFF)
+    # A voxel where a leg meets the floor holds both: a point or two of stuff per object may follow the leg.
+    assert (sem.instance_ids[stuff] > 0).sum() <= 3 * len(out["instances"]), "floor, wall or ceiling in a thing"
+    for name in STUFF:
+        assert (sem.class_ids[names == name] == VOCAB.id(name)).mean() > 0.97, name
+    found = {name: instance_of(names, out, name) for name in ("table", "chair", "cup")}
+    # The cup's lowest row of points lies on the table top, in the table's cells: 0.7 of it at least.
+    assert all(iid > 0 and share > (0.7 if name == "cup" else 0.9) for name, (iid, share) in found.items()), found
+    assert len({iid for iid, _ in found.values()}) == 3, found  # the cup is not the table's
+    assert len(out["instances"]) == 3
+    table = next(i for i in out["instances"] if i.id == found["table"][0])
+    assert table.class_name == "table" and table.box.size[2] > 0.7  # its top and its legs
+
+
+def test_room_layout_is_stuff_and_objects_are_instances():
+    points, names = synthetic_room(0.02)
+    check_room(points, names, segment(points, 0.02))
+
+
+def test_the_same_room_at_two_voxel_sizes_gives_the_same_instances():
+    for spacing in (0.015, 0.03):
+        points, names = synthetic_room(spacing)
+        out = segment(points, spacing)
+        check_room(points, names, out)
+        assert sorted(i.class_name for i in out["instances"]) == ["object", "object", "table"]
+
+
+def test_instances_take_their_class_from_fused_votes():
+    """The semantics layer a mapper fused (here: the true class, one point in ten voted wrong)."""
+    points, names = synthetic_room(0.03)
+    rng = np.random.default_rng(0)
+    classes = np.array([VOCAB.id(n) for n in names], np.int32)
+    wrong = rng.random(len(classes)) < 0.1
+    classes[wrong] = rng.choice([VOCAB.id("sofa"), VOCAB.id("floor"), 0], wrong.sum())
+    out = segment(points, 0.03, votes=Semantics(classes, np.zeros(len(classes), np.int32), VOCAB))
+    check_room(points, names, out)
+    assert sorted(i.class_name for i in out["instances"]) == ["chair", "cup", "table"]
+
+
+def visible_box(lo, hi, spacing: float, camera: np.ndarray) -> np.ndarray:
+    """The faces of a box standing on z = lo[2] that face ``camera`` (one view, as a scan)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    faces = ""
+    for face in "xXyYZ":
+        axis = "xyz".index(face.lower())
+        centre = (lo + hi) / 2
+        centre[axis] = hi[axis] if face.isupper() else lo[axis]
+        outward = np.zeros(3)
+        outward[axis] = 1.0 if face.isupper() else -1.0
+        if outward @ (camera - centre) > 0:
+            faces += face
+    pts = box_surface(lo, hi, spacing, faces)
+    return pts[pts[:, 2] > lo[2] + 1e-6]
+
+
+def test_a_tabletop_scan_without_floor():
+    """A partial map as a raw cloud seen from one sensor (no voxel size: the grid follows the point
+    spacing): the table is the support, three boxes on it are objects; no floor, wall or ceiling."""
+    spacing, camera = 0.003, np.array([0.0, -1.0, 0.8])
+    top = box_surface((-0.6, -0.4, 0.0), (0.6, 0.4, 0.0), spacing, "z")
+    parts = {"a": ((-0.4, -0.1, 0), (-0.2, 0.1, 0.12)), "b": ((0.0, 0.0, 0), (0.1, 0.1, 0.2))}
+    parts["c"] = ((0.3, -0.2, 0), (0.4, -0.05, 0.08))
+    boxes = {name: visible_box(lo, hi, spacing, camera) for name, (lo, hi) in parts.items()}
+    points = np.concatenate([top, *boxes.values()])
+    points += np.random.default_rng(0).normal(0, 0.001, points.shape)  # a sensor's noise
+    names = np.concatenate([np.full(len(top), "table")] + [np.full(len(b), n) for n, b in boxes.items()])
+    pose = np.eye(4)
+    pose[:3, 3] = camera
+    data = PipelineData(stream=SensorStream(name="scan", points=points, metadata={"world_transform": pose.tolist()}))
+    data.map.geometry = Geometry(points=points)
+    out = ClustersSegmenter().run(data)
+    sem = out["semantics"]
+    assert not np.isin(sem.class_ids, [VOCAB.id(n) for n in STUFF]).any()
+    found = {n: instance_of(names, out, n) for n in ("table", "a", "b", "c")}
+    assert len({iid for iid, _ in found.values()}) == 4 and all(s > 0.85 for _, s in found.values()), found
+    assert sorted(i.class_name for i in out["instances"]) == ["object", "object", "object", "table"]
+
+
+def test_without_gravity_nothing_is_layout():
+    points, _ = synthetic_room(0.04)
+    out = segment(points, 0.04, gravity="none")
+    assert not np.isin(out["semantics"].class_ids, [VOCAB.id(n) for n in STUFF]).any()
+
+
+@pytest.mark.slow
+def test_a_map_of_millions_of_points():
+    """A 30 x 20 m hall with 600 boxes, 2.9 million points: more than 46,341 patches (their pair keys
+    once overflowed int32), every box its own instance, in bounded memory."""
+    spacing = 0.02
+    lx, ly, lz = 30.0, 20.0, 2.6
+    layout = [
+        box_surface((0, 0, 0), (lx, ly, 0), spacing, "z"),
+        box_surface((0, 0, 0), (0, ly, lz), spacing, "x"),
+        box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X"),
+        box_surface((0, 0, 0), (lx, 0, lz), spacing, "y"),
+        box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y"),
+    ]
+    centres = [(1.0 + 1.2 * i, 1.0 + 0.75 * j) for i in range(24) for j in range(25)]
+    boxes = [box_surface((x - 0.15, y - 0.15, 0.0), (x + 0.15, y + 0.15, 0.3), spacing, "xXyYZ") for x, y in centres]
+    points = np.concatenate(layout + boxes)
+    owner = np.concatenate(
+        [np.zeros(sum(map(len, layout)), int)] + [np.full(len(b), k + 1) for k, b in enumerate(boxes)]
+    )
+    assert len(points) > 2_500_000
+    out = segment(points, spacing)
+    sem = out["semantics"]
+    assert len(out["instances"]) == len(boxes)
+    assert (sem.instance_ids[owner == 0] > 0).sum() < 1e-4 * (owner == 0).sum()  # a box's foot row shares floor cells
+    on_box = sem.instance_ids[owner > 0]
+    # One instance per box: each box's points share one id, and no id spans two boxes.
+    pairs = np.unique(np.stack([owner[owner > 0], on_box], 1)[on_box > 0], axis=0)
+    assert len(np.unique(pairs[:, 0])) == len(pairs) == len(np.unique(pairs[:, 1])) == len(boxes)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss < 8 * 1024 * 1024  # kB: under 8 GB
+
+
+def test_patch_graph_keys_do_not_overflow_on_large_maps():
+    """Patch-pair keys of more than 46,341 patches do not overflow int32."""
+    cfg = ClustersConfig()
+    size = 0.02
+    n = 60_000  # points in a row, one per patch cell, each linked to its neighbours
+    points = np.zeros((n, 3))
+    points[:, 0] = np.arange(n) * size * 1.01
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    pairs = np.stack([np.arange(n - 1), np.arange(1, n)], 1)
+    graph = patch_graph(points, normals, pairs, cfg, size, 0.4, 0.4)
+    assert len(graph.centroid) == n and len(graph.edges) == n - 1
+    assert np.array_equal(np.sort(graph.edges, axis=1), pairs)
+
+
+def test_separates_objects_on_a_table_in_one_view():
+    """A Kinect-like single view of a table (no floor) with a box, a cylinder and a tall box: the
+    table is the support, named table; the three are objects; instance F1 1 against the truth."""
+    import trimesh
+
+    from stratamap.core.evaluation.metrics import evaluate
+    from stratamap.core.map.groundtruth import GroundTruth
+
+    rng = np.random.default_rng(0)
+    table = np.c_[rng.uniform(-0.6, 0.6, (20000, 2)), rng.normal(0, 0.002, 20000)]
+    parts, inst = [table], [np.ones(len(table), int)]
+    meshes = [
+        trimesh.creation.box(extents=(0.2, 0.15, 0.1)),
+        trimesh.creation.cylinder(radius=0.05, height=0.15),
+        trimesh.creation.box(extents=(0.1, 0.1, 0.2)),
+    ]
+    offsets = [(-0.3, 0.0, 0.05), (0.1, 0.1, 0.075), (0.35, -0.2, 0.1)]
+    camera = np.array([0.0, -1.2, 0.9])  # only surfaces facing the camera
+    for k, (mesh, off) in enumerate(zip(meshes, offsets, strict=True)):
+        pts, faces = trimesh.sample.sample_surface_even(mesh, 6000, seed=k)
+        pts = pts + off
+        facing = np.einsum("ij,ij->i", mesh.face_normals[faces], camera - pts) > 0
+        pts = pts[facing & (pts[:, 2] > 0.002)]
+        parts.append(pts)
+        inst.append(np.full(len(pts), k + 2))
+    points, inst = np.concatenate(parts), np.concatenate(inst)
+    cls = np.where(inst == 1, VOCAB.id("table"), VOCAB.id("object")).astype(np.int32)
+    pose = np.eye(4)
+    pose[:3, 3] = camera
+    data = PipelineData(
+        stream=SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()}),
+        ground_truth=GroundTruth(vocabulary=VOCAB, point_class_ids=cls, point_instance_ids=inst.astype(np.int32)),
+    )
+    data.map.geometry = Geometry(points=points)
+    out = ClustersSegmenter().run(data)
+    data.map.semantics, data.map.instances = out["semantics"], out["instances"]
+    assert evaluate(data)["instances"]["f1"] == 1.0
+    assert sorted(i.class_name for i in out["instances"]) == ["object", "object", "object", "table"]
+
+
+def test_clusters_cuts_a_box_standing_flush_on_another():
+    """A box on a larger box, flush on one side (one Kinect-like view): the flush faces join the two
+    convexly, the crease around the upper box's foot proposes the lower box's top as a cut plane,
+    and the cut separates them (creases at the stricter tolerance). Without cuts they stay one."""
+    import trimesh
+
+    rng = np.random.default_rng(0)
+    table = np.c_[rng.uniform(-0.6, 0.6, (30000, 2)), rng.normal(0, 0.001, 30000)]
+    camera = np.array([-0.9, -1.0, 1.0])
+    lower, upper = trimesh.creation.box(extents=(0.3, 0.2, 0.1)), trimesh.creation.box(extents=(0.1, 0.2, 0.1))
+    parts, inst = [table], [np.ones(len(table), int)]
+    for k, (mesh, off) in enumerate(((lower, (0.0, 0.0, 0.05)), (upper, (0.1, 0.0, 0.15)))):
+        pts, faces = trimesh.sample.sample_surface_even(mesh, 30000, seed=k)
+        pts = pts + off
+        keep = (np.einsum("ij,ij->i", mesh.face_normals[faces], camera - pts) > 0) & (pts[:, 2] > 0.002)
+        if k == 0:
+            keep &= ~((pts[:, 2] > 0.099) & (pts[:, 0] > 0.05))  # the lower top under the upper box
+        parts.append(pts[keep] + rng.normal(0, 0.001, (keep.sum(), 3)))
+        inst.append(np.full(keep.sum(), k + 2))
+    points, inst = np.concatenate(parts), np.concatenate(inst)
+    pose = np.eye(4)
+    pose[:3, 3] = camera
+
+    def separated(**params) -> bool:
+        data = PipelineData(
+            stream=SensorStream(name="cloud", points=points, metadata={"world_transform": pose.tolist()})
+        )
+        data.map.geometry = Geometry(points=points)
+        ids = ClustersSegmenter(**params).run(data)["semantics"].instance_ids
+        lower_id, upper_id = (int(np.bincount(ids[inst == k]).argmax()) for k in (2, 3))
+        return (
+            lower_id != upper_id
+            and (ids[inst == 2] == lower_id).mean() > 0.9
+            and (ids[inst == 3] == upper_id).mean() > 0.9
+        )
+
+    # At the default tolerance (0.4, for the noise of fused maps) these flush faces count as convex;
+    # at the stricter 0.2 their crease is seen and cut.
+    assert not separated(cut_min_links=0, cut_concavity_tolerance=0.2)
+    assert separated(cut_concavity_tolerance=0.2)
+
+
+@pytest.mark.slow
+def test_on_real_tabletop_scans_reaches_f1_095():
+    """mOSD learn split (tuned on; the test split is kept for the reported figure, 0.92 -> see docs)."""
+    from stratamap.core.evaluation.metrics import evaluate
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.points import PointsMapper
+    from stratamap.plugins.sources.pointcloud import PointCloudSource
+
+    folder = shared_data("mosd", "learn")
+    f1 = []
+    for path in sorted(folder.glob("*.pcd")):
+        source = PointCloudSource(path=str(path), label_scheme="mosd", up_axis="-y", up_tolerance_deg=60)
+        data = run_stages([source, PointsMapper(normals_radius=0.0), ClustersSegmenter()])
+        f1.append(evaluate(data)["instances"]["f1"])
+    assert len(f1) >= 5 and np.mean(f1) >= 0.95, f1
+
+
+@pytest.mark.parametrize(
+    "points,params,message",
+    [
+        (np.zeros((0, 3)), {}, r"clusters: the geometry layer has no points"),
+        (np.random.default_rng(0).random((50, 3)), {"class_rules": [{"class_name": "wall"}]}, r"names 'wall'"),
+    ],
+)
+def test_bad_input_is_a_one_line_data_error(points, params, message):
+    from stratamap.core.errors import DataError
+
+    with pytest.raises(DataError, match=message) as err:
+        segment(points, None, **params)
+    assert "\n" not in str(err.value)

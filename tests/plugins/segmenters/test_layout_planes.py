@@ -1,0 +1,144 @@
+"""Gravity-aware layout (plugins/segmenters/_layout.py): floor, walls, ceiling and support surfaces of
+synthetic rooms and partial maps built here from boxes sampled on a grid, as a fused map's surface."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stratamap.plugins.segmenters._layout import CEILING, FLOOR, NONE, WALL, LayoutParams, find_layout
+
+ROOM = (6.0, 5.0, 2.6)
+
+
+def box_surface(lo, hi, spacing: float, faces: str = "xXyYzZ") -> np.ndarray:
+    """Points on a grid of ``spacing`` over the named faces of the box ``lo``-``hi`` (x: the face at
+    lo[0], X: at hi[0], and so on)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    out = []
+    for face in faces:
+        axis = "xyz".index(face.lower())
+        u, v = [a for a in range(3) if a != axis]
+        gu = np.arange(lo[u], hi[u] + 1e-9, spacing)
+        gv = np.arange(lo[v], hi[v] + 1e-9, spacing)
+        uu, vv = np.meshgrid(gu, gv, indexing="ij")
+        pts = np.zeros((uu.size, 3))
+        pts[:, u], pts[:, v] = uu.ravel(), vv.ravel()
+        pts[:, axis] = hi[axis] if face.isupper() else lo[axis]
+        out.append(pts)
+    return np.concatenate(out)
+
+
+def solids(parts: list[tuple[str, tuple, tuple]], spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Surfaces of solid boxes ``(name, lo, hi)``, without what lies inside another box (hidden)."""
+    points, names = [], []
+    for name, lo, hi in parts:
+        pts = box_surface(lo, hi, spacing)
+        hidden = np.zeros(len(pts), bool)
+        for other, olo, ohi in parts:
+            if (other, olo, ohi) != (name, lo, hi):
+                hidden |= np.all((pts > np.add(olo, 1e-6)) & (pts < np.subtract(ohi, 1e-6)), axis=1)
+        points.append(pts[~hidden])
+        names += [name] * int((~hidden).sum())
+    return np.concatenate(points), np.array(names)
+
+
+def table(x: float, y: float, name: str = "table", size=(1.2, 0.8), height: float = 0.75) -> list:
+    w, d = size
+    legs = [(x + sx * (w / 2 - 0.05), y + sy * (d / 2 - 0.05)) for sx in (-1, 1) for sy in (-1, 1)]
+    return [(name, (x - w / 2, y - d / 2, height - 0.03), (x + w / 2, y + d / 2, height))] + [
+        (name, (lx - 0.025, ly - 0.025, 0.0), (lx + 0.025, ly + 0.025, height - 0.03)) for lx, ly in legs
+    ]
+
+
+def chair(x: float, y: float) -> list:
+    """A seat at 0.45 m on four legs; the rear legs rise on into the back's posts, as most chairs'."""
+    s = 0.22
+    parts = [("chair", (x - s, y - s, 0.42), (x + s, y + s, 0.46))]
+    for sx in (-1, 1):
+        leg_x = x + sx * (s - 0.02)
+        parts.append(("chair", (leg_x - 0.02, y - s, 0.0), (leg_x + 0.02, y - s + 0.04, 0.42)))
+        parts.append(("chair", (leg_x - 0.02, y + s - 0.04, 0.0), (leg_x + 0.02, y + s, 0.95)))
+    parts.append(("chair", (x - s + 0.04, y + s - 0.03, 0.62), (x + s - 0.04, y + s, 0.92)))  # the back rest
+    return parts
+
+
+def synthetic_room(spacing: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """A 6 x 5 x 2.6 m room (floor, four walls, ceiling) with a table, a cup on it and a chair;
+    points on a grid of ``spacing`` (as a TSDF map of that voxel size), and a name per point."""
+    lx, ly, lz = ROOM
+    layout = [
+        ("floor", box_surface((0, 0, 0), (lx, ly, 0), spacing, "z")),
+        ("ceiling", box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z")),
+        ("wall", box_surface((0, 0, 0), (0, ly, lz), spacing, "x")),
+        ("wall", box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X")),
+        ("wall", box_surface((0, 0, 0), (lx, 0, lz), spacing, "y")),
+        ("wall", box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y")),
+    ]
+    objects, names = solids(
+        table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35), spacing
+    )
+    points = np.concatenate([p for _, p in layout] + [objects])
+    labels = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
+    return points, labels
+
+
+def test_room_floor_walls_ceiling_and_the_table_top():
+    points, names = synthetic_room(0.02)
+    layout = find_layout(points, 0.02)
+    for name, label in (("floor", FLOOR), ("wall", WALL), ("ceiling", CEILING)):
+        assert (layout.labels[names == name] == label).mean() > 0.95, name
+    things = np.isin(names, ["table", "chair", "cup"])
+    assert (layout.labels[things] != NONE).mean() < 0.02
+    assert abs(layout.floor_height) < 0.02 and abs(layout.ceiling_height - ROOM[2]) < 0.02 and layout.walls == 4
+    heights = sorted(round(s.height, 2) for s in layout.supports)
+    assert any(0.71 <= h <= 0.76 for h in heights), heights  # the 3 cm top: its upper or lower face
+    top = max(layout.supports, key=lambda s: s.area)
+    assert (names[top.indices] == "table").mean() > 0.99 and abs(top.area - 0.96) < 0.1
+
+
+def test_tabletop_scan_has_no_floor_and_one_support():
+    """A partial map: a tabletop with boxes on it, no floor, no walls (a Kinect tabletop scan)."""
+    spacing = 0.005
+    top = box_surface((-0.6, -0.4, 0.0), (0.6, 0.4, 0.0), spacing, "z")
+    boxes, _ = solids([("box", (-0.3, -0.1, 0.0), (-0.1, 0.1, 0.15)), ("box", (0.1, 0.0, 0.0), (0.2, 0.1, 0.1))], 0.005)
+    points = np.concatenate([top, boxes[boxes[:, 2] > 0.001]])
+    layout = find_layout(points, 0.015)
+    assert layout.floor_height is None and layout.ceiling_height is None and layout.walls == 0
+    assert (layout.labels == NONE).all()
+    main = max(layout.supports, key=lambda s: s.area)
+    assert abs(main.height) < 0.01 and len(main.indices) >= 0.95 * len(top)
+    # Only the boxes' lowest row shares the table's cells.
+    assert (main.indices >= len(top)).sum() < 0.1 * len(boxes)
+    assert (points[main.indices, 2] < 0.02).all()
+
+
+def test_a_lone_wall_with_a_cabinet_in_front_and_no_floor():
+    """A partial map: one wall and a tall cabinet standing before it; only the wall is layout (the
+    sensor's side tells the room's: the cabinet's front has the wall beyond it)."""
+    spacing = 0.02
+    wall = box_surface((0, 0, 0.5), (4.0, 0, 2.6), spacing, "y")
+    cabinet, _ = solids([("cabinet", (1.0, 0.0, 0.5), (2.0, 0.6, 2.5))], spacing)
+    cabinet = cabinet[(cabinet[:, 1] > 0.01) & (cabinet[:, 2] > 0.51)]  # its back and bottom are unseen
+    points = np.concatenate([wall, cabinet])
+    layout = find_layout(points, spacing, viewpoints=np.array([[2.0, 3.0, 1.5]]))
+    assert layout.floor_height is None and layout.walls == 1
+    on_wall = (wall[:, 0] < 0.99) | (wall[:, 0] > 2.01)  # the part the cabinet does not hide
+    assert (layout.labels[: len(wall)][on_wall] == WALL).mean() > 0.95
+    assert (layout.labels[len(wall) :] == WALL).mean() < 0.02
+
+
+def test_without_gravity_nothing_is_named():
+    points, _ = synthetic_room(0.04)
+    layout = find_layout(points, 0.04, gravity=False)
+    assert (layout.labels == NONE).all() and layout.supports == [] and layout.floor_height is None
+
+
+def test_given_normals_replace_the_estimate():
+    points, names = synthetic_room(0.04)
+    from stratamap.plugins.segmenters._layout import cell_normals
+
+    normals = cell_normals(points, 0.12)
+    a = find_layout(points, 0.04, normals=normals)
+    b = find_layout(points, 0.04)
+    assert (a.labels == b.labels).mean() > 0.99 and abs(a.floor_height - b.floor_height) < 1e-9
+    assert LayoutParams().support_heights[0] < 0.75 < LayoutParams().support_heights[1]
