@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Annotated, Any
@@ -320,6 +321,11 @@ def view(
         pass
     finally:
         viewer.stop()
+    # The web server's threads can outlive stop() while a browser keeps its socket open; the viewer
+    # writes nothing, so the process ends here rather than waiting for them.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 models_app = typer.Typer(help="Model libraries (the CAD database completers match against).", no_args_is_help=True)
