@@ -113,12 +113,21 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C reaches the viewer as it does from a terminal, even when the suite itself runs in the
+    background (a non-interactive shell starts background jobs with SIGINT ignored, and children
+    inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class ViewerProcess:
     """`stratamap view OUT` as a subprocess; ``url`` is the address it printed."""
 
     def __init__(self, out: Path, timeout: float = 90.0):
         command = [sys.executable, "-m", "stratamap.core.cli", "view", str(out), "--port", str(_free_port())]
-        self.proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.proc = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=_as_from_a_terminal
+        )
         self.lines: queue.Queue[str] = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()
         self.output: list[str] = []
