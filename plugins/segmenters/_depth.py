@@ -425,3 +425,60 @@ def to_frame(values: np.ndarray, stride: int, shape: tuple[int, int]) -> np.ndar
     rows = np.minimum(np.arange(h) // stride, values.shape[0] - 1)
     cols = np.minimum(np.arange(w) // stride, values.shape[1] - 1)
     return values[rows][:, cols]
+
+
+def floor_height(stream, params: DepthSegmentParams, tilt_deg: float = 20.0, samples: int = 8) -> float | None:
+    """The floor's height in a stream's world frame: 0 where the source put it there (gravity alignment,
+    synthetic scenes), else the lowest height holding a fifth of the upward-facing planar surface seen in
+    a sample of frames; None when no frame shows an upward-facing surface."""
+    if "gravity_alignment" in stream.metadata or "scene_spec" in stream.metadata:
+        return 0.0
+    frames = stream.frames
+    picks = np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).round().astype(int))
+    heights, weights = [], []
+    cos_t = np.cos(np.radians(tilt_deg))
+    for i in picks:
+        frame = frames[int(i)]
+        geometry = frame_geometry(np.asarray(frame.depth), stream.intrinsics, params)
+        stats = segment_stats(geometry, np.asarray(frame.pose))
+        length = np.linalg.norm(stats.normal, axis=1)
+        up = (length > 0.8) & (stats.normal[:, 2] / np.maximum(length, 1e-12) > cos_t)
+        up[0] = False
+        heights.extend(stats.centroid[up, 2].tolist())
+        weights.extend(stats.cells[up].tolist())
+    if not heights:
+        return None
+    order = np.argsort(heights)
+    h = np.asarray(heights)[order]
+    w = np.asarray(weights)[order]
+    for k in range(len(h)):
+        if w[np.abs(h - h[k]) <= 0.05].sum() >= 0.2 * w.sum():
+            return float(h[k])
+    return float(h[0])
+
+
+def refine_labels(
+    depth: np.ndarray,
+    camera_to_world: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    regions: list[Region],
+    floor: float,
+    stuff_ids: dict[str, int],
+    seg_params: DepthSegmentParams,
+    layout_params: LayoutParams,
+    inside_ratio: float = 0.5,
+    gap: float = 0.1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(class image, instance image) of one frame at its resolution: the regions (boxes or masks) take
+    their objects' depth segments, floor, wall and ceiling come from gravity-aligned planes."""
+    geometry = frame_geometry(depth, intrinsics, seg_params)
+    stats = segment_stats(geometry, camera_to_world)
+    layout = layout_segments(stats, floor, layout_params)
+    seg_class, seg_instance = assign_regions(geometry, stats, layout, regions, inside_ratio, gap)
+    for name, class_id in stuff_ids.items():
+        seg_class[layout[name]] = class_id
+    shape = np.asarray(depth).shape[:2]
+    return (
+        to_frame(seg_class[geometry.segments], geometry.stride, shape),
+        to_frame(seg_instance[geometry.segments], geometry.stride, shape),
+    )

@@ -230,7 +230,12 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         path, detector = self._detector()
         seg_params = _depth.DepthSegmentParams(**cfg.depth_segments.model_dump())
         lay = cfg.layout
-        floor = lay.floor_height if lay.floor_height is not None else self._floor_height(stream, seg_params, lay)
+        floor = lay.floor_height
+        if floor is None:
+            floor = _depth.floor_height(stream, seg_params, lay.tilt_deg)
+            if floor is None:
+                self.warn("no upward-facing surface in the frames: no floor labelled")
+                floor = float("-inf")
         layout_params = _depth.LayoutParams(**lay.model_dump(exclude={"floor_height"}))
         stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
@@ -245,51 +250,21 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
                 extent = (size.extent[1] if size else 1.0) * cfg.reach_scale
                 regions.append(_depth.Region(vocab.id(name), float(score), box=tuple(map(float, box)), extent=extent))
             regions = _depth.suppress_duplicates(regions)
-            geometry = _depth.frame_geometry(np.asarray(frame.depth), stream.intrinsics, seg_params)
-            stats = _depth.segment_stats(geometry, np.asarray(frame.pose))
-            layout = _depth.layout_segments(stats, floor, layout_params)
-            seg_class, seg_instance = _depth.assign_regions(
-                geometry, stats, layout, regions, cfg.inside_ratio, cfg.join_gap
+            cls, ins = _depth.refine_labels(
+                np.asarray(frame.depth),
+                np.asarray(frame.pose),
+                stream.intrinsics,
+                regions,
+                floor,
+                stuff,
+                seg_params,
+                layout_params,
+                cfg.inside_ratio,
+                cfg.join_gap,
             )
-            for name, class_id in stuff.items():
-                seg_class[layout[name]] = class_id
-            shape = np.asarray(frame.depth).shape[:2]
-            cls = _depth.to_frame(seg_class[geometry.segments], geometry.stride, shape)
-            ins = _depth.to_frame(seg_instance[geometry.segments], geometry.stride, shape)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note("model", {"path": str(path), "floor_height": round(float(floor), 4), "detections": counts})
         return {"frame_labels": out}
-
-    def _floor_height(
-        self, stream: Any, seg_params: _depth.DepthSegmentParams, lay: LayoutConfig, samples: int = 8
-    ) -> float:
-        """0 where the source put the floor there (gravity alignment, synthetic scenes), else the lowest height
-        holding a fifth of the upward-facing planar surface seen in a sample of frames."""
-        if "gravity_alignment" in stream.metadata or "scene_spec" in stream.metadata:
-            return 0.0
-        frames = stream.frames
-        picks = np.unique(np.linspace(0, len(frames) - 1, min(samples, len(frames))).round().astype(int))
-        heights, weights = [], []
-        cos_t = np.cos(np.radians(lay.tilt_deg))
-        for i in picks:
-            frame = frames[int(i)]
-            geometry = _depth.frame_geometry(np.asarray(frame.depth), stream.intrinsics, seg_params)
-            stats = _depth.segment_stats(geometry, np.asarray(frame.pose))
-            length = np.linalg.norm(stats.normal, axis=1)
-            up = (length > 0.8) & (stats.normal[:, 2] / np.maximum(length, 1e-12) > cos_t)
-            up[0] = False
-            heights.extend(stats.centroid[up, 2].tolist())
-            weights.extend(stats.cells[up].tolist())
-        if not heights:
-            self.warn("no upward-facing surface in the frames: no floor labelled")
-            return float("-inf")
-        order = np.argsort(heights)
-        h = np.asarray(heights)[order]
-        w = np.asarray(weights)[order]
-        for k in range(len(h)):
-            if w[np.abs(h - h[k]) <= 0.05].sum() >= 0.2 * w.sum():
-                return float(h[k])
-        return float(h[0])
 
 
 @hookimpl

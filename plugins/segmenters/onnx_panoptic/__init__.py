@@ -23,7 +23,9 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.map.priors import CLASS_SIZES
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
+from stratamap.plugins.segmenters import _depth
 
 SHIPPED = Path(__file__).resolve().parent / "models" / "panoptic_small.onnx"
 
@@ -148,6 +150,14 @@ class ONNXPanopticConfig(StageConfig):
             "0.8 chosen on held-out synthetic walks)."
         ),
     )
+    depth_refine: bool = Field(
+        default=False,
+        description=(
+            "Refine the network's instances with per-frame depth segmentation, as the detector segmenter does: "
+            "each mask takes the depth segments lying mostly inside it (not the wall or floor it spills onto), and "
+            "floor, wall and ceiling come from gravity-aligned planes (needs depth and poses)."
+        ),
+    )
     threads: int = Field(default=2, ge=1, description="onnxruntime intra-op threads.")
 
 
@@ -237,6 +247,18 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
             raise DataError(
                 "onnx_panoptic: the stream has no RGB-D frames (point clouds need a 3D segmenter such as `clusters`)"
             )
+        floor = None
+        if cfg.depth_refine:
+            missing = [f.index for f in stream.frames if f.pose is None or f.depth is None]
+            if missing or stream.intrinsics is None:
+                raise DataError(
+                    f"onnx_panoptic: depth_refine needs depth, poses and intrinsics; frames {missing[:5]} of "
+                    f"{stream.name!r} lack depth or a pose"
+                )
+            floor = _depth.floor_height(stream, _depth.DepthSegmentParams())
+            if floor is None:
+                self.warn("depth_refine: no upward-facing surface in the frames: no floor labelled")
+                floor = float("-inf")
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         for frame in self.progress(stream.frames, description="onnx_panoptic"):
             rgb = np.asarray(frame.rgb)
@@ -257,6 +279,8 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                     f"layout ({exc})"
                 ) from exc
             cls, ins = undo(cls), undo(ins)
+            if cfg.depth_refine:
+                cls, ins = self._refine(frame, stream, cls, ins, vocab, floor)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note(
             "model", {"path": str(path), "layout": layout, "input": [width, height], "depth_channel": depth_channel}
@@ -307,6 +331,35 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                 cfg.iou_threshold,
             )
         return cls, ins
+
+    @staticmethod
+    def _refine(frame: Any, stream: Any, cls: np.ndarray, ins: np.ndarray, vocab: Any, floor: float):
+        """The network's instances as regions for per-frame depth segmentation; its stuff where the
+        planes name none."""
+        regions = []
+        for iid in np.unique(ins[ins > 0]):
+            mask = ins == iid
+            class_id = int(np.bincount(cls[mask].astype(np.int64)).argmax())
+            if class_id == 0 or not vocab.is_thing[class_id]:
+                continue
+            size = CLASS_SIZES.get(vocab.name(class_id))
+            extent = (size.extent[1] if size else 1.0) * 1.2
+            regions.append(_depth.Region(class_id, 1.0, mask=mask, extent=extent))
+        stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
+        ref_cls, ref_ins = _depth.refine_labels(
+            np.asarray(frame.depth),
+            np.asarray(frame.pose),
+            stream.intrinsics,
+            regions,
+            floor,
+            stuff,
+            _depth.DepthSegmentParams(),
+            _depth.LayoutParams(),
+        )
+        network_stuff = ~np.asarray(vocab.is_thing)[cls.astype(np.int64)] & (cls > 0)
+        keep = (ref_cls == 0) & network_stuff
+        ref_cls[keep] = cls[keep]
+        return ref_cls, ref_ins
 
     @staticmethod
     def _guess_layout(outputs: list[str]) -> str:

@@ -137,3 +137,31 @@ def test_stride_keeps_the_segmentation(view):
     assert share > 0.75 and crate_id != floor_id
     stats = _depth.segment_stats(geometry, pose)
     assert _depth.layout_segments(stats, 0.0, _depth.LayoutParams())["floor"][floor_id]
+
+
+def test_a_learned_mask_that_spills_is_refined_to_its_object(view):
+    """onnx_panoptic's depth_refine: a mask grown over the floor and wall around the crate keeps the crate."""
+    from types import SimpleNamespace
+
+    from stratamap.core.map.vocabulary import Vocabulary
+    from stratamap.plugins.segmenters.onnx_panoptic import ONNXPanopticSegmenter
+
+    depth, which, _, _, _ = view
+    pose = _look_at(np.array([0.0, 0.0, 1.2]), [2.0, 0.0, 0.4])
+    vocab = Vocabulary.default()
+    from scipy import ndimage
+
+    spill = ndimage.binary_dilation(which == 2, iterations=20)
+    cls = np.where(spill, vocab.id("box"), vocab.id("floor")).astype(np.uint16)
+    ins = np.where(spill, 1, 0).astype(np.int32)
+    frame = SimpleNamespace(depth=depth, pose=pose)
+    stream = SimpleNamespace(intrinsics=INTRINSICS)
+    ref_cls, ref_ins = ONNXPanopticSegmenter._refine(frame, stream, cls, ins, vocab, 0.0)
+    crate, floor, wall = which == 2, which == 0, which == 1
+    assert (ref_cls[crate] == vocab.id("box")).mean() > 0.9
+    assert np.bincount(ref_ins[crate])[1:].max() > 0.9 * crate.sum()  # one instance holds the crate
+    for surface, name in ((floor, "floor"), (wall, "wall")):
+        spilt = spill & surface
+        assert (ref_cls[spilt] == vocab.id("box")).mean() < 0.05, name  # the spill is gone...
+        # ...and mostly named by the planes (the cut bands along the crate's edges stay unknown)
+        assert (ref_cls[spilt] == vocab.id(name)).mean() > 0.6, name
