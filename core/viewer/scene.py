@@ -20,6 +20,8 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw
 from stratamap.core.io.nav2 import costmap_values
 from stratamap.core.lazy import lazy_module
+from stratamap.core.map.colors import UNLABELLED_GREY as GREY
+from stratamap.core.map.colors import id_colors
 from stratamap.core.map.layers import SCENE_NODE, Completion, ContactGraph, Joint, LayeredMap, ObjectInstance
 from stratamap.core.map.vocabulary import Vocabulary
 
@@ -33,7 +35,7 @@ OBJECT_VIEWS = ("completed", "observed", "both")
 #: Nav2's inflation defaults, as the ``costmap`` exporter uses them (metres, metres, 1/metre).
 COSTMAP_INFLATION = {"inscribed_radius": 0.2, "inflation_radius": 0.55, "cost_scaling_factor": 10.0}
 COSTMAP_TEXTURE = "costmap"
-UNLABELLED_GREY = np.array([0.62, 0.62, 0.62])
+UNLABELLED_GREY = np.full(3, GREY)
 #: Box edges as pairs of corner indices (corners ordered bottom face then top face).
 BOX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
 MOVING_JOINTS = ("revolute", "prismatic", "continuous")
@@ -59,20 +61,10 @@ def display_indices(count: int, limit: int) -> np.ndarray:
     return np.unique(np.linspace(0, count - 1, limit).round().astype(np.int64))
 
 
-def palette(ids: np.ndarray) -> np.ndarray:
-    """(N, 3) colours in [0, 1] for integer ids, as report.html draws them (tab20); id 0 (none) is grey."""
-    from matplotlib import colormaps
-
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-    colors = np.asarray(colormaps["tab20"](ids % 20))[:, :3]
-    colors[ids == 0] = UNLABELLED_GREY
-    return colors
-
-
 def class_color(vocabulary: Vocabulary, class_name: str) -> np.ndarray:
     """The colour of a class in class mode; a class outside the vocabulary gets a stable colour from its name."""
     class_id = vocabulary.id(class_name) if class_name in vocabulary else zlib.crc32(class_name.encode()) % 19 + 1
-    return palette(np.array([class_id]))[0]
+    return id_colors(np.array([class_id]))[0]
 
 
 def quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -412,8 +404,8 @@ def build_scene(m: LayeredMap, max_points: int = MAX_DISPLAY_POINTS, source: Pat
     grey = np.tile(UNLABELLED_GREY, (len(keep), 1))
     by_mode = {
         "rgb": np.clip(rgb[keep], 0.0, 1.0) if rgb is not None else grey,
-        "class": palette(class_ids[keep]) if class_ids is not None else grey,
-        "instance": palette(instance_ids[keep]) if instance_ids is not None else grey,
+        "class": id_colors(class_ids[keep]) if class_ids is not None else grey,
+        "instance": id_colors(instance_ids[keep]) if instance_ids is not None else grey,
     }
     colors = {mode: (c * 255).round().astype(np.uint8) for mode, c in by_mode.items()}
     point_instance_ids = (

@@ -347,8 +347,7 @@ class MatchingCompleter(Completer[MatcherConfigT]):
                 if not plausible(name, inst.points):
                     continue
                 match = self.match(dataclasses.replace(inst, class_name=name), base, index, data)
-                fit = None if match is None else match.details.get("fit_m", match.score)
-                if fit is not None and (best is None or (match.score, name) < (best[1].score, best[0])):
+                if match is not None and (best is None or (match.score, name) < (best[1].score, best[0])):
                     best = (name, match)
             return best
 

@@ -31,6 +31,7 @@ from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_directory
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw
 from stratamap.core.io.nav2 import COST_INSCRIBED, COST_LETHAL, COST_UNKNOWN, costmap_values
+from stratamap.core.map.colors import id_colors
 
 #: rosbag2 metadata version rosbags writes (8 is the oldest it offers; Humble's player reads it).
 BAG_VERSION = 8
@@ -61,16 +62,6 @@ def occupancy_from_costs(costs: np.ndarray) -> np.ndarray:
     cells[costs == COST_LETHAL] = 100
     cells[costs == COST_UNKNOWN] = -1
     return cells.astype(np.int8)
-
-
-def palette(ids: np.ndarray) -> np.ndarray:
-    """(N, 3) colours in [0, 1] for integer ids, tab20 as report.html draws them; id 0 (none) is grey."""
-    from matplotlib import colormaps
-
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-    colors = np.asarray(colormaps["tab20"](ids % 20))[:, :3]
-    colors[ids == 0] = 0.62
-    return colors
 
 
 def packed_rgb(colors: np.ndarray) -> np.ndarray:
@@ -310,7 +301,7 @@ class Ros2BagExporter(Exporter[Ros2BagConfig]):
         if geometry.colors is not None:
             rows["rgb"] = packed_rgb(geometry.colors)
         else:
-            rows["rgb"] = packed_rgb(palette(rows["class"]))
+            rows["rgb"] = packed_rgb(id_colors(rows["class"]))
         return rows
 
     @staticmethod
@@ -324,7 +315,7 @@ class Ros2BagExporter(Exporter[Ros2BagConfig]):
         markers = []
         for inst in data.map.instances or []:
             class_id = vocabulary.id(inst.class_name) if inst.class_name in vocabulary else 0
-            rgb = palette(np.array([class_id]))[0]
+            rgb = id_colors(np.array([class_id]))[0]
             box = inst.box
             markers.append(
                 messages.marker("boxes", inst.id, Marker.CUBE, box.pose, box.size, messages.color(rgb, 0.35))

@@ -33,6 +33,7 @@ from stratamap.core.atomic import atomic_path
 from stratamap.core.errors import PluginError
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw
 from stratamap.core.hookspecs import Observer, ObserverConfig, hookimpl
+from stratamap.core.map.colors import id_colors
 
 INSTALL_HINT = "pip install 'stratamap[viz]'"
 #: Occupancy values (-1 unknown, 0 free .. 100 occupied) as grey levels, as map_saver draws them.
@@ -66,13 +67,8 @@ def _rerun() -> Any:
 
 
 def palette(ids: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 colours for integer ids, tab20 as report.html draws them; id 0 (none) is grey."""
-    from matplotlib import colormaps
-
-    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-    colors = np.asarray(colormaps["tab20"](ids % 20))[:, :3]
-    colors[ids == 0] = 0.62
-    return (colors * 255).round().astype(np.uint8)
+    """(N, 3) uint8 colours for integer ids, as report.html draws them."""
+    return (id_colors(ids) * 255).round().astype(np.uint8)
 
 
 def occupancy_image(grid: Any) -> np.ndarray:

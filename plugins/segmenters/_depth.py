@@ -18,37 +18,71 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.lazy import lazy_module
+from stratamap.core.map.priors import CLASS_SIZES
 from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.map.vocabulary import LAYOUT_CLASSES
 
 ndimage = lazy_module("scipy.ndimage")
 spatial = lazy_module("scipy.spatial")
 
 
-@dataclass(frozen=True)
-class DepthSegmentParams:
-    """How depth frames are cut into geometric segments (see the module docstring)."""
+class DepthSegmentsConfig(BaseModel):
+    """How each depth frame is cut into geometric segments."""
 
-    stride: int = 2
-    smoothing: int = 2  # half-width (cells) of the box filter on points before normals
-    jump_ratio: float = 0.03  # depth step between neighbours, as a share of the depth, that cuts
-    jump_floor: float = 0.01  # metres added to the step threshold (sensor quantization at short range)
-    concave_deg: float = 25.0  # concave creases sharper than this cut
-    min_cells: int = 20  # segments smaller than this (cells) are dropped
+    model_config = ConfigDict(extra="forbid")
+
+    stride: int = Field(
+        default=2, ge=1, le=8, description="Segment on a grid this many times coarser than the frame (speed)."
+    )
+    smoothing: int = Field(
+        default=2, ge=1, le=8, description="Half-width in grid cells of the point smoothing before normals."
+    )
+    jump_ratio: float = Field(
+        default=0.03, gt=0, le=0.5, description="A depth step above this share of the depth separates surfaces."
+    )
+    jump_floor: float = Field(
+        default=0.01, ge=0, description="Metres added to the jump threshold (sensor quantization at short range)."
+    )
+    concave_deg: float = Field(
+        default=25.0,
+        gt=0,
+        lt=90,
+        description="Concave creases sharper than this separate surfaces (a leg on the floor, a cup on a table).",
+    )
+    min_cells: int = Field(default=20, ge=1, description="Segments of fewer grid cells are dropped as noise.")
 
 
-@dataclass(frozen=True)
-class LayoutParams:
-    """What makes a segment floor, wall or ceiling in a gravity-aligned (z up) world."""
+class LayoutConfig(BaseModel):
+    """What makes a segment floor, wall or ceiling (in the gravity-aligned world, z up)."""
 
-    tilt_deg: float = 20.0  # a surface within this of horizontal (or vertical) counts as such
-    floor_band: float = 0.12  # metres above the floor height that still are floor
-    ceiling_min: float = 1.9  # metres above the floor: downward surfaces higher than this are ceiling
-    wall_min_height: float = 1.0  # metres: vertical planar segments this tall are walls...
-    wall_min_width: float = 2.0  # ...or this wide while reaching above wall_wide_top
-    wall_wide_top: float = 1.3  # metres above the floor (a counter's front is wide but low)
-    planar_rms: float = 0.03  # metres: the RMS distance to its plane a wall or floor segment stays under
+    model_config = ConfigDict(extra="forbid")
+
+    floor_height: float | None = Field(
+        default=None,
+        description="Height of the floor (m); default: the lowest large upward-facing surface of the frames.",
+    )
+    tilt_deg: float = Field(
+        default=20.0, gt=0, lt=45, description="Surfaces within this of horizontal or vertical count as such."
+    )
+    floor_band: float = Field(default=0.12, ge=0, description="Upward surfaces at most this high above it are floor.")
+    ceiling_min: float = Field(
+        default=1.9, gt=0, description="Downward surfaces higher than this above the floor are ceiling."
+    )
+    wall_min_height: float = Field(
+        default=1.0, gt=0, description="Vertical planar surfaces spanning this much height are wall."
+    )
+    wall_min_width: float = Field(
+        default=2.0,
+        gt=0,
+        description="...or this much width while reaching above wall_wide_top (a counter's front is wide but low).",
+    )
+    wall_wide_top: float = Field(default=1.3, gt=0, description="See wall_min_width (m above the floor).")
+    planar_rms: float = Field(
+        default=0.03, gt=0, description="RMS distance (m) to its plane a wall segment stays under."
+    )
 
 
 @dataclass
@@ -60,7 +94,6 @@ class FrameGeometry:
     valid: np.ndarray  # (h, w) bool
     segments: np.ndarray  # (h, w) int32, 0 = none
     stride: int
-    world_points: np.ndarray | None = None  # (h, w, 3), set by segment_stats
 
 
 def _box_mean(values: np.ndarray, weights: np.ndarray, radius: int) -> np.ndarray:
@@ -74,7 +107,7 @@ def _box_mean(values: np.ndarray, weights: np.ndarray, radius: int) -> np.ndarra
     return ndimage.uniform_filter(values * weights, size=size, mode="constant") / np.maximum(w, 1e-12)
 
 
-def frame_geometry(depth: np.ndarray, intrinsics: CameraIntrinsics, params: DepthSegmentParams) -> FrameGeometry:
+def frame_geometry(depth: np.ndarray, intrinsics: CameraIntrinsics, params: DepthSegmentsConfig) -> FrameGeometry:
     """Points, normals and geometric segments of one depth image (metres, 0 or NaN = no return)."""
     s = max(1, int(params.stride))
     z = np.nan_to_num(np.asarray(depth, np.float64)[::s, ::s], nan=0.0, posinf=0.0, neginf=0.0)
@@ -164,14 +197,15 @@ class SegmentStats:
     width: np.ndarray  # horizontal extent along the segment's main horizontal direction
     rms: np.ndarray  # RMS distance to the segment's least-squares plane
     z_std: np.ndarray  # standard deviation of the heights
+    world_points: np.ndarray  # (h * w, 3) the grid's points in the world frame (0-cells included)
 
 
 def segment_stats(geometry: FrameGeometry, camera_to_world: np.ndarray) -> SegmentStats:
     labels = geometry.segments.ravel()
     n_seg = int(labels.max()) + 1 if labels.size else 1
     rot, t = camera_to_world[:3, :3], camera_to_world[:3, 3]
-    p = geometry.points.reshape(-1, 3) @ rot.T + t
-    geometry.world_points = p.reshape(geometry.points.shape)
+    world_points = geometry.points.reshape(-1, 3) @ rot.T + t
+    p = world_points
     nw = geometry.normals.reshape(-1, 3) @ rot.T
     keep = labels > 0
     lab, p, nw = labels[keep], p[keep], nw[keep]
@@ -195,10 +229,10 @@ def segment_stats(geometry: FrameGeometry, camera_to_world: np.ndarray) -> Segme
     hev = np.linalg.eigvalsh(horiz)
     width = 4.0 * np.sqrt(np.maximum(hev[:, -1], 0))  # +-2 sigma of a uniform spread ~ its length
     z_std = np.sqrt(np.maximum(cov[:, 2, 2], 0))
-    return SegmentStats(cells, centroid, normal, z_low, z_high, width, rms, z_std)
+    return SegmentStats(cells, centroid, normal, z_low, z_high, width, rms, z_std, world_points)
 
 
-def layout_segments(stats: SegmentStats, floor_height: float, params: LayoutParams) -> dict[str, np.ndarray]:
+def layout_segments(stats: SegmentStats, floor_height: float, params: LayoutConfig) -> dict[str, np.ndarray]:
     """Boolean masks over segment ids: which segments are floor, wall and ceiling."""
     length = np.linalg.norm(stats.normal, axis=1)
     unit = stats.normal / np.maximum(length, 1e-12)[:, None]
@@ -222,6 +256,18 @@ def layout_segments(stats: SegmentStats, floor_height: float, params: LayoutPara
     for mask in (floor, wall, ceiling):
         mask[0] = False
     return {"floor": floor, "wall": wall, "ceiling": ceiling}
+
+
+def class_reach(class_name: str, scale: float = 1.2) -> float:
+    """How far (m) an object of this class reaches from its main segment: ``scale`` times the class's
+    largest extent in the size priors, 1 m times ``scale`` for a class without one."""
+    size = CLASS_SIZES.get(class_name)
+    return (size.extent[1] if size else 1.0) * scale
+
+
+def stuff_class_ids(vocabulary) -> dict[str, int]:
+    """Vocabulary ids of the layout classes the planes name (floor, wall, ceiling)."""
+    return {name: vocabulary.id(name) for name in LAYOUT_CLASSES if name in vocabulary}
 
 
 @dataclass
@@ -402,9 +448,7 @@ def _segment_points(geometry: FrameGeometry, stats: SegmentStats, max_points: in
     """World points of every segment (the same world frame as ``stats``); at most ``max_points`` each
     (an even subsample) when set."""
     labels = geometry.segments.ravel()
-    pts = geometry.world_points.reshape(-1, 3) if geometry.world_points is not None else None
-    if pts is None:
-        raise ValueError("segment_stats must run before assign_regions (it sets the world points)")
+    pts = stats.world_points
     order = np.argsort(labels, kind="stable")
     ids, starts = np.unique(labels[order], return_index=True)
     bounds = np.append(starts, len(order))
@@ -427,7 +471,7 @@ def to_frame(values: np.ndarray, stride: int, shape: tuple[int, int]) -> np.ndar
     return values[rows][:, cols]
 
 
-def floor_height(stream, params: DepthSegmentParams, tilt_deg: float = 20.0, samples: int = 8) -> float | None:
+def floor_height(stream, params: DepthSegmentsConfig, tilt_deg: float = 20.0, samples: int = 8) -> float | None:
     """The floor's height in a stream's world frame: 0 where the source put it there (gravity alignment,
     synthetic scenes), else the lowest height holding a fifth of the upward-facing planar surface seen in
     a sample of frames; None when no frame shows an upward-facing surface."""
@@ -464,8 +508,8 @@ def refine_labels(
     regions: list[Region],
     floor: float,
     stuff_ids: dict[str, int],
-    seg_params: DepthSegmentParams,
-    layout_params: LayoutParams,
+    seg_params: DepthSegmentsConfig,
+    layout_params: LayoutConfig,
     inside_ratio: float = 0.5,
     gap: float = 0.1,
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -20,11 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.priors import CLASS_SIZES
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters import _depth
@@ -45,56 +44,6 @@ OPEN_IMAGES_TO_MAP = {
     "Book": "book",
     "Box": "box",
 }
-
-
-class DepthSegmentsConfig(BaseModel):
-    """How each depth frame is cut into geometric segments."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    stride: int = Field(
-        default=2, ge=1, le=8, description="Segment on a grid this many times coarser than the frame (speed)."
-    )
-    smoothing: int = Field(
-        default=2, ge=1, le=8, description="Half-width in grid cells of the point smoothing before normals."
-    )
-    jump_ratio: float = Field(
-        default=0.03, gt=0, le=0.5, description="A depth step above this share of the depth separates surfaces."
-    )
-    concave_deg: float = Field(
-        default=25.0,
-        gt=0,
-        lt=90,
-        description="Concave creases sharper than this separate surfaces (a leg on the floor, a cup on a table).",
-    )
-    min_cells: int = Field(default=20, ge=1, description="Segments of fewer grid cells are dropped as noise.")
-
-
-class LayoutConfig(BaseModel):
-    """What makes a segment floor, wall or ceiling (in the gravity-aligned world, z up)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    floor_height: float | None = Field(
-        default=None,
-        description="Height of the floor (m); default: the lowest large upward-facing surface of the frames.",
-    )
-    tilt_deg: float = Field(
-        default=20.0, gt=0, lt=45, description="Surfaces within this of horizontal or vertical count as such."
-    )
-    floor_band: float = Field(default=0.12, ge=0, description="Upward surfaces at most this high above it are floor.")
-    ceiling_min: float = Field(
-        default=1.9, gt=0, description="Downward surfaces higher than this above the floor are ceiling."
-    )
-    wall_min_height: float = Field(
-        default=1.0, gt=0, description="Vertical planar surfaces spanning this much height are wall."
-    )
-    wall_min_width: float = Field(
-        default=2.0,
-        gt=0,
-        description="...or this much width while reaching above wall_wide_top (a counter's front is wide but low).",
-    )
-    wall_wide_top: float = Field(default=1.3, gt=0, description="See wall_min_width (m above the floor).")
 
 
 class DetectorConfig(StageConfig):
@@ -129,10 +78,12 @@ class DetectorConfig(StageConfig):
         description="A detection grows from its main segment through segments this close (m) to what it holds: "
         "an object's parts touch, a chair standing near a table is apart from it.",
     )
-    depth_segments: DepthSegmentsConfig = Field(
-        default_factory=DepthSegmentsConfig, description="Geometric segmentation of each depth frame."
+    depth_segments: _depth.DepthSegmentsConfig = Field(
+        default_factory=_depth.DepthSegmentsConfig, description="Geometric segmentation of each depth frame."
     )
-    layout: LayoutConfig = Field(default_factory=LayoutConfig, description="Floor, wall and ceiling from planes.")
+    layout: _depth.LayoutConfig = Field(
+        default_factory=_depth.LayoutConfig, description="Floor, wall and ceiling from planes."
+    )
     tiles: int = Field(
         default=1,
         ge=1,
@@ -228,7 +179,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else Vocabulary.default()
         renames = {**OPEN_IMAGES_TO_MAP, **cfg.class_map}
         path, detector = self._detector()
-        seg_params = _depth.DepthSegmentParams(**cfg.depth_segments.model_dump())
+        seg_params = cfg.depth_segments
         lay = cfg.layout
         floor = lay.floor_height
         if floor is None:
@@ -236,8 +187,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
             if floor is None:
                 self.warn("no upward-facing surface in the frames: no floor labelled")
                 floor = float("-inf")
-        layout_params = _depth.LayoutParams(**lay.model_dump(exclude={"floor_height"}))
-        stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
+        stuff = _depth.stuff_class_ids(vocab)
         out = FrameLabels(segmenter=self.name, tracked_instances=False)
         counts: dict[str, int] = {}
         for frame in self.progress(stream.frames, description="detector"):
@@ -246,8 +196,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
             for box, label, score in zip(detections.boxes, detections.labels, detections.scores, strict=True):
                 name = vocabulary_class(label, renames, vocab)
                 counts[name] = counts.get(name, 0) + 1
-                size = CLASS_SIZES.get(name)
-                extent = (size.extent[1] if size else 1.0) * cfg.reach_scale
+                extent = _depth.class_reach(name, cfg.reach_scale)
                 regions.append(_depth.Region(vocab.id(name), float(score), box=tuple(map(float, box)), extent=extent))
             regions = _depth.suppress_duplicates(regions)
             cls, ins = _depth.refine_labels(
@@ -258,7 +207,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
                 floor,
                 stuff,
                 seg_params,
-                layout_params,
+                lay,
                 cfg.inside_ratio,
                 cfg.join_gap,
             )

@@ -23,7 +23,6 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.priors import CLASS_SIZES
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
 from stratamap.plugins.segmenters import _depth
 
@@ -255,7 +254,7 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                     f"onnx_panoptic: depth_refine needs depth, poses and intrinsics; frames {missing[:5]} of "
                     f"{stream.name!r} lack depth or a pose"
                 )
-            floor = _depth.floor_height(stream, _depth.DepthSegmentParams())
+            floor = _depth.floor_height(stream, _depth.DepthSegmentsConfig())
             if floor is None:
                 self.warn("depth_refine: no upward-facing surface in the frames: no floor labelled")
                 floor = float("-inf")
@@ -342,10 +341,8 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
             class_id = int(np.bincount(cls[mask].astype(np.int64)).argmax())
             if class_id == 0 or not vocab.is_thing[class_id]:
                 continue
-            size = CLASS_SIZES.get(vocab.name(class_id))
-            extent = (size.extent[1] if size else 1.0) * 1.2
-            regions.append(_depth.Region(class_id, 1.0, mask=mask, extent=extent))
-        stuff = {name: vocab.id(name) for name in ("floor", "wall", "ceiling") if name in vocab}
+            regions.append(_depth.Region(class_id, 1.0, mask=mask, extent=_depth.class_reach(vocab.name(class_id))))
+        stuff = _depth.stuff_class_ids(vocab)
         ref_cls, ref_ins = _depth.refine_labels(
             np.asarray(frame.depth),
             np.asarray(frame.pose),
@@ -353,8 +350,8 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
             regions,
             floor,
             stuff,
-            _depth.DepthSegmentParams(),
-            _depth.LayoutParams(),
+            _depth.DepthSegmentsConfig(),
+            _depth.LayoutConfig(),
         )
         network_stuff = ~np.asarray(vocab.is_thing)[cls.astype(np.int64)] & (cls > 0)
         keep = (ref_cls == 0) & network_stuff

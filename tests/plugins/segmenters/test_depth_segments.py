@@ -61,9 +61,9 @@ def _room():
 def view():
     pose = _look_at(np.array([0.0, 0.0, 1.2]), [2.0, 0.0, 0.4])
     depth, which = _render(_room(), pose)
-    geometry = _depth.frame_geometry(depth, INTRINSICS, _depth.DepthSegmentParams(stride=1))
+    geometry = _depth.frame_geometry(depth, INTRINSICS, _depth.DepthSegmentsConfig(stride=1))
     stats = _depth.segment_stats(geometry, pose)
-    layout = _depth.layout_segments(stats, 0.0, _depth.LayoutParams())
+    layout = _depth.layout_segments(stats, 0.0, _depth.LayoutConfig())
     return depth, which, geometry, stats, layout
 
 
@@ -130,13 +130,13 @@ def test_labels_go_back_to_the_frame_resolution():
 def test_stride_keeps_the_segmentation(view):
     depth, which, _, _, _ = view
     pose = _look_at(np.array([0.0, 0.0, 1.2]), [2.0, 0.0, 0.4])
-    geometry = _depth.frame_geometry(depth, INTRINSICS, _depth.DepthSegmentParams(stride=2))
+    geometry = _depth.frame_geometry(depth, INTRINSICS, _depth.DepthSegmentsConfig(stride=2))
     seg = _depth.to_frame(geometry.segments, 2, depth.shape)
     crate_id, share = _majority(seg, which == 2)
     floor_id, _ = _majority(seg, which == 0)
     assert share > 0.75 and crate_id != floor_id
     stats = _depth.segment_stats(geometry, pose)
-    assert _depth.layout_segments(stats, 0.0, _depth.LayoutParams())["floor"][floor_id]
+    assert _depth.layout_segments(stats, 0.0, _depth.LayoutConfig())["floor"][floor_id]
 
 
 def test_a_learned_mask_that_spills_is_refined_to_its_object(view):
