@@ -83,10 +83,11 @@ class TSDFConfig(IntegrationConfig):
         ),
     )
     size_veto: bool = Field(
-        default=True,
+        default=False,
         description=(
             "Class size priors (core/map/priors.py) veto impossible labels: an instance too large for its class "
-            "(a 2.2 m chair) takes its next most voted class that fits, else 'object'."
+            "(a 2.2 m chair) takes its next most voted class that fits, else 'object'. Off by default: on the "
+            "segmentation benchmark's held-out walks it lowered onnx_panoptic's map PQ from 0.835 to 0.808."
         ),
     )
     instances: Literal["labels", "masks"] = Field(
