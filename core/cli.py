@@ -228,6 +228,8 @@ def bench(
         out_console.print(f"[yellow]skipped:[/] {note}", highlight=False)
     for path in summary["files"]:
         out_console.print(f"  {path}", highlight=False)
+    for line in summary.get("scale", []):
+        out_console.print(line, highlight=False)
 
 
 @app.command()

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
 import platform
+import resource
+import sys
+import threading
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -32,6 +36,76 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def resident_mb() -> float:
+    """The process's resident memory now, MB (from /proc; the peak so far where there is none)."""
+    try:
+        with open("/proc/self/statm", "rb") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return max_resident_mb()
+
+
+def release_free_memory() -> None:
+    """Give the heap memory freed so far back to the operating system (glibc's ``malloc_trim``).
+    glibc keeps freed memory for reuse, per thread arena: the memory a stage's library threads freed
+    (Open3D's ray casts, say) would otherwise stay resident under the next stage's peak, used by no
+    one. Does nothing where there is no glibc."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            import ctypes
+
+            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim: Any = None
+
+
+def cpu_seconds() -> float:
+    """User and system CPU seconds this process has used so far (all threads)."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def max_resident_mb() -> float:
+    """The process's peak resident memory so far, MB (ru_maxrss: kB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024
+
+
+class MemorySampler:
+    """The peak resident memory while a block runs, sampled from a background thread every
+    ``interval`` seconds (one small /proc read each; no tracemalloc, which would slow every allocation).
+    The process's ru_maxrss only ever grows, so it cannot tell a later stage's peak from an earlier one's."""
+
+    def __init__(self, interval: float = 0.05):
+        self.interval = interval
+        self.peak_mb = 0.0
+        self.start_mb = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def _poll(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.peak_mb = max(self.peak_mb, resident_mb())
+
+    def __enter__(self) -> MemorySampler:
+        self.start_mb = self.peak_mb = resident_mb()
+        self._thread = threading.Thread(target=self._poll, name="stratamap-memory", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.peak_mb = max(self.peak_mb, resident_mb())
+
+
 @dataclass
 class StageRecord:
     name: str
@@ -39,6 +113,21 @@ class StageRecord:
     kind: str
     seconds: float
     outputs: list[str] = field(default_factory=list)
+    #: Resident memory (MB) when the stage started, its peak while it ran, and the process's
+    #: ru_maxrss (peak since the process started) once it ended.
+    memory_start_mb: float = 0.0
+    memory_peak_mb: float = 0.0
+    maxrss_after_mb: float = 0.0
+    #: CPU seconds (user + system, all threads) the stage took: unlike wall time, not lengthened by
+    #: other processes sharing the machine.
+    cpu_seconds: float = 0.0
+
+    def memory(self) -> dict[str, float]:
+        return {
+            "start_mb": round(self.memory_start_mb, 1),
+            "peak_mb": round(self.memory_peak_mb, 1),
+            "maxrss_after_mb": round(self.maxrss_after_mb, 1),
+        }
 
 
 #: Written into every run's output folder, so that a later run may replace it (and nothing else).
@@ -123,10 +212,26 @@ class Pipeline:
         if isinstance(stage, Exporter):
             assert self.out_dir is not None
             export_dir = self.out_dir / self.validated.spec.output.export_dir
-        result = stage.run(data, export_dir)
+        cpu0 = cpu_seconds()
+        with MemorySampler() as memory:
+            result = stage.run(data, export_dir)
         seconds = time.perf_counter() - t0
+        cpu = cpu_seconds() - cpu0
+        release_free_memory()
         outputs = apply_outputs(stage, result, data, resolved.path)
-        self.records.append(StageRecord(resolved.path, stage.name, stage.kind, seconds, outputs))
+        self.records.append(
+            StageRecord(
+                resolved.path,
+                stage.name,
+                stage.kind,
+                seconds,
+                outputs,
+                memory.start_mb,
+                memory.peak_mb,
+                max_resident_mb(),
+                cpu,
+            )
+        )
         self.hook.stratamap_stage_end(pipeline=self, stage=stage, index=index, seconds=seconds)
 
     def run(self, out_dir: str | Path | None = None) -> dict[str, Any]:
@@ -211,11 +316,14 @@ class Pipeline:
                     "plugin": r.plugin,
                     "kind": r.kind,
                     "seconds": round(r.seconds, 4),
+                    "cpu_seconds": round(r.cpu_seconds, 4),
                     "outputs": r.outputs,
+                    "memory": r.memory(),
                 }
                 for r in self.records
             ],
             "seconds_total": round(total_seconds, 4),
+            "peak_memory_mb": round(max_resident_mb(), 1),
             "layers": data.map.layer_counts(),
             "frames": 0 if data.stream is None else len(data.stream),
             "metrics": metrics,

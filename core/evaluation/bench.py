@@ -237,7 +237,7 @@ def peak_memory_mb() -> float:
 def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
     """Run the pending variants of one scene; shared leading stages once. Returns the records."""
     from stratamap.core.config import validate
-    from stratamap.core.pipeline import Pipeline
+    from stratamap.core.pipeline import MemorySampler, Pipeline
 
     scene, variants, bench, out = job["scene"], job["variants"], job["bench"], Path(job["out"])
     spec = BenchSpec.model_validate(bench)
@@ -285,14 +285,20 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
             pipe._run_stage(pipe.validated.stages[i], i, data)
         if data.ground_truth is not None:
             data.map.vocabulary = data.ground_truth.vocabulary
-        metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
+        with MemorySampler() as evaluation_memory:
+            metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
         stages = [
-            {"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": True}
-            for r in shared_records
-        ]
-        stages += [
-            {"name": r.name, "plugin": r.plugin, "kind": r.kind, "seconds": round(r.seconds, 4), "shared": False}
-            for r in pipe.records
+            {
+                "name": r.name,
+                "plugin": r.plugin,
+                "kind": r.kind,
+                "seconds": round(r.seconds, 4),
+                "cpu_seconds": round(r.cpu_seconds, 4),
+                "shared": shared_run,
+                "memory": r.memory(),
+            }
+            for shared_run, part in ((True, shared_records), (False, pipe.records))
+            for r in part
         ]
         record = {
             "scene": scene["name"],
@@ -303,7 +309,12 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
             ],
             "seconds": {f"{s['name']}:{s['plugin']}": s["seconds"] for s in stages},
             "seconds_total": round(sum(s["seconds"] for s in stages), 4),
+            "cpu_seconds": {f"{s['name']}:{s['plugin']}": s["cpu_seconds"] for s in stages},
+            "cpu_seconds_total": round(sum(s["cpu_seconds"] for s in stages), 4),
             "peak_memory_mb": round(peak_memory_mb(), 1),
+            "memory_by_stage": {f"{s['name']}:{s['plugin']}": s["memory"]["peak_mb"] for s in stages},
+            "evaluation_peak_memory_mb": round(evaluation_memory.peak_mb, 1),
+            "scale": scene_scale(data),
             "metrics": metrics,
             "details": details,
             "warnings": data.warnings,
@@ -312,6 +323,25 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
         write_json(record_path(out, scene["name"], v), record)
         records.append(record)
     return records
+
+
+def scene_scale(data: Any) -> dict[str, Any]:
+    """How big the run was: frames, floor area (m^2, when the ground truth knows the room), objects,
+    and the walk's coverage of them (the share of each object's surface some frame saw, when the
+    synthetic source measured it)."""
+    out: dict[str, Any] = {"frames": 0 if data.stream is None else len(data.stream)}
+    gt = data.ground_truth
+    if gt is None:
+        return out
+    out["objects"] = len(gt.objects)
+    layout = gt.layout if isinstance(gt.layout, dict) else {}
+    room = layout.get("room_size")
+    if room:
+        out["area_m2"] = round(float(room[0]) * float(room[1]), 2)
+    coverage = layout.get("coverage")
+    if isinstance(coverage, dict):
+        out["coverage"] = {k: v for k, v in coverage.items() if k != "per_object"}
+    return out
 
 
 def write_run_report(
@@ -434,15 +464,10 @@ def run_jobs_local(jobs: list[dict[str, Any]], workers: int, on_done) -> None:
 
 def run_jobs_ray(jobs: list[dict[str, Any]], address: str | None, on_done, num_cpus: int | None = None) -> None:
     """The same jobs as Ray tasks: the benchmark spec goes into the object store once."""
-    try:
-        import ray
-    except ImportError as exc:  # pragma: no cover - depends on the optional extra
-        raise RuntimeError("the ray executor needs Ray: pip install 'stratamap[ray]'") from exc
-    started = False
-    if not ray.is_initialized():
-        kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": num_cpus}
-        ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
-        started = True
+    from stratamap.core.parallel import ensure_ray, ray_module
+
+    ray = ray_module()  # a missing Ray, or no cluster at `address`, is a one-line ConfigError (CLI exit 2)
+    started = ensure_ray(address, num_cpus=num_cpus)
     try:
         bench_ref = ray.put(jobs[0]["bench"]) if jobs else None
 
@@ -510,11 +535,16 @@ def run_bench(
     from stratamap.core.evaluation.bench_report import write_reports
 
     written = write_reports(results, spec, out, bench_file=path)
+    from stratamap.core.evaluation.bench_report import scale_table
+
+    scale = scale_table(records)
     return {
         "records": len(records),
         "ran": sum(len(j["variants"]) for j in jobs),
         "skipped": skipped,
         "files": [str(p) for p in written],
+        # The cost against scene size (Markdown lines), when some variant ran at several sizes.
+        "scale": scale.markdown() if scale is not None else [],
     }
 
 

@@ -3,7 +3,8 @@
 ``results.csv``: one row per run, metrics flattened to ``family.key`` columns. ``results.md``: a
 table per metric family, variants as columns, mean ± std over scenes, the best value in bold.
 Figures (PNG, matplotlib): Chamfer distance by visibility per completer, PQ by class, the
-navigation figure, and seconds per object against library size when the variants vary it; a
+navigation figure, seconds per object against library size when the variants vary it, and
+seconds per frame and peak memory against floor area when the scenes vary it (with a table); a
 figure that cannot be drawn is named with the reason instead. ``report.html``: the same tables
 and figures in one self-contained page, with the benchmark file and a link to each run's own
 ``report.html``.
@@ -201,6 +202,9 @@ def result_tables(
         means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
         table.rows.append(["**mean**", *("–" if m is None else f"**{m:.3f}**" for m in means)])
         tables.append(table)
+    scale = scale_table(records)
+    if scale is not None:
+        tables.append(scale)
     for rec in records:  # plane and furniture labels in the layout of the kitchen paper's Table IV
         if "classification" in rec.get("metrics", {}):
             from stratamap.core.evaluation.classification import format_table
@@ -210,6 +214,129 @@ def result_tables(
                 ResultTable(f"Table IV: {rec['scene']} ({rec['variant']})", _cells(header), [_cells(x) for x in lines])
             )
     return tables
+
+
+def scale_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per run of a scene whose size is known (``scale.area_m2``): frames, area, objects, coverage,
+    seconds per frame, peak memory (building the map; the whole process, evaluation included) and
+    the oracle's detection recall, by floor area."""
+    rows = []
+    for rec in records:
+        scale = rec.get("scale") or {}
+        if not scale.get("area_m2") or not scale.get("frames"):
+            continue
+        detection = rec.get("metrics", {}).get("detection", {})
+        coverage = scale.get("coverage") or {}
+        by_stage = rec.get("memory_by_stage") or {}
+        rows.append(
+            {
+                "scene": rec["scene"],
+                "variant": rec["variant"],
+                "frames": int(scale["frames"]),
+                "area_m2": float(scale["area_m2"]),
+                "objects": int(scale.get("objects", 0)),
+                "coverage_mean": coverage.get("mean"),
+                "objects_seen": coverage.get("objects_seen"),
+                "seconds": float(rec.get("seconds_total", 0.0)),
+                "seconds_per_frame": float(rec.get("seconds_total", 0.0)) / int(scale["frames"]),
+                "cpu_seconds_per_frame": (
+                    float(rec["cpu_seconds_total"]) / int(scale["frames"]) if "cpu_seconds_total" in rec else None
+                ),
+                "map_peak_mb": max(by_stage.values()) if by_stage else None,
+                "peak_mb": float(rec.get("peak_memory_mb", 0.0)),
+                "recall": detection.get("recall"),
+                "found": detection.get("true_positives"),
+            }
+        )
+    # Only the variants run at several sizes: a library sweep on one scene is no series against area.
+    areas: dict[str, set[float]] = {}
+    for r in rows:
+        areas.setdefault(r["variant"], set()).add(r["area_m2"])
+    rows = [r for r in rows if len(areas[r["variant"]]) > 1]
+    return sorted(rows, key=lambda r: (r["area_m2"], r["scene"], r["variant"]))
+
+
+def scale_table(records: list[dict[str, Any]]) -> ResultTable | None:
+    """The scaling table (:func:`scale_rows`), when some variant ran at more than one scene size."""
+    rows = scale_rows(records)
+    if len({r["area_m2"] for r in rows}) < 2:
+        return None
+
+    def num(value: Any, fmt: str) -> str:
+        return "–" if value is None else format(value, fmt)
+
+    table = ResultTable(
+        "cost against scene size",
+        [
+            "scene",
+            "variant",
+            "frames",
+            "floor m²",
+            "objects",
+            "coverage (mean share seen; objects seen)",
+            "seconds",
+            "s / frame",
+            "CPU s / frame",
+            "peak MB (map)",
+            "peak MB (process)",
+            "detection recall",
+        ],
+        [],
+    )
+    for r in rows:
+        seen = "–" if r["objects_seen"] is None else f"{r['objects_seen']} / {r['objects']}"
+        table.rows.append(
+            [
+                r["scene"],
+                r["variant"],
+                str(r["frames"]),
+                f"{r['area_m2']:.0f}",
+                str(r["objects"]),
+                f"{num(r['coverage_mean'], '.2f')}; {seen}",
+                f"{r['seconds']:.0f}",
+                f"{r['seconds_per_frame']:.3f}",
+                num(r["cpu_seconds_per_frame"], ".3f"),
+                num(r["map_peak_mb"], ".0f"),
+                f"{r['peak_mb']:.0f}",
+                f"{num(r['recall'], '.3f')} ({num(r['found'], 'd')} / {r['objects']})",
+            ]
+        )
+    return table
+
+
+def area_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
+    """Seconds per frame and peak memory against floor area, one line per variant run at several sizes."""
+    import matplotlib.pyplot as plt
+
+    rows = scale_rows(records)
+    if len({r["area_m2"] for r in rows}) < 2:
+        return None
+    fig, (ax_time, ax_memory) = plt.subplots(1, 2, figsize=(10, 4))
+    for variant in sorted({r["variant"] for r in rows}):
+        mine = [r for r in rows if r["variant"] == variant]
+        areas = [r["area_m2"] for r in mine]
+        ax_time.plot(areas, [r["seconds_per_frame"] for r in mine], marker="o", label=f"{variant}: wall")
+        if all(r["cpu_seconds_per_frame"] is not None for r in mine):
+            cpu = [r["cpu_seconds_per_frame"] for r in mine]
+            ax_time.plot(areas, cpu, marker="s", ls="--", label=f"{variant}: CPU (all threads)")
+        ax_memory.plot(areas, [r["peak_mb"] / 1024 for r in mine], marker="o", label=f"{variant}: process")
+        if all(r["map_peak_mb"] is not None for r in mine):
+            ax_memory.plot(
+                areas,
+                [r["map_peak_mb"] / 1024 for r in mine],
+                marker="s",
+                ls="--",
+                label=f"{variant}: building the map",
+            )
+    for ax in (ax_time, ax_memory):
+        ax.set_xlabel("floor area (m²)")
+        ax.set_xlim(left=0)
+        ax.set_ylim(bottom=0)
+        ax.legend(fontsize=8)
+    ax_time.set_ylabel("seconds per frame (all stages)")
+    ax_memory.set_ylabel("peak resident memory (GB)")
+    fig.suptitle("Cost against scene size")
+    return _save(fig, out / "cost_vs_area.png")
 
 
 def _cells(line: str) -> list[str]:
@@ -331,6 +458,7 @@ def draw_figures(records: list[dict[str, Any]], variants: list[str], out: Path) 
         ("pq_by_class.png", pq_figure, (records, variants, out)),
         ("navigation.png", navigation_figure, (records, out)),
         ("seconds_vs_library.png", scaling_figure, (records, out)),
+        ("cost_vs_area.png", area_figure, (records, out)),
     )
     figures: list[tuple[str, Path | str]] = []
     for name, draw, args in drawers:
@@ -409,7 +537,14 @@ def scaling_figure(records: list[dict[str, Any]], out: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     points: dict[str, list[tuple[float, float]]] = {}
+    # The scenes that ran several library sizes (a scene-size sweep runs one: its larger scenes would
+    # otherwise weigh on that one size's point).
+    sizes: dict[str, set] = {}
     for r in records:
+        for p in r.get("plugins", []):
+            if p["kind"] == "completers" and "library_per_family" in p["params"]:
+                sizes.setdefault(r["scene"], set()).add(p["params"]["library_per_family"])
+    for r in (r for r in records if len(sizes.get(r["scene"], ())) > 1):
         for p in r.get("plugins", []):
             if p["kind"] == "completers" and "library_per_family" in p["params"]:
                 n = r["metrics"].get("completion", {}).get("objects") or 0

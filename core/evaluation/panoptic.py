@@ -18,7 +18,8 @@ are not counted as false positives.
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,10 +37,11 @@ VOID = -1
 def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -> dict[str, Any]:
     """2D segmentation quality over every ``stride``-th frame: mIoU over classes present (None when none is), and PQ
     (things, stuff) with all sampled frames pooled as one image (instance ids kept apart per frame).
-    Pixels the ground truth leaves unknown (class 0) are not counted."""
+    Pixels the ground truth leaves unknown (class 0) are not counted. The pooled image is never built:
+    its segment sizes and overlaps are sums over frames, so memory does not grow with the frames."""
     n = len(vocab.names)
     inter, union = np.zeros(n), np.zeros(n)
-    pc, pi, gc, gi = [], [], [], []
+    counts = SegmentCounts()
     for k in range(0, len(truth), stride):
         p, g = pred[k], truth[k]
         pcls = np.asarray(p.class_ids, np.int64)
@@ -54,13 +56,16 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
             - np.bincount(gcls[valid & (pcls == gcls)], minlength=n)
         )[:n]
         off = (k + 1) << 20
-        pc.append(pcls.ravel())
-        pi.append(np.where(p.instance_ids > 0, np.asarray(p.instance_ids, np.int64) + off, 0).ravel())
-        gc.append(np.where(valid, gcls, VOID).ravel())
-        gi.append(np.where(g.instance_ids > 0, np.asarray(g.instance_ids, np.int64) + off, 0).ravel())
+        counts.add(
+            pcls.ravel(),
+            np.where(p.instance_ids > 0, np.asarray(p.instance_ids, np.int64) + off, 0).ravel(),
+            np.where(valid, gcls, VOID).ravel(),
+            np.where(g.instance_ids > 0, np.asarray(g.instance_ids, np.int64) + off, 0).ravel(),
+            vocab,
+        )
     present = union > 0
     present[0] = False  # "unknown" is the void label, not a class
-    pq = panoptic_quality(np.concatenate(pc), np.concatenate(pi), np.concatenate(gc), np.concatenate(gi), vocab)
+    pq = counts.quality(vocab)
     return {
         "miou": float(np.mean(inter[present] / union[present])) if present.any() else None,
         "iou_by_class": {vocab.name(c): float(inter[c] / union[c]) for c in np.flatnonzero(present)},
@@ -185,6 +190,53 @@ def _pair_counts(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([a_ids[keys // len(b_ids)], b_ids[keys % len(b_ids)]], 1).reshape(-1, 2), counts
 
 
+@dataclass
+class SegmentCounts:
+    """Segment sizes and overlaps of a labelling, summed over the parts it is added in (frames of
+    one pooled image): what panoptic quality is computed from."""
+
+    gt_size: Counter = field(default_factory=Counter)
+    pred_size: Counter = field(default_factory=Counter)
+    pred_void: Counter = field(default_factory=Counter)  # points of a predicted segment on void ground truth
+    inter: Counter = field(default_factory=Counter)  # (pred segment, gt segment) -> shared points
+
+    def add(
+        self,
+        pred_class: np.ndarray,
+        pred_instance: np.ndarray,
+        gt_class: np.ndarray,
+        gt_instance: np.ndarray,
+        vocab: Vocabulary,
+    ) -> None:
+        # plain arrays: labels derived from trimesh data arrive as TrackedArray, whose sort is slow
+        pred_class, pred_instance, gt_class, gt_instance = (
+            np.asarray(a).view(np.ndarray) for a in (pred_class, pred_instance, gt_class, gt_instance)
+        )
+        valid = gt_class != VOID
+        gt_key = _segments(np.where(valid, gt_class, 0), gt_instance, vocab)
+        pred_key = _segments(pred_class, pred_instance, vocab)
+        self.gt_size.update(
+            dict(zip(*(a.tolist() for a in np.unique(gt_key[gt_key >= 0], return_counts=True)), strict=True))
+        )
+        self.pred_size.update(
+            dict(zip(*(a.tolist() for a in np.unique(pred_key[pred_key >= 0], return_counts=True)), strict=True))
+        )
+        self.pred_void.update(
+            dict(
+                zip(
+                    *(a.tolist() for a in np.unique(pred_key[(pred_key >= 0) & ~valid], return_counts=True)),
+                    strict=True,
+                )
+            )
+        )
+        both = (gt_key >= 0) & (pred_key >= 0)
+        pairs, inter = _pair_counts(pred_key[both], gt_key[both])
+        self.inter.update(dict(zip(map(tuple, pairs.tolist()), inter.tolist(), strict=True)))
+
+    def quality(self, vocab: Vocabulary, iou_threshold: float = 0.5) -> dict[str, Any]:
+        return _quality(self, vocab, iou_threshold)
+
+
 def panoptic_quality(
     pred_class: np.ndarray,
     pred_instance: np.ndarray,
@@ -193,26 +245,17 @@ def panoptic_quality(
     vocab: Vocabulary,
     iou_threshold: float = 0.5,
 ) -> dict[str, Any]:
-    # plain arrays: labels derived from trimesh data arrive as TrackedArray, whose sort is slow
-    pred_class, pred_instance, gt_class, gt_instance = (
-        np.asarray(a).view(np.ndarray) for a in (pred_class, pred_instance, gt_class, gt_instance)
-    )
-    valid = gt_class != VOID
-    gt_key = _segments(np.where(valid, gt_class, 0), gt_instance, vocab)
-    pred_key = _segments(pred_class, pred_instance, vocab)
-    gt_ids, gt_sizes = np.unique(gt_key[gt_key >= 0], return_counts=True)
-    gt_size = dict(zip(gt_ids.tolist(), gt_sizes.tolist(), strict=True))
-    pred_all, pred_all_sizes = np.unique(pred_key[pred_key >= 0], return_counts=True)
-    pred_size = dict(zip(pred_all.tolist(), pred_all_sizes.tolist(), strict=True))
-    pv, pv_sizes = np.unique(pred_key[(pred_key >= 0) & ~valid], return_counts=True)
-    pred_void = dict(zip(pv.tolist(), pv_sizes.tolist(), strict=True))
-    both = (gt_key >= 0) & (pred_key >= 0)
-    pairs, inter = _pair_counts(pred_key[both], gt_key[both])
+    counts = SegmentCounts()
+    counts.add(pred_class, pred_instance, gt_class, gt_instance, vocab)
+    return counts.quality(vocab, iou_threshold)
 
+
+def _quality(counts: SegmentCounts, vocab: Vocabulary, iou_threshold: float) -> dict[str, Any]:
+    gt_size, pred_size, pred_void = counts.gt_size, counts.pred_size, counts.pred_void
     matched_pred: set[int] = set()
     matched_gt: set[int] = set()
     stats: dict[int, dict[str, float]] = defaultdict(lambda: {"tp": 0, "fp": 0, "fn": 0, "iou": 0.0})
-    for (p, g), n in zip(pairs.tolist(), inter.tolist(), strict=True):
+    for (p, g), n in sorted(counts.inter.items()):
         if (p >> 32) != (g >> 32):
             continue
         union = pred_size[p] - pred_void.get(p, 0) + gt_size[g] - n

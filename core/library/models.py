@@ -418,24 +418,94 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
                 mesh.apply_transform(Y_UP_TO_Z_UP)
             elif up_axis != "z":
                 raise DataError(f"up_axis must be 'z' or 'y', got {up_axis!r}")
+            scale_text = (row.get("scale") or "").strip()
+            if scale_text:
+                try:
+                    metres_per_unit = float(scale_text)
+                except ValueError:
+                    metres_per_unit = float("nan")
+                if not np.isfinite(metres_per_unit) or metres_per_unit <= 0:
+                    raise DataError(
+                        f"{path}: row of {row['file']!r}: scale must be a positive number, got {scale_text!r}"
+                    )
+                mesh.apply_scale(metres_per_unit)
             bounds = _canonicalize([part], [], "body")
         except DataError as exc:
             lib.problems.append(f"{exc}; skipped")
             continue
-        lib.models.append(
-            LibraryModel(
-                model_id,
-                row["class"],
-                row.get("family", row["class"]),
-                {},
-                [part],
-                [],
-                bounds,
-                feature_planes(mesh),
-                source=str(file),
-            )
+        model = LibraryModel(
+            model_id,
+            row["class"],
+            row.get("family", row["class"]),
+            {"units": "m"} if scale_text else {},
+            [part],
+            [],
+            bounds,
+            feature_planes(mesh),
+            source=str(file),
         )
+        if not scale_text:
+            model = normalise_size(model)
+            if "units" in model.params and model.params["units"] != "m":
+                lib.problems.append(
+                    f"{file}: {model.params['units']}; give a scale column in classes.csv (metres per unit) to override"
+                )
+        lib.models.append(model)
     return lib
+
+
+#: Units a mesh without declared units may be in (metres per unit), tried when its size is implausible in metres.
+GUESSED_UNITS = {"mm": 0.001, "cm": 0.01, "in": 0.0254, "dm": 0.1}
+
+
+def rescale_model(model: LibraryModel, factor: float) -> LibraryModel:
+    """Scale a model (parts, joints, bounds, descriptors) by ``factor`` about its origin, in place."""
+    if factor == 1.0:
+        return model
+    for p in model.parts:
+        mesh = p.load().copy()
+        mesh.apply_scale(factor)
+        p.mesh = mesh
+    for j in model.joints:
+        j.origin = j.origin.copy()
+        j.origin[:3, 3] *= factor
+        if j.type == "prismatic":
+            j.lower, j.upper = j.lower * factor, j.upper * factor
+    model.bounds = np.asarray(model.bounds, float) * factor
+    model.feature_planes = feature_planes(model.mesh())
+    model.support_surfaces = [[v * factor for v in surface] for surface in model.support_surfaces]
+    return model
+
+
+def normalise_size(model: LibraryModel, unitless: bool = False) -> LibraryModel:
+    """Bring a model to metres. ``unitless`` sources (PartNet-Mobility) are scaled to their class's
+    typical height; a mesh whose height is implausible for its class in metres is read in the first
+    of :data:`GUESSED_UNITS` that makes it plausible, else scaled to the typical height. What was
+    done is kept in ``params["units"]`` and ``params["scale_to_metres"]``."""
+    from stratamap.core.map.priors import plausible_heights, typical_height
+
+    height = float(model.size[2])
+    target, span = typical_height(model.class_name), plausible_heights(model.class_name)
+    if target is None or span is None or height <= 0:
+        return model
+    factor, how = 1.0, "m"
+    if unitless:
+        factor, how = target / height, f"no units: scaled to the typical {model.class_name} height {target:.2f} m"
+    elif not span[0] <= height <= span[1]:
+        guesses = [(name, f) for name, f in GUESSED_UNITS.items() if span[0] <= height * f <= span[1]]
+        if guesses:
+            name, factor = guesses[0]
+            how = f"read as {name} ({height:.3g} units tall is implausible in metres for a {model.class_name})"
+        else:
+            factor = target / height
+            how = f"{height:.3g} units tall; scaled to the typical {model.class_name} height {target:.2f} m"
+    if factor != 1.0:
+        rescale_model(model, factor)
+    if unitless:
+        model.params["scale_to_metres"] = round(factor, 6)
+    elif factor != 1.0:
+        model.params.update({"units": how, "scale_to_metres": round(factor, 6)})
+    return model
 
 
 # ------------------------------------------------------------------------------------------
@@ -688,10 +758,10 @@ def load_partnet(folder: Path) -> LibraryModel:
         semantics,
         sample_colors=partnet_sample_colors(folder),
     )
-    # PartNet-Mobility meshes have no units (chair 179 is 1.61 tall as shipped): users of the
-    # model scale it (the scene specs do, to the class's typical height).
+    # PartNet-Mobility meshes have no units (chair 179 is 1.61 tall as shipped): the model is scaled
+    # to its class's typical height; "units": None still tells scene specs they may draw another.
     model.params.update({"partnet_id": folder.name, "category": category, "units": None})
-    return model
+    return normalise_size(model, unitless=True)
 
 
 def _load_partnet_folders(folders: list[Path], root: Path | None = None) -> ModelLibrary:

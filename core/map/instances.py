@@ -8,6 +8,16 @@ from stratamap.core.geometry.boxes import gravity_aligned_box
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, Semantics
 
 
+def instance_members(point_instance: np.ndarray) -> dict[int, np.ndarray]:
+    """The point indices of every positive instance id, in increasing id order (one sort of the
+    points, not one scan of them per instance)."""
+    point_instance = np.asarray(point_instance)
+    order = np.argsort(point_instance, kind="stable")
+    uniq, starts = np.unique(point_instance[order], return_index=True)
+    ends = np.append(starts[1:], len(order))
+    return {int(i): order[a:b] for i, a, b in zip(uniq, starts, ends, strict=True) if i > 0}
+
+
 def instances_from_semantics(
     points: np.ndarray, colors: np.ndarray | None, sem: Semantics, min_points: int
 ) -> ObjectInstances:
@@ -76,8 +86,7 @@ def veto_implausible_classes(
     vetoed = []
     if fallback not in vocabulary:
         return point_class, vetoed
-    for iid in np.unique(point_instance[point_instance > 0]):
-        sel = np.flatnonzero(point_instance == iid)
+    for iid, sel in instance_members(point_instance).items():
         votes = np.bincount(point_class[sel], minlength=len(vocabulary))
         order = [int(c) for c in np.argsort(-votes, kind="stable") if votes[c] > 0 and vocabulary.is_thing[c]]
         if not order:
@@ -108,7 +117,7 @@ def merge_overlapping_instances(
     ids = [int(i) for i in np.unique(point_instance[point_instance > 0])]
     if len(ids) < 2:
         return point_instance, []
-    members = {i: np.flatnonzero(point_instance == i) for i in ids}
+    members = instance_members(point_instance)
     boxes = {i: gravity_aligned_box(points[members[i]]) for i in ids if len(members[i]) >= 4}
     parent = {i: i for i in boxes}
 

@@ -45,6 +45,46 @@ ANY_LENGTH: tuple[str, ...] = ("table", "desk", "shelf", "counter", "sofa", "ben
 NOT_STACKED: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
 
 
+#: class -> (low, high) height in metres of the class's objects: what a model of a source without
+#: units is scaled to on load, and how far a matcher may stretch a model to fit an observation.
+TYPICAL_HEIGHTS: dict[str, tuple[float, float]] = {
+    "chair": (0.88, 1.05),
+    "table": (0.72, 0.76),
+    "desk": (0.72, 0.76),
+    "cabinet": (0.8, 1.0),
+    "shelf": (1.2, 1.9),
+    "counter": (0.86, 0.92),
+    "sofa": (0.75, 0.9),
+    "bench": (0.42, 0.8),
+    "fridge": (1.5, 1.9),
+    "microwave": (0.26, 0.32),
+    "oven": (0.84, 0.9),
+    "monitor": (0.4, 0.55),
+    "laptop": (0.2, 0.25),
+    "box": (0.1, 0.3),
+    "book": (0.02, 0.05),
+    "cup": (0.08, 0.11),
+    "bottle": (0.2, 0.32),
+    "plant": (0.4, 0.9),
+}
+
+#: Heights of real objects spread beyond the typical range (a bar stool, a tall cabinet): how far
+#: outside it (as a factor) a match may still scale a model.
+HEIGHT_SLACK = 1.25
+
+
+def typical_height(class_name: str) -> float | None:
+    """The middle of the class's typical height range (metres), or None for an unknown class."""
+    span = TYPICAL_HEIGHTS.get(class_name)
+    return None if span is None else (span[0] + span[1]) / 2
+
+
+def plausible_heights(class_name: str) -> tuple[float, float] | None:
+    """Heights (metres) an object of the class may have: the typical range widened by HEIGHT_SLACK."""
+    span = TYPICAL_HEIGHTS.get(class_name)
+    return None if span is None else (span[0] / HEIGHT_SLACK, span[1] * HEIGHT_SLACK)
+
+
 def class_extents() -> dict[str, tuple[float, float]]:
     """(min, max) extent per class."""
     return {name: size.extent for name, size in CLASS_SIZES.items()}

@@ -6,7 +6,8 @@ with 0 marking a pixel with no measurement.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -125,12 +126,88 @@ class FrameSegmentation:
 
 @dataclass
 class FrameLabels:
-    """The segmenter's output for a stream, aligned with ``SensorStream.frames``."""
+    """The segmenter's output for a stream, aligned with ``SensorStream.frames``.
+
+    ``frames`` is a list when a segmenter labels every frame up front, or any sequence computed on
+    access (:class:`MappedFrames`), so that a long stream's label images are never all held at once."""
 
     segmenter: str
-    frames: list[FrameSegmentation] = field(default_factory=list)
+    frames: Sequence[FrameSegmentation] = field(default_factory=list)
     #: True when instance ids are consistent across frames (oracle, trackers) so the mapper may fuse them directly.
     tracked_instances: bool = False
 
     def __len__(self) -> int:
         return len(self.frames)
+
+
+class MappedFrames(Sequence):
+    """``function(source[k])`` for every ``k``, computed when item ``k`` is read and not kept: a
+    per-frame stage (a segmenter) over a lazy stream costs the memory of one frame, not of the stream.
+    Reading a frame twice computes it twice, so ``function`` must be deterministic."""
+
+    def __init__(self, source: Sequence[Any], function: Callable[[Any], Any]):
+        self.source = source
+        self.function = function
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        return self.function(self.source[k])
+
+
+class ConcatenatedFrames(Sequence):
+    """Several frame sequences read as one, each item read from its own sequence on access. Items
+    that carry an ``index`` (frames, segmentations) are renumbered to their place in the whole, so
+    that labels stay aligned with frames."""
+
+    def __init__(self, parts: Sequence[Sequence[Any]]):
+        self.parts = list(parts)
+        self.starts = np.concatenate([[0], np.cumsum([len(p) for p in self.parts])]).astype(np.int64)
+
+    def __len__(self) -> int:
+        return int(self.starts[-1])
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        k = int(k)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(f"frame {k} out of range (sequence has {len(self)} frames)")
+        part = int(np.searchsorted(self.starts, k, side="right")) - 1
+        return renumbered(self.parts[part][k - int(self.starts[part])], k)
+
+
+class FrameWindow(Sequence):
+    """Items ``start`` to ``stop`` of a sequence, read on access and renumbered from 0 (a part of a
+    recording as a recording of its own)."""
+
+    def __init__(self, source: Sequence[Any], start: int, stop: int):
+        self.source = source
+        self.start, self.stop = max(0, start), min(stop, len(source))
+
+    def __len__(self) -> int:
+        return max(0, self.stop - self.start)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        k = int(k)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(f"frame {k} out of range (window has {len(self)} frames)")
+        return renumbered(self.source[self.start + k], k)
+
+
+def renumbered(item: Any, index: int) -> Any:
+    """A frame or segmentation with its index set to ``index`` (other items unchanged)."""
+    if isinstance(item, RGBDFrame) and item.index != index:
+        return dataclasses.replace(item, index=index)
+    if isinstance(item, FrameSegmentation) and item.frame_index != index:
+        return dataclasses.replace(item, frame_index=index)
+    return item

@@ -16,6 +16,7 @@ test here works on those same convex shells, as half-space sets ``A x + b <= 0``
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,9 +88,73 @@ def world_mesh(inst: ObjectInstance) -> trimesh.Trimesh:
 def mesh_parts(mesh: trimesh.Trimesh, max_parts: int = 64) -> list[trimesh.Trimesh]:
     """The mesh's closed pieces (connected components), largest first, slivers dropped: the
     geoms a simulator gets, since it collides the convex hull of each."""
-    parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) >= 4 and p.extents.min() > 1e-4] or [mesh]
+    parts = [p for p in mesh.split(only_watertight=False) if len(p.faces) >= 4 and p.extents.max() > 1e-3] or [mesh]
     parts.sort(key=lambda p: -p.area)
     return parts[:max_parts]
+
+
+#: Convex collision parts thinner than this (metres) are replaced by a box this thick: simulators
+#: cannot take the hull of a flat piece (MuJoCo: "coplanar vertices, cannot compute convex hull").
+MIN_PART_THICKNESS = 0.004
+
+
+#: Recent collision_parts results by mesh content (the three exporters and the rest plan ask for
+#: the same meshes' parts).
+_PARTS_CACHE: dict[tuple, list] = {}
+_PARTS_CACHE_SIZE = 512
+
+
+def collision_parts(mesh: trimesh.Trimesh, max_parts: int = 64) -> list[trimesh.Trimesh]:
+    """Convex collision geometry of a mesh: the convex hull of each closed piece (what simulators
+    collide anyway), a flat or degenerate piece replaced by its oriented bounding box thickened to
+    :data:`MIN_PART_THICKNESS`; never empty for a mesh with triangles."""
+    vertices, faces = np.ascontiguousarray(mesh.vertices, dtype=float), np.ascontiguousarray(mesh.faces)
+    key = (hashlib.sha1(vertices.tobytes()).hexdigest(), hashlib.sha1(faces.tobytes()).hexdigest(), max_parts)
+    if key not in _PARTS_CACHE:
+        if len(_PARTS_CACHE) >= _PARTS_CACHE_SIZE:
+            _PARTS_CACHE.pop(next(iter(_PARTS_CACHE)))
+        _PARTS_CACHE[key] = _collision_parts(mesh, max_parts)
+    return [part.copy() for part in _PARTS_CACHE[key]]
+
+
+def _collision_parts(mesh: trimesh.Trimesh, max_parts: int) -> list[trimesh.Trimesh]:
+    out: list[trimesh.Trimesh] = []
+    for part in mesh_parts(mesh, max_parts):
+        vertices = np.unique(np.asarray(part.vertices, dtype=float), axis=0)
+        try:
+            hull = spatial.ConvexHull(vertices)
+        except (spatial.QhullError, ValueError):
+            hull = None
+        if hull is None or hull.volume <= 1e-9 or _thickness(hull) < MIN_PART_THICKNESS:
+            out.append(_thick_box(part))
+            continue
+        # Faces wound outwards (qhull's equations give each facet's outward normal).
+        faces = hull.simplices.copy()
+        points = hull.points
+        normals = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+        flip = np.einsum("ij,ij->i", normals, hull.equations[:, :3]) < 0
+        faces[flip] = faces[flip][:, ::-1]
+        out.append(trimesh.Trimesh(points, faces, process=True))
+    return out
+
+
+def _thickness(hull) -> float:
+    """Smallest width of a convex hull across its facet normals."""
+    widths = np.ptp(hull.points[hull.vertices] @ hull.equations[:, :3].T, axis=0)
+    return float(widths.min())
+
+
+def _thick_box(part: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The piece's oriented bounding box, every side at least MIN_PART_THICKNESS."""
+    vertices = np.asarray(part.vertices, dtype=float)
+    try:
+        transform, extents = trimesh.bounds.oriented_bounds(vertices)
+        frame = np.linalg.inv(transform)
+    except Exception:  # a single point or a line: axis-aligned box
+        frame = np.eye(4)
+        frame[:3, 3] = (vertices.min(0) + vertices.max(0)) / 2
+        extents = vertices.max(0) - vertices.min(0)
+    return trimesh.creation.box(extents=np.maximum(extents, MIN_PART_THICKNESS), transform=frame)
 
 
 def mesh_shells(mesh: trimesh.Trimesh, max_shells: int = 64) -> list[Shell]:

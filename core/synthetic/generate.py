@@ -41,8 +41,8 @@ def _nbytes(item: tuple[RGBDFrame, FrameSegmentation]) -> int:
 class SyntheticWorld:
     """A generated scene with its sensors; everything is a deterministic function of the spec."""
 
-    #: Rendered frames are kept up to this many bytes (at least 4 frames): a segmenter and a
-    #: mapper that read the same frames one after the other then ray cast them once, not twice.
+    #: Rendered frames are kept up to this many bytes (at least 4 frames) when the whole sequence fits:
+    #: a segmenter and a mapper that read the same frames one after the other then ray cast them once.
     CACHE_BYTES = 768 * 2**20
 
     def __init__(self, spec: SceneSpec):
@@ -51,7 +51,7 @@ class SyntheticWorld:
         self.scene: Scene = generate_scene(spec)
         self.renderer = SceneRenderer(self.scene, self.vocabulary)
         self.intrinsics = spec.camera.intrinsics()
-        self.true_poses = make_trajectory(self.scene, spec.trajectory, spec.seed)
+        self.true_poses = make_trajectory(self.scene, spec.trajectory, spec.seed, self.renderer.cast)
         self.reported_poses = drift(self.true_poses, spec.noise.pose_drift, spec.seed)
         self._cache: OrderedDict[int, tuple[RGBDFrame, FrameSegmentation]] = OrderedDict()
         self._cache_bytes = 0
@@ -82,7 +82,11 @@ class SyntheticWorld:
         )
         self._cache[k] = out
         self._cache_bytes += _nbytes(out)
-        while len(self._cache) > 4 and self._cache_bytes > self.CACHE_BYTES:
+        # A sequence that does not fit keeps 4 frames: stages that read it in turn (an eager segmenter,
+        # then the mapper) would find none of theirs left in the cache anyway, and stages that read it
+        # in step (lazy labels) need no more; memory then stays the same however long the walk.
+        fits = _nbytes(out) * len(self) <= self.CACHE_BYTES
+        while len(self._cache) > 4 and (self._cache_bytes > self.CACHE_BYTES or not fits):
             self._cache_bytes -= _nbytes(self._cache.popitem(last=False)[1])
         return out
 
@@ -145,6 +149,22 @@ class SyntheticWorld:
         gt, h = self.spec.ground_truth, self.spec.laser.height
         return scene_occupancy(self.scene, h - gt.resolution / 2, h + gt.resolution / 2, gt.resolution)
 
+    @cached_property
+    def coverage(self) -> dict[str, Any]:
+        """The share of each object's surface the (true) camera path sees (see core/synthetic/coverage.py)."""
+        from stratamap.core.synthetic.coverage import surface_coverage
+
+        cam, noise = self.spec.camera, self.spec.noise
+        return surface_coverage(
+            self.scene,
+            self.renderer.cast,
+            self.intrinsics,
+            self.true_poses,
+            noise.min_range if noise.depth == "kinect" else 0.0,
+            cam.max_range,
+            seed=self.spec.seed,
+        )
+
     def ground_truth(self) -> GroundTruth:
         return GroundTruth(
             vocabulary=self.vocabulary,
@@ -155,6 +175,7 @@ class SyntheticWorld:
                 **self.scene.layout_info(),
                 "true_poses": [p.tolist() for p in self.true_poses],
                 "skipped": self.scene.skipped,
+                **({"coverage": self.coverage} if self.spec.ground_truth.coverage else {}),
             },
             occupancy=OccupancyMaps(objects=self.occupancy_band.project(), laser=self.occupancy_laser.project()),
         )

@@ -18,34 +18,13 @@ from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.models import LibraryModel, ModelLibrary, load_partnet, model_from_urdf
 from stratamap.core.map.layers import Joint
+from stratamap.core.map.priors import TYPICAL_HEIGHTS
 from stratamap.core.synthetic.models import ROOT_LINK, Model, ModelPart
 from stratamap.core.synthetic.spec import LibrarySource
 
 trimesh = lazy_module("trimesh")
 o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
-
-#: class -> (low, high) height in metres of the class's objects, for sources without units.
-TYPICAL_HEIGHTS: dict[str, tuple[float, float]] = {
-    "chair": (0.88, 1.05),
-    "table": (0.72, 0.76),
-    "desk": (0.72, 0.76),
-    "cabinet": (0.8, 1.0),
-    "shelf": (1.2, 1.9),
-    "counter": (0.86, 0.92),
-    "sofa": (0.75, 0.9),
-    "bench": (0.42, 0.8),
-    "fridge": (1.5, 1.9),
-    "microwave": (0.26, 0.32),
-    "oven": (0.84, 0.9),
-    "monitor": (0.4, 0.55),
-    "laptop": (0.2, 0.25),
-    "box": (0.1, 0.3),
-    "book": (0.02, 0.05),
-    "cup": (0.08, 0.11),
-    "bottle": (0.2, 0.32),
-    "plant": (0.4, 0.9),
-}
 
 #: Yaw that turns a model's declared front to -y (the canonical front).
 FRONT_YAW = {"-y": 0.0, "+y": np.pi, "+x": -np.pi / 2, "-x": np.pi / 2}

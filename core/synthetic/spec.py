@@ -112,11 +112,12 @@ class CameraSpec(_Spec):
 class TrajectorySpec(_Spec):
     """The camera path."""
 
-    type: Literal["walk", "orbit", "fixed"] = Field(
+    type: Literal["walk", "orbit", "fixed", "tour"] = Field(
         default="walk",
         description=(
             "walk: a loop through free space like a teleoperated robot; orbit: an ellipse looking at the room center; "
-            "fixed: one viewpoint."
+            "fixed: one viewpoint; tour: a path through free space past viewpoints that see every object, for "
+            "scenes of any size (the walk keeps to the walls of one room)."
         ),
     )
     frames: int = Field(default=120, ge=1, le=100000, description="Number of frames along the path.")
@@ -124,6 +125,17 @@ class TrajectorySpec(_Spec):
     look_height: float = Field(default=0.6, description="Height of the point the camera looks toward, metres.")
     clearance: float = Field(
         default=0.45, gt=0.0, description="Minimum distance from the walk's path to any obstacle, metres."
+    )
+    view_range: float = Field(
+        default=3.0,
+        gt=0.5,
+        description="tour: the farthest an object may be from the viewpoint chosen to see it, metres.",
+    )
+    dwell: float = Field(
+        default=0.4,
+        ge=0.0,
+        lt=1.0,
+        description="tour: the share of frames spent turning toward objects at viewpoints (the rest: travelling).",
     )
 
 
@@ -193,6 +205,13 @@ class GroundTruthSpec(_Spec):
     z_min: float = Field(default=0.1, ge=0.0, description="Bottom of the obstacle band, metres.")
     resolution: float = Field(
         default=0.05, gt=0.005, description="Cell and voxel size of ground-truth occupancy, metres."
+    )
+    coverage: bool = Field(
+        default=False,
+        description=(
+            "Measure the trajectory's coverage: the share of each object's surface (sampled points) that some "
+            "frame sees, in the ground truth's layout['coverage']."
+        ),
     )
 
 

@@ -7,24 +7,27 @@ the points of the geometry G within ``epsilon`` of a completed model, O the comp
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import os
-import time
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 from pydantic import Field
 
+from stratamap.core.errors import ConfigError
 from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
 from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
 from stratamap.core.map.instances import plausible
 from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
+from stratamap.core.map.priors import plausible_heights
+from stratamap.core.parallel import ExecutorConfig, map_tasks
 from stratamap.core.stages import Completer, PipelineData, StageConfig
 
 o3d = lazy_module("open3d")
@@ -32,7 +35,7 @@ o3c = lazy_module("open3d.core")
 trimesh = lazy_module("trimesh")
 
 
-class MatcherConfig(StageConfig):
+class MatcherConfig(StageConfig, ExecutorConfig):
     path_fields = ("library", "cache_dir")
 
     library: str | None = Field(
@@ -58,7 +61,13 @@ class MatcherConfig(StageConfig):
         default=20, ge=1, description="Rank models by global descriptor and align only the top k; null: every model."
     )
     workers: int = Field(
-        default=2, ge=1, le=64, description="Objects matched in parallel (threads; KD-tree queries release the GIL)."
+        default=2,
+        ge=1,
+        le=64,
+        description=(
+            "Objects matched in parallel: threads (KD-tree queries release the GIL), or the CPUs of the local Ray "
+            "instance that executor: ray starts."
+        ),
     )
     epsilon: float = Field(
         default=0.1,
@@ -94,6 +103,20 @@ class MatcherConfig(StageConfig):
         gt=0.0,
         description="Largest mean distance (m) from the observed points to a model for recognition to take its class.",
     )
+    reject_distance: float | None = Field(
+        default=0.05,
+        gt=0.0,
+        description=(
+            "Never worse than what was seen: a completion is rejected (the object keeps its observed points) when "
+            "reject_share of the observed points lie farther than this from its surface, metres; null: never."
+        ),
+    )
+    reject_share: float = Field(
+        default=0.1,
+        gt=0.0,
+        lt=1.0,
+        description="Share of observed points allowed beyond reject_distance from a completion's surface.",
+    )
 
 
 @dataclass
@@ -101,7 +124,7 @@ class Match:
     model_id: str
     yaw: float
     translation: np.ndarray  # object frame origin in the world
-    scale: float
+    scale: float | np.ndarray  # uniform, or (sx, sy, sz) along the model's own axes
     score: float
     details: dict[str, Any]
 
@@ -176,43 +199,94 @@ def object_base(inst: ObjectInstance, data: PipelineData) -> np.ndarray:
         plane = edge.get("plane")
         if plane is not None and abs(plane[2]) > 0.9:
             z = -plane[3] / plane[2]
-    elif abs(z) < 0.08:
+    elif abs(z) < 0.08 or stands_on_floor(inst.class_name, box.top_z):
         z = 0.0  # gravity-aligned maps have the floor at z = 0
     return np.array([box.center[0], box.center[1], z])
 
 
+def stands_on_floor(class_name: str, top_z: float, floor_z: float = 0.0) -> bool:
+    """Whether an object of the class reaching up to ``top_z`` is one standing on the floor: its top
+    is at a height the class's objects have (a chair whose legs were never mapped), not one hanging
+    higher up (a wall cabinet)."""
+    heights = plausible_heights(class_name)
+    return heights is not None and heights[0] <= top_z - floor_z <= heights[1]
+
+
+def observation_disagreement(points: np.ndarray, mesh: trimesh.Trimesh, distance: float) -> float:
+    """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
+    if len(points) == 0 or len(mesh.faces) == 0:
+        return 0.0
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
+    )
+    dist = scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
+    return float(np.mean(dist > distance))
+
+
+def rejection_reason(inst: ObjectInstance, completion: Completion, cfg: MatcherConfig) -> str | None:
+    """Why ``completion`` may not replace what was seen of ``inst`` (None: it may): its surface
+    disagrees with the observed points beyond ``cfg.reject_distance``."""
+    if cfg.reject_distance is None:
+        return None
+    share = observation_disagreement(inst.points, completion.world_mesh(), cfg.reject_distance)
+    if share <= cfg.reject_share:
+        return None
+    return (
+        f"{share:.0%} of the observed points lie farther than {cfg.reject_distance} m from model "
+        f"{completion.model_id} (at most {cfg.reject_share:.0%} allowed)"
+    )
+
+
 def posed_completion(model: LibraryModel, match: Match, completer: str) -> Completion:
     """The library model scaled and placed; parts in their link frames and joints scaled along."""
-    s = match.scale
-    scale = np.diag([s, s, s, 1.0])
+    s = np.broadcast_to(np.asarray(match.scale, dtype=float), (3,)).copy()
+    scale = np.diag([*s, 1.0])
     mesh = model.mesh()
     mesh.apply_transform(scale)
     links: dict[str, list[trimesh.Trimesh]] = {}
     for p in model.parts:
         links.setdefault(p.link, []).append(p.load())
+    # Link frames chain from the root whatever order the source lists its joints in (PartNet-Mobility
+    # names a helper link as a parent before the joint that places it).
     frames = {"body": np.eye(4)}
-    for j in model.joints:  # joint origins chain from the root (parents come first in our libraries)
-        frames[j.child] = frames.get(j.parent, np.eye(4)) @ j.origin
+    pending = list(model.joints)
+    while pending:
+        ready = [j for j in pending if j.parent in frames] or pending[:1]
+        for j in ready:
+            frames[j.child] = frames.get(j.parent, np.eye(4)) @ j.origin
+        done = {id(j) for j in ready}
+        pending = [j for j in pending if id(j) not in done]
+    scaled = {}
+    for link, frame in frames.items():
+        scaled[link] = frame.copy()
+        scaled[link][:3, 3] *= s
     parts, joints = [], []
     for link, meshes in links.items():
-        frame = frames.get(link, np.eye(4)).copy()
-        frame[:3, 3] *= s
+        frame = scaled.get(link, np.eye(4))
         local = trimesh.util.concatenate([m.copy() for m in meshes])
         local.apply_transform(scale)
         local.apply_transform(np.linalg.inv(frame))
         parts.append(Part(link, local, frame))
     for j in model.joints:
-        origin = j.origin.copy()
-        origin[:3, 3] *= s
-        lower, upper = (j.lower * s, j.upper * s) if j.type == "prismatic" else (j.lower, j.upper)
+        origin = np.linalg.inv(scaled.get(j.parent, np.eye(4))) @ scaled.get(j.child, np.eye(4))
+        stretch = float(np.linalg.norm(s * (frames.get(j.child, np.eye(4))[:3, :3] @ j.axis))) / max(
+            float(np.linalg.norm(j.axis)), 1e-12
+        )
+        lower, upper = (j.lower * stretch, j.upper * stretch) if j.type == "prismatic" else (j.lower, j.upper)
         joints.append(Joint(j.name, j.type, j.parent, j.child, origin, j.axis, lower, upper))
-    pose = make_pose(match.translation, match.yaw)
+    # The object frame's origin is the model's bottom centre: the model's lowest point rests at the
+    # support height whatever its source put below z = 0 (nothing sinks, nothing floats).
+    translation = np.asarray(match.translation, dtype=float).copy()
+    if len(mesh.vertices):
+        translation[2] -= float(mesh.bounds[0][2])
+    pose = make_pose(translation, match.yaw)
     return Completion(
         mesh=mesh,
         pose=pose,
         completer=completer,
         model_id=model.id,
-        scale=np.full(3, s),
+        scale=s,
         score=match.score,
         parts=parts,
         joints=joints,
@@ -267,6 +341,43 @@ def augmented_scene(
 MatcherConfigT = TypeVar("MatcherConfigT", bound=MatcherConfig)
 
 
+@dataclass
+class ObjectWork:
+    """What every per-object task of a matching completer needs, shipped to Ray once: the completer's
+    class and config (a worker builds its own instance from them) and the model index."""
+
+    completer: type[Completer[Any]]
+    config: MatcherConfig
+    index: ModelIndex | None
+    method: str
+    instance: Any = field(default=None, compare=False)  # the completer that runs the method here
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The pipeline's stage holds the run's data: a worker builds a bare instance instead. KD-trees
+        # are left out (a worker rebuilds the same tree from the same samples when it first queries one).
+        index = self.index
+        if index is not None:
+            index = copy.copy(index)
+            index.models = {key: dataclasses.replace(m, _tree=None) for key, m in index.models.items()}
+        return {**self.__dict__, "instance": None, "index": index}
+
+    def stage(self) -> Any:
+        if self.instance is None:
+            self.instance = self.completer(self.config)
+        return self.instance
+
+
+def run_object_task(work: ObjectWork, item: tuple[ObjectInstance, np.ndarray, tuple[Any, ...]]) -> Any:
+    """One object's work: ``completer.<method>(inst, base, index, *args)``."""
+    inst, base, args = item
+    return getattr(work.stage(), work.method)(inst, base, work.index, *args)
+
+
+def call_closure(work: ObjectWork, item: tuple[ObjectInstance, None, tuple[Callable[[ObjectInstance], Any]]]) -> Any:
+    inst, _, (fn,) = item
+    return fn(inst)
+
+
 class MatchingCompleter(Completer[MatcherConfigT]):
     """Base of completers that match objects against a model library."""
 
@@ -275,7 +386,11 @@ class MatchingCompleter(Completer[MatcherConfigT]):
     optional = frozenset({"geometry", "contact_graph"})
     provides = frozenset({"instances", "augmented"})
 
-    def match(self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData) -> Match | None:
+    def match(
+        self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData | None
+    ) -> Match | None:
+        """The best model for one object standing at ``base``. Runs in a thread or a Ray task: ``data``
+        is None (see :meth:`map_objects`)."""
         raise NotImplementedError
 
     def select(self, insts: ObjectInstances, index: ModelIndex) -> list[ObjectInstance]:
@@ -299,26 +414,55 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             todo.append(inst)
         return todo
 
-    def map_objects(self, todo: list[ObjectInstance], fn: Any) -> list[tuple[ObjectInstance, Any]]:
-        """``fn(inst)`` for every object, in parallel threads; notes the mean seconds per object."""
+    def map_objects(
+        self,
+        todo: list[ObjectInstance],
+        method: str | Callable[[ObjectInstance], Any],
+        index: ModelIndex | None = None,
+        data: PipelineData | None = None,
+        *args: Any,
+    ) -> list[tuple[ObjectInstance, Any]]:
+        """``self.<method>(inst, base, index, *args)`` for every object (``base``: where it stands, see
+        :func:`object_base`), in ``workers`` threads or, with ``executor: ray``, as Ray tasks; results in
+        input order, paired with the objects of ``todo``. Notes the mean seconds per object.
+
+        On Ray the completer's class, config and the model index go into the object store once; each
+        task gets the object and its base, and runs the method on an instance of the completer built
+        from the config in the worker, so the method must depend on nothing else (no ``data``: it is
+        computed into ``base`` and ``args`` here; warnings and notes are returned, not recorded).
+        A callable ``method`` (``fn(inst)``, a closure) runs in threads only."""
         cfg = self.config
-        timings: dict[int, float] = {}
-
-        def work(inst: ObjectInstance) -> tuple[ObjectInstance, Any]:
-            t0 = time.perf_counter()
-            result = fn(inst)
-            timings[inst.id] = time.perf_counter() - t0
-            return inst, result
-
-        with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-            results = list(pool.map(work, todo))
-        self.note("seconds_per_object", float(np.mean(list(timings.values()))) if timings else 0.0)
-        return results
+        if callable(method):
+            if cfg.executor != "local":
+                raise ConfigError(
+                    [("executor", f"{self.name} matches objects in a closure, which runs only with executor: local")]
+                )
+            work = ObjectWork(type(self), cfg, index, "", instance=self)
+            items = [(inst, None, (method,)) for inst in todo]
+            mapped = map_tasks(call_closure, items, work, executor="local", workers=cfg.workers)
+        else:
+            assert index is not None and data is not None, "map_objects(todo, method, index, data, *args)"
+            # Threads share this instance (its warnings reach the report); Ray workers build their own.
+            work = ObjectWork(type(self), cfg, index, method, instance=self)
+            items = [(inst, object_base(inst, data), args) for inst in todo]
+            mapped = map_tasks(
+                run_object_task,
+                items,
+                work,
+                executor=cfg.executor,
+                workers=cfg.workers,
+                ray_address=cfg.ray_address,
+            )
+            if mapped.shipped:
+                self.note(f"shipped_bytes_{method}", {**mapped.shipped, "objects": len(todo)})
+        self.note("seconds_per_object", float(np.mean(mapped.seconds)) if mapped.seconds else 0.0)
+        return list(zip(todo, mapped.results, strict=True))
 
     def finish(self, insts: ObjectInstances, data: PipelineData, attempted: int) -> dict[str, Any]:
         """The completed instances and the augmented scene built from them."""
         cfg = self.config
-        self.note("objects", {"completed": len(insts.completed()), "attempted": attempted})
+        rejected = sum(1 for inst in insts if "completion_rejected" in inst.attributes)
+        self.note("objects", {"completed": len(insts.completed()), "attempted": attempted, "rejected": rejected})
         out: dict[str, Any] = {"instances": insts}
         aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
         if aug is not None:
@@ -340,19 +484,8 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             return
         classes = [c for c in index.classes() if c not in cfg.recognize]
 
-        def best_class(inst: ObjectInstance) -> tuple[str, Match] | None:
-            base = object_base(inst, data)
-            best = None
-            for name in classes:
-                if not plausible(name, inst.points):
-                    continue
-                match = self.match(dataclasses.replace(inst, class_name=name), base, index, data)
-                if match is not None and (best is None or (match.score, name) < (best[1].score, best[0])):
-                    best = (name, match)
-            return best
-
         recognized = 0
-        for inst, found in self.map_objects(todo, best_class):
+        for inst, found in self.map_objects(todo, "best_class", index, data, classes):
             record: dict[str, Any] = {"from": inst.class_name, "vote_share": round(float(inst.score), 3)}
             if found is not None:
                 name, match = found
@@ -365,20 +498,45 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             inst.attributes["recognition"] = record
         self.note("recognition", {"attempted": len(todo), "recognized": recognized})
 
+    def best_class(
+        self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, classes: list[str]
+    ) -> tuple[str, Match] | None:
+        """The class (of ``classes`` the object's size allows) whose best model fits the object best."""
+        best = None
+        for name in classes:
+            if not plausible(name, inst.points):
+                continue
+            match = self.match(dataclasses.replace(inst, class_name=name), base, index, None)
+            if match is not None and (best is None or (match.score, name) < (best[1].score, best[0])):
+                best = (name, match)
+        return best
+
     def complete(self, data: PipelineData) -> dict[str, Any]:
         cfg = self.config
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         self.recognize(insts, index, data)
         todo = self.select(insts, index)
-        results = self.map_objects(todo, lambda inst: self.match(inst, object_base(inst, data), index, data))
+        # match gets data=None: per-object work sees only what a Ray task is shipped.
+        results = self.map_objects(todo, "match", index, data, None)
         for inst, match in results:
             if match is None:
                 self.warn(f"object {inst.id} ({inst.class_name}): no model could be aligned; left uncompleted")
                 continue
             model = index.library.get(match.model_id)
-            inst.completion = posed_completion(model, match, self.name)
+            completion = posed_completion(model, match, self.name)
             inst.attributes["match"] = {
                 k: v for k, v in match.details.items() if isinstance(v, (int, float, str, list))
             }
+            reason = rejection_reason(inst, completion, cfg)
+            if reason is not None:
+                self.reject(inst, reason)
+                continue
+            inst.completion = completion
         return self.finish(insts, data, len(todo))
+
+    def reject(self, inst: ObjectInstance, reason: str) -> None:
+        """Leave ``inst`` as observed, with the reason in its attributes and the run's warnings."""
+        inst.completion = None
+        inst.attributes["completion_rejected"] = reason
+        self.warn(f"object {inst.id} ({inst.class_name}): completion rejected, kept as observed: {reason}")

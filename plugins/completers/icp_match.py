@@ -8,13 +8,14 @@ For each object of a class the library has:
    uniform steps around the object's support point (each with a few translation-only ICP steps,
    since a partial view's centroid is not the model's); keep the rotation with the least mean
    point-to-point distance;
-3. refine by ICP with yaw and translation only (the object stands on its support), scale from
-   the observed height;
+3. refine by ICP with yaw and translation only (the object stands on its support), height scale
+   from the observed height within the heights plausible for the class (``core/map/priors.py``);
 4. align every candidate from that pose (a few more ICP steps each) and score it by the one-sided
    distance from the observed points to the model surface (the observation is partial: unseen
    model parts cost nothing) plus a coverage term (how far the observation sticks out of the
    model's extent, so a tiny model cannot win by sitting inside the observation);
-5. place the best model, re-scaled, in the world.
+5. search the best model's width and depth scale per axis around its height scale (pose kept) and
+   place it in the world; the scale used is in the match details and the report (``scales``).
 """
 
 from __future__ import annotations
@@ -23,9 +24,16 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, hookimpl
+from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 from stratamap.core.map.layers import ObjectInstance
+from stratamap.core.map.priors import plausible_heights
 from stratamap.plugins.completers._matching import Match, MatcherConfig, MatchingCompleter
+
+spatial = lazy_module("scipy.spatial")
+
+#: Height scale range for classes without a size prior.
+FALLBACK_SCALE_RANGE = (0.85, 1.15)
 
 
 class ICPMatchConfig(MatcherConfig):
@@ -53,8 +61,19 @@ class ICPMatchConfig(MatcherConfig):
     coverage_weight: float = Field(
         default=1.0, ge=0.0, description="Weight of the coverage term (metres of observation outside the model)."
     )
-    scale_range: tuple[float, float] = Field(
-        default=(0.85, 1.15), description="Allowed uniform scale of a model (from observed height)."
+    scale_range: tuple[float, float] | None = Field(
+        default=None,
+        description=(
+            "Allowed height scale of a model (from the observed height); null: the heights plausible for the class "
+            "(core/map/priors.py), else 0.85-1.15."
+        ),
+    )
+    footprint_scales: list[float] = Field(
+        default_factory=lambda: [0.85, 0.92, 1.0, 1.08, 1.15],
+        description=(
+            "Width and depth of the best model are each searched over these multiples of its height scale (per axis, "
+            "keeping the pose); [1.0] keeps models' proportions."
+        ),
     )
 
 
@@ -110,10 +129,17 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
         if not cands:
             return None
         obs_height = float(obs[:, 2].max())
-        lo, hi = cfg.scale_range
+        heights = plausible_heights(inst.class_name)
 
         def scale_for(m: IndexedModel) -> float:
-            return float(np.clip(obs_height / max(m.size[2], 1e-3), lo, hi))
+            model_height = max(float(m.size[2]), 1e-3)
+            if cfg.scale_range is not None:
+                lo, hi = cfg.scale_range
+            elif heights is not None:
+                lo, hi = heights[0] / model_height, heights[1] / model_height
+            else:
+                lo, hi = FALLBACK_SCALE_RANGE
+            return float(np.clip(obs_height / model_height, lo, hi))
 
         ref = index.models[cands[0]]
         s_ref = scale_for(ref)
@@ -154,7 +180,44 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
                     score,
                     {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)},
                 )
+        if best is not None:
+            best = self.fit_footprint(obs, base, index.models[best.model_id], best)
         return best
+
+    def fit_footprint(self, obs: np.ndarray, base: np.ndarray, m: IndexedModel, best: Match) -> Match:
+        """Search width and depth scale per axis around the height scale (pose kept); the scale used
+        goes into the match details (``scale``: [x, y, z] along the model's axes)."""
+        cfg = self.config
+        s = float(best.scale)
+        q = to_model(obs, best.yaw, best.translation[:2] - base[:2], 1.0)  # metres, model axes
+        chosen, chosen_score = np.array([s, s, s]), None
+        factors = sorted(cfg.footprint_scales, key=lambda f: (abs(f - 1.0), f))  # ties keep proportions
+        for fx in factors:
+            for fy in factors:
+                scale = np.array([s * fx, s * fy, s])
+                dist = spatial.cKDTree(m.samples * scale).query(q, workers=1)[0]
+                fit = float(np.mean(np.minimum(dist, cfg.outlier_distance)))
+                half = m.size[:2] * scale[:2] / 2
+                out_xy = np.maximum(np.percentile(np.abs(q[:, :2]), 98, axis=0) - half, 0).sum()
+                out_z = max(float(np.percentile(q[:, 2], 98)) - m.size[2] * s, 0.0)
+                score = fit + cfg.coverage_weight * float(out_xy + out_z)
+                if chosen_score is None or score < chosen_score - 1e-4:
+                    chosen, chosen_score = scale, score
+                    details = {**best.details, "fit_m": fit, "coverage_m": float(out_xy + out_z)}
+        details["scale"] = [round(float(v), 4) for v in chosen]
+        return Match(best.model_id, best.yaw, best.translation, chosen, float(chosen_score), details)
+
+    def complete(self, data: PipelineData) -> dict:
+        out = super().complete(data)
+        self.note(
+            "scales",
+            {
+                str(inst.id): [round(float(v), 3) for v in inst.completion.scale]
+                for inst in out["instances"]
+                if inst.completion is not None and inst.completion.completer == self.name
+            },
+        )
+        return out
 
 
 @hookimpl

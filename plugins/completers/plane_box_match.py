@@ -16,10 +16,12 @@ Per object:
    assigned model planes). Alignment error AE = RMS distance from the object's points to the
    aligned model surface.
 
-Globally: candidates that penetrate the layout (below the floor) or cannot support their
-children (support area ratio below b_th, eq. 2) are discarded; the min-conflict algorithm then
-chooses one candidate per object so that no two chosen models interpenetrate, preferring low AE;
-finally each model is snapped onto its supporting plane.
+Globally (section 4.4): every candidate is posed resting on its supporting plane; candidates that
+disagree with the observed points (see ``rejection_reason``), penetrate the layout (floor, ceiling,
+wall points inside the model) or cannot support their children (support area ratio below b_th,
+eq. 2) are discarded; the min-conflict algorithm then chooses one candidate per object so that no
+two chosen models' meshes interpenetrate, trying every conflicted object's candidates and
+preferring low AE, independently of object ids (:func:`min_conflict`).
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ from stratamap.core import PipelineData, hookimpl
 from stratamap.core.geometry.points import ransac_plane
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
-from stratamap.core.map.layers import ObjectInstance, OrientedBox
+from stratamap.core.map.layers import Completion, ObjectInstance, OrientedBox
+from stratamap.core.simulation.physics import Shell, mesh_shells, penetration_depths
 from stratamap.plugins.completers._matching import (
     Match,
     MatcherConfig,
@@ -43,6 +46,7 @@ from stratamap.plugins.completers._matching import (
     load_index,
     object_base,
     posed_completion,
+    rejection_reason,
 )
 
 optimize = lazy_module("scipy.optimize")
@@ -75,6 +79,9 @@ class Candidate:
     translation: np.ndarray | None = None
     ae: float = np.inf
     size: np.ndarray | None = None  # aligned model box size (in the object's yaw frame)
+    completion: Completion | None = None  # the posed model, once the global step poses it
+    shells: list[Shell] | None = None  # its convex pieces, world frame
+    layout_depth: float = 0.0  # how deep it reaches through floor, walls or ceiling beyond tolerance
 
 
 class PlaneBoxConfig(MatcherConfig):
@@ -265,56 +272,74 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
         index = load_index(cfg)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         todo = self.select(insts, index)
-        results = self.map_objects(todo, lambda inst: self.candidates(inst, object_base(inst, data), index))
+        results = self.map_objects(todo, "candidates", index, data)
+        layout = Layout.from_map(data)
         options: dict[int, list[Candidate]] = {}
-        floor_z = 0.0
         for inst, (cands, info) in results:
-            valid = [c for c in cands if self._above_floor(c, floor_z, cfg)]
-            options[inst.id] = valid or cands[:1]
             inst.attributes["match"] = info
+            support_z = float(object_base(inst, data)[2])
+            seen_ok, reasons = [], []
+            for cnd in cands:
+                cnd.completion = self._posed(cnd, index, support_z)
+                reason = rejection_reason(inst, cnd.completion, cfg)
+                if reason is not None:
+                    reasons.append(reason)
+                    continue
+                cnd.shells = mesh_shells(cnd.completion.world_mesh())
+                cnd.layout_depth = layout.penetration(cnd.shells, cfg.penetration_tolerance)
+                seen_ok.append(cnd)
+            if not seen_ok:
+                self.reject(inst, reasons[0] if reasons else "no candidate")
+                continue
+            # Layout (floor, walls, ceiling): candidates that penetrate it go, unless all do.
+            inside = [c for c in seen_ok if c.layout_depth <= 0.0]
+            options[inst.id] = inside or sorted(seen_ok, key=lambda c: c.layout_depth)[:1]
         self._support_check(options, data, cfg)
-        choice = self._min_conflict(options, cfg)
+        choice = min_conflict(options, cfg.penetration_tolerance, cfg.min_conflict_iterations)
+        tol = cfg.penetration_tolerance
+        left = sorted({i for i in choice for j in choice if i != j and pair_penetration(choice[i], choice[j], tol) > 0})
+        if left:
+            self.warn(f"completed models still interpenetrating after the min-conflict search: {left}")
         for inst, _ in results:
             cnd = choice.get(inst.id)
             if cnd is None:
-                self.warn(f"object {inst.id} ({inst.class_name}): no physically valid candidate; left uncompleted")
                 continue
-            translation = cnd.translation.copy()  # type: ignore[union-attr]
-            translation[2] = object_base(inst, data)[2]  # snap onto the supporting plane
-            model = index.library.get(cnd.model_id)
-            rot = ORIENTATIONS[cnd.orientation]
-            upright = bool(np.isclose(rot[2, 2], 1.0))
-            # An upright orientation is a quarter turn about z: it belongs in the pose's yaw.
-            yaw = cnd.yaw + (float(np.arctan2(rot[1, 0], rot[0, 0])) if upright else 0.0)
-            match = Match(
-                cnd.model_id,
-                yaw,
-                translation,
-                cnd.scale,
-                cnd.ae,
-                {"me": cnd.me, "ae": cnd.ae, "orientation": cnd.orientation},
-            )
-            completion = posed_completion(model, match, self.name)
-            if not upright:
-                orient = np.eye(4)
-                orient[:3, :3] = rot
-                completion.mesh.apply_transform(orient)
-                lo = completion.mesh.bounds[0]
-                hi = completion.mesh.bounds[1]
-                completion.mesh.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
-                completion.parts, completion.joints = [], []  # articulation is defined for the upright model only
-            inst.completion = completion
-            inst.attributes["match"].update({"me": cnd.me, "ae": cnd.ae})
+            inst.completion = cnd.completion
+            inst.attributes["match"].update({"me": cnd.me, "ae": cnd.ae, "layout_penetration_m": cnd.layout_depth})
         return self.finish(insts, data, len(todo))
+
+    def _posed(self, cnd: Candidate, index: ModelIndex, support_z: float) -> Completion:
+        """The candidate's model scaled, oriented and resting on its support at ``support_z``."""
+        translation = cnd.translation.copy()  # type: ignore[union-attr]
+        translation[2] = support_z
+        model = index.library.get(cnd.model_id)
+        rot = ORIENTATIONS[cnd.orientation]
+        upright = bool(np.isclose(rot[2, 2], 1.0))
+        # An upright orientation is a quarter turn about z: it belongs in the pose's yaw.
+        yaw = cnd.yaw + (float(np.arctan2(rot[1, 0], rot[0, 0])) if upright else 0.0)
+        match = Match(
+            cnd.model_id,
+            yaw,
+            translation,
+            cnd.scale,
+            cnd.ae,
+            {"me": cnd.me, "ae": cnd.ae, "orientation": cnd.orientation},
+        )
+        completion = posed_completion(model, match, self.name)
+        if not upright:
+            orient = np.eye(4)
+            orient[:3, :3] = rot
+            completion.mesh.apply_transform(orient)
+            lo, hi = completion.mesh.bounds
+            completion.mesh.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
+            completion.pose[2, 3] = support_z  # the re-oriented model's bottom is its frame's origin again
+            completion.parts, completion.joints = [], []  # articulation is defined for the upright model only
+        return completion
 
     @staticmethod
     def _footprint(c: Candidate) -> OrientedBox:
         assert c.translation is not None and c.size is not None
         return OrientedBox(c.translation + np.array([0, 0, c.size[2] / 2]), c.yaw, c.size)
-
-    @staticmethod
-    def _above_floor(c: Candidate, floor_z: float, cfg: PlaneBoxConfig) -> bool:
-        return c.translation is not None and c.translation[2] >= floor_z - cfg.penetration_tolerance
 
     def _support_check(self, options: dict[int, list[Candidate]], data: PipelineData, cfg: PlaneBoxConfig) -> None:
         """Eq. 2: a parent candidate must give each supported child at least b_th of its footprint."""
@@ -340,43 +365,101 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
                     kept.append(cand)
             options[pid] = kept or cands[:1]
 
-    def _min_conflict(self, options: dict[int, list[Candidate]], cfg: PlaneBoxConfig) -> dict[int, Candidate]:
-        """Choose one candidate per object so that no two chosen models interpenetrate."""
-        from stratamap.core.geometry.boxes import box_iou_3d
 
-        ids = sorted(i for i, c in options.items() if c)
-        choice = {i: options[i][0] for i in ids}
+@dataclass
+class Layout:
+    """The room's layout as the map saw it: floor and ceiling heights and the wall points."""
 
-        def conflicts(i: int, cand: Candidate) -> int:
-            a = self._footprint(cand)
-            shrink = OrientedBox(a.center, a.yaw, np.maximum(a.size - 2 * cfg.penetration_tolerance, 0.0))
-            n = 0
-            for j in ids:
-                if j == i:
+    floor_z: float = 0.0
+    ceiling_z: float | None = None
+    walls: np.ndarray | None = None  # (N, 3) wall points
+
+    @classmethod
+    def from_map(cls, data: PipelineData) -> Layout:
+        sem, geom = data.map.semantics, data.map.geometry
+        out = cls(float(data.notes.get("occupancy", {}).get("floor_z", 0.0)))
+        if sem is None or geom is None or len(sem) != len(geom):
+            return out
+        for name in ("floor", "ceiling", "wall"):
+            if name not in sem.vocabulary:
+                continue
+            pts = geom.points[sem.class_ids == sem.vocabulary.id(name)]
+            if len(pts) < 100:
+                continue
+            if name == "floor":
+                out.floor_z = float(np.median(pts[:, 2]))
+            elif name == "ceiling":
+                out.ceiling_z = float(np.median(pts[:, 2]))
+            else:
+                out.walls = pts
+        return out
+
+    def penetration(self, shells: list[Shell], tolerance: float) -> float:
+        """How deep (m) a model's shells reach through the floor, the ceiling or the walls beyond ``tolerance``."""
+        if not shells:
+            return 0.0
+        lo = np.min([s.lo for s in shells], axis=0)
+        hi = np.max([s.hi for s in shells], axis=0)
+        depth = max(self.floor_z - lo[2], 0.0)
+        if self.ceiling_z is not None:
+            depth = max(depth, hi[2] - self.ceiling_z)
+        if self.walls is not None:
+            near = self.walls[np.all((self.walls >= lo - tolerance) & (self.walls <= hi + tolerance), axis=1)]
+            for s in shells if len(near) else []:
+                depth = max(depth, float(s.depth(near).max(initial=0.0)))
+        return max(depth - tolerance, 0.0)
+
+
+def pair_penetration(a: Candidate, b: Candidate, tolerance: float) -> float:
+    """Summed penetration depth (m) beyond ``tolerance`` between two candidates' convex shells (the
+    mesh pieces a simulator collides): a chair pushed under a table whose meshes do not touch is 0."""
+    total = 0.0
+    for s in a.shells or []:
+        for o in b.shells or []:
+            if np.any(o.lo > s.hi + tolerance) or np.any(o.hi < s.lo - tolerance):
+                continue
+            total += max(float(penetration_depths(s, o, np.zeros((1, 3)))[0]) - tolerance, 0.0)
+    return total
+
+
+def min_conflict(options: dict[int, list[Candidate]], tolerance: float, iterations: int = 200) -> dict[int, Candidate]:
+    """One candidate per object (each object's best first) so that no two chosen models interpenetrate
+    (functional-scenes paper, section 4.4). Every step tries every candidate of every conflicted
+    object and makes the move that removes the most penetration (ties: the least alignment error
+    given up), until no conflict is left or no move helps. No step looks at object ids, so the
+    result is the same whatever ids the objects carry."""
+    ids = [i for i, c in options.items() if c]
+    choice = {i: options[i][0] for i in ids}
+    cache: dict[tuple[int, int], float] = {}
+
+    def pen(a: Candidate, b: Candidate) -> float:
+        key = (id(a), id(b)) if id(a) < id(b) else (id(b), id(a))
+        if key not in cache:
+            cache[key] = pair_penetration(a, b, tolerance)
+        return cache[key]
+
+    def conflict(i: int, cand: Candidate) -> float:
+        return float(sum(sorted(pen(cand, choice[j]) for j in ids if j != i)))
+
+    for _ in range(iterations):
+        best_key, best_move = None, None
+        for i in ids:
+            now = conflict(i, choice[i])
+            if now <= 0.0:
+                continue
+            for cand in options[i]:
+                if cand is choice[i]:
                     continue
-                b = self._footprint(choice[j])
-                if (
-                    box_iou_3d(
-                        shrink, OrientedBox(b.center, b.yaw, np.maximum(b.size - 2 * cfg.penetration_tolerance, 0.0))
-                    )
-                    > 0.05
-                ):
-                    n += 1
-            return n
-
-        for _ in range(cfg.min_conflict_iterations):
-            conflicted = [i for i in ids if conflicts(i, choice[i]) > 0]
-            if not conflicted:
-                break
-            i = conflicted[0]
-            best = min(options[i], key=lambda c: (conflicts(i, c), c.ae))
-            if best is choice[i]:
-                ids_left = [j for j in conflicted if j != i]
-                if not ids_left:
-                    break
-                conflicted = ids_left
-            choice[i] = best
-        return choice
+                gain = round(now - conflict(i, cand), 9)
+                if gain <= 0.0:
+                    continue
+                key = (-gain, round(cand.ae - choice[i].ae, 9), cand.ae, cand.model_id, cand.orientation)
+                if best_key is None or key < best_key:
+                    best_key, best_move = key, (i, cand)
+        if best_move is None:
+            break
+        choice[best_move[0]] = best_move[1]
+    return choice
 
 
 @hookimpl

@@ -1,5 +1,6 @@
 """Exporter ``mjcf``: the scene as a MuJoCo model (``scene.xml``), meshes beside it
-(written by :mod:`stratamap.core.simulation.mjcf`)."""
+(written by :mod:`stratamap.core.simulation.mjcf`): static furniture, room slabs, free movable
+objects placed at rest, hinge and slide joints."""
 
 from __future__ import annotations
 
@@ -8,15 +9,25 @@ from pathlib import Path
 from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.simulation.mjcf import DEFAULT_FREE_CLASSES, write_mjcf
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
+from stratamap.core.simulation.mjcf import write_mjcf
+from stratamap.core.simulation.rest import RestPlan, rest_offsets
+from stratamap.core.simulation.structure import room_structure
 
 
 class MJCFConfig(StageConfig):
     filename: str = Field(default="scene.xml", description="Name of the MJCF file in the export folder.")
     mesh_dir: str = Field(default="mjcf_meshes", description="Sub-folder for the collision and visual meshes.")
     free_classes: list[str] = Field(
-        default_factory=lambda: list(DEFAULT_FREE_CLASSES),
-        description="Classes that get a free joint (movable objects); others are fixed to the world.",
+        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
+        description="Classes that get a free joint (movable objects, placed at rest); others are fixed to the world.",
+    )
+    structure: bool = Field(
+        default=True, description="Add floor height, walls and ceiling from the map as world geoms."
+    )
+    rest: bool = Field(
+        default=True,
+        description="Place free bodies to rest on their support (a few mm of settling; static where they cannot).",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
     hinge_holding: float = Field(
@@ -36,11 +47,15 @@ class MJCFExporter(Exporter[MJCFConfig]):
     name = "mjcf"
     Config = MJCFConfig
     requires = frozenset({"instances"})
-    optional = frozenset({"contact_graph"})
+    optional = frozenset({"contact_graph", "geometry", "semantics"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
         assert data.map.instances is not None
+        statics = room_structure(data.map) if cfg.structure else []
+        graph = data.map.contact_graph
+        plan = rest_offsets(data.map.instances, graph, cfg.free_classes, statics) if cfg.rest else RestPlan()
+        self.note("rest", plan.to_dict())
         return write_mjcf(
             data.map.instances,
             out_dir,
@@ -50,6 +65,9 @@ class MJCFExporter(Exporter[MJCFConfig]):
             density=cfg.density,
             hinge_holding=cfg.hinge_holding,
             timestep=cfg.timestep,
+            graph=graph,
+            statics=statics,
+            plan=plan,
         )
 
 

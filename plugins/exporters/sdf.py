@@ -1,7 +1,10 @@
 """Exporter ``sdf``: the scene as a Gazebo world (SDFormat 1.9), meshes beside it.
 
-Every object is a model posed in the world; furniture on the floor is ``static``, objects of
-``dynamic_classes`` are not; articulated models keep revolute and prismatic joints with limits.
+Every object is a model posed in the world; furniture is ``static``, objects of
+``dynamic_classes`` are not (placed to rest on their support by the rest plan, or static where
+they cannot rest); articulated models keep revolute and prismatic joints with limits, and fronts
+found by a segmenter hang from the world by their hinge or drawer joint. Floor, walls and ceiling
+are the static model ``room``; collision geometry is the meshes' convex parts.
 """
 
 from __future__ import annotations
@@ -15,7 +18,9 @@ from pydantic import Field
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK
+from stratamap.core.simulation.physics import collision_parts
+from stratamap.core.simulation.scene import scene_tree
 
 
 def _pose(pose: np.ndarray) -> str:
@@ -27,10 +32,27 @@ class SDFConfig(StageConfig):
     mesh_dir: str = Field(default="sdf_meshes", description="Sub-folder (beside the world) for meshes.")
     world_name: str = Field(default="stratamap_scene", description="The <world name>.")
     dynamic_classes: list[str] = Field(
-        default_factory=lambda: ["chair", "box", "book", "cup", "bottle", "laptop", "monitor", "plant"],
-        description="Classes simulated as dynamic (not static) models.",
+        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
+        description="Classes simulated as dynamic (not static) models, placed at rest on their support.",
+    )
+    structure: bool = Field(default=True, description="Add floor, walls and ceiling from the map as a static model.")
+    rest: bool = Field(
+        default=True,
+        description="Place dynamic models to rest on their support (a few mm of settling; static where they cannot).",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
+
+
+def _joint(model: ET.Element, j, parent: str) -> None:
+    joint = ET.SubElement(model, "joint", name=j.name, type={"continuous": "revolute"}.get(j.type, j.type))
+    ET.SubElement(joint, "parent").text = parent
+    ET.SubElement(joint, "child").text = j.child
+    axis = ET.SubElement(joint, "axis")
+    ET.SubElement(axis, "xyz").text = " ".join(f"{v:.9g}" for v in j.axis)
+    if j.type in ("revolute", "prismatic"):
+        limit = ET.SubElement(axis, "limit")
+        ET.SubElement(limit, "lower").text = f"{j.lower:.9g}"
+        ET.SubElement(limit, "upper").text = f"{j.upper:.9g}"
 
 
 class SDFExporter(Exporter[SDFConfig]):
@@ -39,20 +61,34 @@ class SDFExporter(Exporter[SDFConfig]):
     name = "sdf"
     Config = SDFConfig
     requires = frozenset({"instances"})
+    optional = frozenset({"contact_graph", "geometry", "semantics"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
-        tree = build_tree(data.map.instances, None, cfg.density)  # type: ignore[arg-type]
+        tree, plan = scene_tree(
+            data.map, cfg.dynamic_classes, cfg.density, use_graph=False, structure=cfg.structure, rest=cfg.rest
+        )
+        self.note("rest", plan.to_dict())
         sdf = ET.Element("sdf", version="1.9")
         world = ET.SubElement(sdf, "world", name=cfg.world_name)
-        ground = ET.SubElement(world, "model", name="ground_plane")
-        ET.SubElement(ground, "static").text = "true"
-        gl = ET.SubElement(ground, "link", name="link")
-        for tag in ("collision", "visual"):
-            el = ET.SubElement(gl, tag, name=tag)
-            plane = ET.SubElement(ET.SubElement(el, "geometry"), "plane")
-            ET.SubElement(plane, "normal").text = "0 0 1"
-            ET.SubElement(plane, "size").text = "100 100"
+        if tree.statics:
+            room = ET.SubElement(world, "model", name="room")
+            ET.SubElement(room, "static").text = "true"
+            for slab in tree.statics:
+                link = ET.SubElement(room, "link", name=slab.name)
+                ET.SubElement(link, "pose").text = _pose(slab.pose)
+                for tag in ("collision", "visual"):
+                    box = ET.SubElement(ET.SubElement(ET.SubElement(link, tag, name=tag), "geometry"), "box")
+                    ET.SubElement(box, "size").text = " ".join(f"{v:.9g}" for v in slab.size)
+        else:
+            ground = ET.SubElement(world, "model", name="ground_plane")
+            ET.SubElement(ground, "static").text = "true"
+            gl = ET.SubElement(ground, "link", name="link")
+            for tag in ("collision", "visual"):
+                el = ET.SubElement(gl, tag, name=tag)
+                plane = ET.SubElement(ET.SubElement(el, "geometry"), "plane")
+                ET.SubElement(plane, "normal").text = "0 0 1"
+                ET.SubElement(plane, "size").text = "100 100"
         links = {link.name: link for link in tree.links}
         children: dict[str, list] = {}
         for j in tree.joints:
@@ -61,8 +97,11 @@ class SDFExporter(Exporter[SDFConfig]):
         for top in children.get(ROOT_LINK, []):
             link = links[top.child]
             model = ET.SubElement(world, "model", name=link.name)
-            ET.SubElement(model, "static").text = "false" if link.class_name in cfg.dynamic_classes else "true"
+            moving = top.type in ("floating", "revolute", "prismatic", "continuous")
+            ET.SubElement(model, "static").text = "false" if moving else "true"
             ET.SubElement(model, "pose").text = _pose(top.origin)
+            if top.type in ("revolute", "prismatic", "continuous"):  # a front on its hinge or drawer runner
+                _joint(model, top, "world")
             stack = [(link.name, np.eye(4))]
             while stack:
                 name, pose_in_model = stack.pop()
@@ -82,25 +121,23 @@ class SDFExporter(Exporter[SDFConfig]):
                     "izz": (2, 2),
                 }.items():
                     ET.SubElement(inertia, tag).text = f"{lk.inertial.inertia[r, c]:.6g}"
-                rel = f"{cfg.mesh_dir}/{name}.stl"
-                with atomic_path(out_dir / rel) as tmp:
-                    lk.mesh.export(tmp, file_type="stl")
-                written.append(out_dir / rel)
-                for tag in ("collision", "visual"):
-                    g = ET.SubElement(ET.SubElement(ET.SubElement(el, tag, name=tag), "geometry"), "mesh")
+                if lk.mesh is not None:
+                    rel = f"{cfg.mesh_dir}/{name}.stl"
+                    with atomic_path(out_dir / rel) as tmp:
+                        lk.mesh.export(tmp, file_type="stl")
+                    written.append(out_dir / rel)
+                    g = ET.SubElement(ET.SubElement(ET.SubElement(el, "visual", name="visual"), "geometry"), "mesh")
                     ET.SubElement(g, "uri").text = rel
+                    for k, part in enumerate(collision_parts(lk.mesh)):
+                        rel = f"{cfg.mesh_dir}/{name}_c{k}.stl"
+                        with atomic_path(out_dir / rel) as tmp:
+                            part.export(tmp, file_type="stl")
+                        written.append(out_dir / rel)
+                        collision = ET.SubElement(el, "collision", name=f"collision_{k}")
+                        g = ET.SubElement(ET.SubElement(collision, "geometry"), "mesh")
+                        ET.SubElement(g, "uri").text = rel
                 for j in children.get(name, []):
-                    joint = ET.SubElement(
-                        model, "joint", name=j.name, type={"continuous": "revolute"}.get(j.type, j.type)
-                    )
-                    ET.SubElement(joint, "parent").text = j.parent
-                    ET.SubElement(joint, "child").text = j.child
-                    axis = ET.SubElement(joint, "axis")
-                    ET.SubElement(axis, "xyz").text = " ".join(f"{v:.9g}" for v in j.axis)
-                    if j.type in ("revolute", "prismatic"):
-                        limit = ET.SubElement(axis, "limit")
-                        ET.SubElement(limit, "lower").text = f"{j.lower:.9g}"
-                        ET.SubElement(limit, "upper").text = f"{j.upper:.9g}"
+                    _joint(model, j, j.parent)
                     stack.append((j.child, pose_in_model @ j.origin))
         ET.indent(sdf)
         path = out_dir / cfg.filename

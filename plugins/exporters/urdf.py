@@ -1,8 +1,14 @@
 """Exporter ``urdf``: the scene as a URDF kinematic tree, meshes beside it.
 
 One link per object (its completion, or the hull of its observed points), joined to its
-supporter from the contact graph (or to ``world``), each with visual, collision and inertial
-blocks. Mesh paths are relative to the URDF (or ``package://`` URIs when ``package_uri`` is set).
+supporter from the contact graph (or to ``world``), each with inertial, visual (the whole mesh)
+and collision blocks (one per convex part). Objects of ``movable_classes`` hang from ``world`` by
+floating joints, placed to rest on their support; articulated parts and segmented fronts keep
+revolute and prismatic joints with limits; floor, walls and ceiling are static box links. Mesh
+paths are relative to the URDF (or ``package://`` URIs when ``package_uri`` is set).
+
+PyBullet turns floating joints into fixed ones; :func:`stratamap.core.simulation.bullet.load_scene`
+loads each free body as its own multibody.
 """
 
 from __future__ import annotations
@@ -17,7 +23,9 @@ from pydantic import Field
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK
+from stratamap.core.simulation.physics import collision_parts
+from stratamap.core.simulation.scene import scene_tree
 
 
 def _fmt(values) -> str:
@@ -39,9 +47,14 @@ class URDFConfig(StageConfig):
         default=None,
         description="If set (e.g. 'package://my_scene'), mesh paths are written as '<package_uri>/<mesh_dir>/...'.",
     )
-    floating_classes: list[str] = Field(
-        default_factory=list,
-        description="Classes joined by floating joints (movable objects); others get fixed joints.",
+    movable_classes: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
+        description="Classes exported as free bodies (floating joints on world, placed at rest); others are fixed.",
+    )
+    structure: bool = Field(default=True, description="Add floor, walls and ceiling from the map as static box links.")
+    rest: bool = Field(
+        default=True,
+        description="Place free bodies to rest on their support (a few mm of settling; static where they cannot).",
     )
     density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
 
@@ -52,21 +65,24 @@ class URDFExporter(Exporter[URDFConfig]):
     name = "urdf"
     Config = URDFConfig
     requires = frozenset({"instances"})
-    optional = frozenset({"contact_graph"})
+    optional = frozenset({"contact_graph", "geometry", "semantics"})
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
-        instances, graph = data.map.instances, data.map.contact_graph
-        tree = build_tree(instances, graph, cfg.density, set(cfg.floating_classes))  # type: ignore[arg-type]
+        tree, plan = scene_tree(data.map, cfg.movable_classes, cfg.density, structure=cfg.structure, rest=cfg.rest)
+        self.note("rest", plan.to_dict())
         robot = ET.Element("robot", name=cfg.robot_name)
         ET.SubElement(robot, "link", name=ROOT_LINK)
         written: list[Path] = []
-        for link in tree.links:
-            rel = f"{cfg.mesh_dir}/{link.name}.{cfg.mesh_format}"
+
+        def mesh_file(mesh, stem: str) -> str:
+            rel = f"{cfg.mesh_dir}/{stem}.{cfg.mesh_format}"
             with atomic_path(out_dir / rel) as tmp:
-                link.mesh.export(tmp, file_type=cfg.mesh_format)
+                mesh.export(tmp, file_type=cfg.mesh_format)
             written.append(out_dir / rel)
-            uri = f"{cfg.package_uri.rstrip('/')}/{rel}" if cfg.package_uri else rel
+            return f"{cfg.package_uri.rstrip('/')}/{rel}" if cfg.package_uri else rel
+
+        for link in tree.links:
             el = ET.SubElement(robot, "link", name=link.name)
             inertial = ET.SubElement(el, "inertial")
             ET.SubElement(inertial, "origin", xyz=_fmt(link.inertial.center), rpy="0 0 0")
@@ -77,11 +93,29 @@ class URDFExporter(Exporter[URDFConfig]):
                 ixx=f"{i[0, 0]:.6g}", ixy=f"{i[0, 1]:.6g}", ixz=f"{i[0, 2]:.6g}",
                 iyy=f"{i[1, 1]:.6g}", iyz=f"{i[1, 2]:.6g}", izz=f"{i[2, 2]:.6g}",
             )  # fmt: skip
+            if link.mesh is None:  # a helper frame between two joints
+                continue
+            block = ET.SubElement(el, "visual")
+            ET.SubElement(block, "origin", xyz="0 0 0", rpy="0 0 0")
+            ET.SubElement(ET.SubElement(block, "geometry"), "mesh", filename=mesh_file(link.mesh, link.name))
+            # Simulators collide convex hulls: one collision block per convex part.
+            for k, part in enumerate(collision_parts(link.mesh)):
+                block = ET.SubElement(el, "collision", name=f"{link.name}_collision_{k}")
+                ET.SubElement(block, "origin", xyz="0 0 0", rpy="0 0 0")
+                ET.SubElement(ET.SubElement(block, "geometry"), "mesh", filename=mesh_file(part, f"{link.name}_c{k}"))
+        for slab in tree.statics:
+            el = ET.SubElement(robot, "link", name=slab.name)
+            inertial = ET.SubElement(el, "inertial")  # fixed to the world; the values only keep loaders quiet
+            ET.SubElement(inertial, "mass", value="1")
+            ET.SubElement(inertial, "inertia", ixx="1", ixy="0", ixz="0", iyy="1", iyz="0", izz="1")
             for tag in ("visual", "collision"):
                 block = ET.SubElement(el, tag)
                 ET.SubElement(block, "origin", xyz="0 0 0", rpy="0 0 0")
-                geom = ET.SubElement(block, "geometry")
-                ET.SubElement(geom, "mesh", filename=uri)
+                ET.SubElement(ET.SubElement(block, "geometry"), "box", size=_fmt(slab.size))
+            joint = ET.SubElement(robot, "joint", name=f"{slab.name}_joint", type="fixed")
+            _origin(joint, slab.pose)
+            ET.SubElement(joint, "parent", link=ROOT_LINK)
+            ET.SubElement(joint, "child", link=slab.name)
         for joint in tree.joints:
             el = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
             _origin(el, joint.origin)

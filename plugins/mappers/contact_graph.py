@@ -21,6 +21,8 @@ from pydantic import Field
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.geometry.boxes import footprint_overlap
 from stratamap.core.map.layers import ContactGraph
+from stratamap.core.map.priors import plausible_heights
+from stratamap.plugins.mappers._floor import floor_height
 
 
 def support_ratio(child_box, surface_xy: np.ndarray) -> float:
@@ -34,6 +36,38 @@ def support_ratio(child_box, surface_xy: np.ndarray) -> float:
     except (QhullError, ValueError):
         return 0.0
     return polygon_area(clip_polygon(child_box.corners_2d(), hull))
+
+
+def footprint_neighbours(lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """For each of a set of x-y rectangles (corners ``lo``, ``hi``), the sorted indices of those
+    it overlaps (itself included), found with a k-d tree of their centres: near-linear in their
+    number where the all-pairs test is quadratic."""
+    if len(lo) == 0:
+        return []
+    from scipy.spatial import cKDTree
+
+    centers, radii = (lo + hi) / 2, np.linalg.norm(hi - lo, axis=1) / 2
+    tree = cKDTree(centers)
+    out = []
+    for i in range(len(lo)):
+        near = np.asarray(sorted(tree.query_ball_point(centers[i], radii[i] + radii.max() + 1e-9)), np.int64)
+        keep = np.all((lo[near] <= hi[i]) & (hi[near] >= lo[i]), axis=1)
+        out.append(near[keep])
+    return out
+
+
+def _extent(box: Any, points: np.ndarray | None = None, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The x-y rectangle holding a box's footprint (and ``points``), grown by ``margin``."""
+    xy = box.corners_2d() if points is None or not len(points) else np.vstack([box.corners_2d(), points[:, :2]])
+    return xy.min(0) - margin, xy.max(0) + margin
+
+
+def floor_standing(inst: Any, floor_z: float) -> bool:
+    """Whether an object of its class reaching up to where this one does stands on the floor (its
+    base unseen: a chair's legs hidden under a table), not hanging from a wall (a wall cabinet's top
+    is far above any cabinet standing on the floor)."""
+    heights = plausible_heights(inst.class_name)
+    return heights is not None and heights[0] <= inst.box.top_z - floor_z <= heights[1]
 
 
 def surface_planes(
@@ -108,7 +142,7 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
         insts = list(data.map.instances or [])
         graph = ContactGraph()
         g = graph.support
-        floor_z = data.notes.get("occupancy", {}).get("floor_z", 0.0)
+        floor_z = floor_height(data)
         g.add_node("floor", kind="layout", class_name="floor")
         g.add_edge("scene", "floor", relation="support")
         sem = data.map.semantics
@@ -138,7 +172,13 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
             )
             g.add_node(inst.id, kind="object", class_name=inst.class_name, box=inst.box.to_dict(), planes=planes)
 
-        for child in insts:
+        # Only objects whose footprints (or points) overlap in x-y can support one another or touch.
+        support_extents = [_extent(inst.box, inst.points) for inst in insts]
+        support_candidates = footprint_neighbours(
+            np.array([e[0] for e in support_extents]).reshape(-1, 2),
+            np.array([e[1] for e in support_extents]).reshape(-1, 2),
+        )
+        for child_index, child in enumerate(insts):
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
             # The floor is a candidate when the child's bottom is at floor height; an object is one
             # when it has a surface at that height (above its own feet) under enough of the child.
@@ -150,7 +190,7 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                 0.0,
             )
             area = max(float(child.box.size[0] * child.box.size[1]), 1e-9)
-            for parent in insts:
+            for parent in (insts[j] for j in support_candidates[child_index]):
                 if parent.id == child.id or parent.box.bottom_z >= bottom - cfg.feet_clearance:
                     continue
                 z = parent.points[:, 2]
@@ -183,7 +223,7 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                     best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score
                 )
                 support_z = best_z
-            elif bottom - floor_z > cfg.contact_tolerance and near_wall:
+            elif bottom - floor_z > cfg.contact_tolerance and near_wall and not floor_standing(child, floor_z):
                 g.add_edge("wall", child.id, relation="support")  # hangs on the wall (a wall cabinet, a picture)
                 support_z = None
             else:
@@ -199,8 +239,13 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                 g.nodes[child.id]["box_refined"] = refined.to_dict()
 
         graph.proximal.add_nodes_from(g.nodes)
+        proximal_extents = [_extent(inst.box, margin=cfg.proximal_distance) for inst in insts]
+        proximal_candidates = footprint_neighbours(
+            np.array([e[0] for e in proximal_extents]).reshape(-1, 2),
+            np.array([e[1] for e in proximal_extents]).reshape(-1, 2),
+        )
         for i, a in enumerate(insts):
-            for b in insts[i + 1 :]:
+            for b in (insts[j] for j in proximal_candidates[i] if j > i):
                 za = min(a.box.top_z, b.box.top_z) - max(a.box.bottom_z, b.box.bottom_z)
                 if za < -cfg.proximal_distance:
                     continue

@@ -20,7 +20,7 @@ from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.lazy import lazy_module
-from stratamap.core.map.instances import instances_from_semantics
+from stratamap.core.map.instances import instance_members, instances_from_semantics
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.priors import class_extents
 
@@ -96,8 +96,7 @@ class InstanceClustersMapper(Mapper[InstanceClustersConfig]):
                 noise = sel[inst[sel] == 0]
                 cls[noise] = 0  # in no cluster: belongs to no object of this class
         name_of = vocab.names
-        for iid in np.unique(inst[inst > 0]):
-            sel = np.flatnonzero(inst == iid)
+        for sel in instance_members(inst).values():
             c = int(np.bincount(cls[sel]).argmax())
             reason = None
             if len(sel) < cfg.min_points:

@@ -4,7 +4,11 @@
   (cells along the beam become freer, the end cell more occupied), as a laser SLAM back end
   builds it. Without scans: geometry in a thin slice at ``laser_height`` (what a laser would see).
 * ``objects`` -- every obstacle in the band [``z_min``, ``robot_height``] projected to the floor:
-  from the 3D geometry, or from the object instances (their completions when present).
+  from the 3D geometry, or from the object instances (their completions when present). When a
+  completer ran before, the geometry is the augmented scene (augmented-representations paper,
+  section V-C): observed points within ``epsilon`` of a completed model give way to the model's
+  surface, taken from the objects as they stand now (after any physical check), so a completed
+  chair's unseen seat and legs are obstacles.
 * ``multimap`` -- the two overlaid (first paper, section V-C): occupied where either is, free where
   the laser saw free space and no object stands. A robot planning on it keeps off chair seats and
   tabletops that its laser passes under.
@@ -21,8 +25,13 @@ from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
 from stratamap.core.map.sensors import LaserScan
+from stratamap.plugins.mappers._floor import floor_height
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
 
 
 class OccupancyConfig(StageConfig):
@@ -58,6 +67,14 @@ class OccupancyConfig(StageConfig):
         default=2, ge=1, description="A cell is occupied when at least this many geometry points fall in it."
     )
     margin: float = Field(default=0.5, ge=0.0, description="Border of unknown cells around the mapped area, metres.")
+    epsilon: float = Field(
+        default=0.1,
+        gt=0.0,
+        description=(
+            "With completed objects, the band comes from the augmented scene: observed points this close to a "
+            "completed model are replaced by the model's surface, metres (the completers' epsilon)."
+        ),
+    )
 
     @model_validator(mode="after")
     def _band(self) -> OccupancyConfig:
@@ -82,7 +99,7 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         geom = data.map.geometry
         if not scans and (geom is None or len(geom) == 0):
             raise DataError("occupancy: needs 2D laser scans or a geometry layer (run tsdf or points first)")
-        floor_z = self._floor_height(data)
+        floor_z = floor_height(data)
         origin, shape = self._extent(cfg, scans, geom)
 
         def cells(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -113,22 +130,36 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             slam[laser] = 100
             self.note("slam_source", "geometry slice at the laser height")
 
+        def in_band(points: np.ndarray) -> np.ndarray:
+            z = points[:, 2] - floor_z
+            return points[(z >= cfg.z_min) & (z <= cfg.robot_height)]
+
+        completed = data.map.instances.completed() if data.map.instances is not None else []
         band = np.zeros(shape, bool)
         if cfg.objects_from == "instances" and data.map.instances is not None:
             band = self._instances_band(data, cfg, floor_z, cells, shape)
         elif geom is not None and len(geom):
-            z = geom.points[:, 2] - floor_z
-            band = hits(geom.points[(z >= cfg.z_min) & (z <= cfg.robot_height), :2])
+            band = hits(in_band(geom.points)[:, :2])
+            if completed:
+                # The augmented scene A = (G \ S) U O (as the completers build it, from the objects as they
+                # stand now, after any physical check): a completed chair's unseen seat and legs are obstacles.
+                kept, model_points = self._augmented_points(geom.points, completed, cfg)
+                band = hits(in_band(kept)[:, :2])
+                r, c = cells(in_band(model_points)[:, :2])
+                band[r, c] = True
         objects = np.full(shape, -1, np.int8)
         objects[floor_seen | (slam == 0)] = 0
         objects[band] = 100
         multimap = slam.copy()
         multimap[band] = 100
+        origin3 = (float(origin[0]), float(origin[1]), 0.0)
         grids = OccupancyMaps(
-            slam=OccupancyGrid(slam, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
-            objects=OccupancyGrid(objects, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
-            multimap=OccupancyGrid(multimap, cfg.resolution, (float(origin[0]), float(origin[1]), 0.0)),
+            slam=OccupancyGrid(slam, cfg.resolution, origin3),
+            objects=OccupancyGrid(objects, cfg.resolution, origin3),
+            multimap=OccupancyGrid(multimap, cfg.resolution, origin3),
         )
+        if completed and cfg.objects_from == "geometry":
+            self.note("objects_from", f"augmented scene ({len(completed)} completed objects)")
         self.note("floor_z", float(floor_z))
         return {"occupancy": grids}
 
@@ -212,14 +243,30 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         return band
 
     @staticmethod
-    def _floor_height(data: PipelineData) -> float:
-        sem = data.map.semantics
-        geom = data.map.geometry
-        if sem is not None and geom is not None and "floor" in sem.vocabulary and len(sem) == len(geom):
-            floor = sem.class_ids == sem.vocabulary.id("floor")
-            if floor.sum() > 100:
-                return float(np.median(geom.points[floor, 2]))
-        return 0.0
+    def _augmented_points(
+        points: np.ndarray, completed: list[Any], cfg: OccupancyConfig
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The observed points farther than ``epsilon`` from every completed model, and points on the
+        models' surfaces (spaced a third of a cell, so every cell a model covers gets some)."""
+        from stratamap.core.simulation.kinematics import object_mesh
+
+        scene = o3d.t.geometry.RaycastingScene()
+        samples = []
+        for inst in completed:
+            mesh, pose = object_mesh(inst)
+            world = mesh.copy()
+            world.apply_transform(pose)
+            if len(world.faces) == 0:
+                continue
+            scene.add_triangles(
+                o3c.Tensor(np.asarray(world.vertices, np.float32)), o3c.Tensor(np.asarray(world.faces, np.uint32))
+            )
+            count = max(2000, int(world.area / (cfg.resolution / 3) ** 2))
+            samples.append(np.vstack([world.sample(count, seed=inst.id), world.vertices]))
+        if not samples:
+            return points, np.zeros((0, 3))
+        dist = scene.compute_distance(o3c.Tensor(points.astype(np.float32))).numpy()
+        return points[dist > cfg.epsilon], np.vstack(samples)
 
 
 @hookimpl

@@ -3,18 +3,30 @@
 The functional-scenes paper checks the matched CAD models for physical conflicts; here every
 object is rested on the surface of its supporter from the contact graph, and an object that
 overlaps one placed before it moves to the nearest horizontal offset without overlap (the
-min-conflict choice; the least overlapping one when none is free within ``max_shift``). What
-moved, and any overlap left, goes into the run's notes.
+min-conflict choice; the least overlapping one when none is free within ``max_shift``). A move
+that takes a model away from what was observed of it is undone (the observations are evidence;
+the overlap is reported instead). The contact graph is updated after: a moved object's surface
+moves with it, and completed nodes get the box of their model as placed. What moved, what was
+undone, and any overlap left go into the run's notes.
 """
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
+import numpy as np
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.geometry.transforms import yaw_of
+from stratamap.core.lazy import lazy_module
+from stratamap.core.map.layers import ContactGraph, ObjectInstances, OrientedBox
 from stratamap.core.simulation.physics import resolve_scene
+from stratamap.plugins.mappers._floor import floor_height
+
+o3d = lazy_module("open3d")
+o3c = lazy_module("open3d.core")
 
 
 class PhysicalCheckConfig(StageConfig):
@@ -26,6 +38,18 @@ class PhysicalCheckConfig(StageConfig):
     snap_distance: float = Field(
         default=0.1, ge=0.0, description="Largest gap or sinking closed by resting an object on its supporter, metres."
     )
+    observed_distance: float | None = Field(
+        default=0.05,
+        gt=0.0,
+        description=(
+            "A move is undone when it leaves more than observed_share of the object's observed points farther than "
+            "this from its model, metres (the observations are evidence; a slide away from them is no repair); null: "
+            "keep every move."
+        ),
+    )
+    observed_share: float = Field(
+        default=0.1, gt=0.0, lt=1.0, description="Share of observed points allowed beyond observed_distance."
+    )
 
 
 class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
@@ -35,21 +59,98 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
     Config = PhysicalCheckConfig
     requires = frozenset({"instances"})
     optional = frozenset({"contact_graph"})
-    provides = frozenset({"instances"})
+    provides = frozenset({"instances", "contact_graph"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
         cfg = self.config
-        instances = data.map.instances.copy()  # type: ignore[union-attr]
-        floor_z = float(data.notes.get("occupancy", {}).get("floor_z", 0.0))
+        before: ObjectInstances = data.map.instances  # type: ignore[assignment]
+        instances = before.copy()
+        floor_z = floor_height(data)
         result = resolve_scene(
             instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance
         )
+        undone = self._undo_contradicted_moves(before, instances)
+        shifts = {
+            inst.id: inst.completion.pose[:3, 3] - before[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
+            for inst in instances
+            if inst.completion is not None and inst.id in before and before[inst.id].completion is not None
+        }
+        moved = {k: v for k, v in shifts.items() if np.linalg.norm(v) > 1e-4}
         summary = result.to_dict()
+        summary.update(
+            {
+                "moved": len(moved),
+                "max_shift_m": max((float(np.linalg.norm(v)) for v in moved.values()), default=0.0),
+                "undone": undone,
+                "unresolved": sorted({*summary["unresolved"], *undone}),
+            }
+        )
         for key, value in summary.items():
             self.note(key, value)
         if summary["unresolved"]:
             self.warn(f"objects still overlapping after the physical check: {summary['unresolved']}")
-        return {"instances": instances}
+        out: dict[str, Any] = {"instances": instances}
+        if data.map.contact_graph is not None:
+            out["contact_graph"] = updated_graph(data.map.contact_graph, instances, moved)
+        return out
+
+    def _undo_contradicted_moves(self, before: ObjectInstances, after: ObjectInstances) -> list[int]:
+        """Put back every completed object whose move leaves its model disagreeing with what was
+        observed of it (see ``observed_distance``); returns their ids."""
+        cfg = self.config
+        if cfg.observed_distance is None:
+            return []
+        undone = []
+        for inst in after:
+            old = before[inst.id] if inst.id in before else None
+            if inst.completion is None or old is None or old.completion is None:
+                continue
+            if np.allclose(inst.completion.pose, old.completion.pose, atol=1e-6):
+                continue
+            if observed_share_beyond(inst.points, inst.completion.world_mesh(), cfg.observed_distance) > max(
+                cfg.observed_share,
+                observed_share_beyond(old.points, old.completion.world_mesh(), cfg.observed_distance),
+            ):
+                inst.completion = old.completion
+                undone.append(inst.id)
+        return undone
+
+
+def updated_graph(graph: ContactGraph, instances: ObjectInstances, moved: dict[int, np.ndarray]) -> ContactGraph:
+    """The contact graph after the check: the surface a moved object offers its children moves
+    with it, and every completed object's node carries the box of its model as placed
+    (``box_completed``, in the object's yaw)."""
+    graph = copy.deepcopy(graph)
+    for parent, _child, edge in graph.support.edges(data=True):
+        plane = edge.get("plane")
+        if plane is not None and parent in moved:
+            a, b, c, d = plane
+            t = moved[parent]
+            edge["plane"] = [a, b, c, float(d - (a * t[0] + b * t[1] + c * t[2]))]
+    for inst in instances:
+        if inst.completion is None or inst.id not in graph.support:
+            continue
+        yaw = yaw_of(inst.completion.pose)
+        vertices = np.asarray(inst.completion.world_mesh().vertices)
+        c, s = np.cos(yaw), np.sin(yaw)
+        local = np.c_[vertices[:, :2] @ np.array([[c, -s], [s, c]]), vertices[:, 2]]  # rotate by -yaw
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        mid = (lo + hi) / 2
+        center = np.array([c * mid[0] - s * mid[1], s * mid[0] + c * mid[1], mid[2]])
+        graph.support.nodes[inst.id]["box_completed"] = OrientedBox(center, yaw, hi - lo).to_dict()
+    return graph
+
+
+def observed_share_beyond(points: np.ndarray, mesh: Any, distance: float) -> float:
+    """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
+    if len(points) == 0 or len(mesh.faces) == 0:
+        return 0.0
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
+    )
+    dist = scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
+    return float(np.mean(dist > distance))
 
 
 @hookimpl

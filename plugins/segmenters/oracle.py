@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
+import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.sensors import FrameLabels
+from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, MappedFrames
 
 
 class OracleConfig(StageConfig):
@@ -17,6 +19,16 @@ class OracleConfig(StageConfig):
         ge=0,
         description="Drop instance labels covering fewer pixels than this in a frame (simulates detector misses).",
     )
+
+
+def drop_small_instances(seg: FrameSegmentation, min_pixels: int) -> FrameSegmentation:
+    """The frame's labels without the instances covering fewer than ``min_pixels`` pixels."""
+    ids, counts = np.unique(seg.instance_ids, return_counts=True)
+    small = ids[(counts < min_pixels) & (ids > 0)]
+    if not len(small):
+        return seg
+    mask = np.isin(seg.instance_ids, small)
+    return FrameSegmentation(seg.frame_index, np.where(mask, 0, seg.class_ids), np.where(mask, 0, seg.instance_ids))
 
 
 class OracleSegmenter(Segmenter[OracleConfig]):
@@ -28,8 +40,6 @@ class OracleSegmenter(Segmenter[OracleConfig]):
     provides = frozenset({"frame_labels"})
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        import numpy as np
-
         gt = data.ground_truth
         stream = data.stream
         if stream is None or not len(stream.frames):
@@ -53,17 +63,12 @@ class OracleSegmenter(Segmenter[OracleConfig]):
                 f"oracle: the ground truth has labels for {len(gt.frame_labels)} frames but the stream has "
                 f"{len(stream.frames)}; the labels must come with the sequence"
             )
-        out = FrameLabels(segmenter=self.name, tracked_instances=True)
-        for seg in self.progress(gt.frame_labels, description="oracle labels"):
-            if self.config.min_pixels > 0:
-                ids, counts = np.unique(seg.instance_ids, return_counts=True)
-                small = ids[(counts < self.config.min_pixels) & (ids > 0)]
-                if len(small):
-                    mask = np.isin(seg.instance_ids, small)
-                    seg = type(seg)(
-                        seg.frame_index, np.where(mask, 0, seg.class_ids), np.where(mask, 0, seg.instance_ids)
-                    )
-            out.frames.append(seg)
+        # Labels are read from the ground truth when a mapper reads them, frame by frame: a long walk's
+        # label images are never all held at once (they are re-read, or re-rendered, on access).
+        frames = gt.frame_labels
+        if self.config.min_pixels > 0:
+            frames = MappedFrames(gt.frame_labels, partial(drop_small_instances, min_pixels=self.config.min_pixels))
+        out = FrameLabels(segmenter=self.name, frames=frames, tracked_instances=True)
         return {"frame_labels": out}
 
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
+from stratamap.core.errors import ConfigError
+from stratamap.core.map.sensors import FrameWindow
 from stratamap.core.synthetic import SceneSpec, generate_sequence
 
 
@@ -24,6 +27,13 @@ class SyntheticConfig(StageConfig):
         default=None, ge=1, le=100000, description="Override the number of frames of the trajectory."
     )
     seed: int | None = Field(default=None, description="Override the scene's seed.")
+    frame_range: tuple[int, int] | None = Field(
+        default=None,
+        description=(
+            "Only frames [start, stop) of the trajectory, renumbered from 0: a part of the walk as a recording of "
+            "its own (the `recordings` source fuses several into one map)."
+        ),
+    )
 
 
 class SyntheticSource(Source[SyntheticConfig]):
@@ -61,10 +71,27 @@ class SyntheticSource(Source[SyntheticConfig]):
 
     def read(self) -> dict[str, Any]:
         seq = generate_sequence(self.spec())
-        self.note(
-            "scene", {"objects": len(seq.ground_truth.objects), "frames": len(seq.stream), "skipped": seq.scene.skipped}
-        )
-        return {"frames": seq.stream, "ground_truth": seq.ground_truth}
+        stream, gt = seq.stream, seq.ground_truth
+        if self.config.frame_range is not None:
+            start, stop = self.config.frame_range
+            if not 0 <= start < stop <= len(stream):
+                raise ConfigError(
+                    [("frame_range", f"[{start}, {stop}) is not a range of the trajectory's {len(stream)} frames")]
+                )
+            stream = dataclasses.replace(
+                stream,
+                frames=FrameWindow(stream.frames, start, stop),
+                laser_scans=stream.laser_scans[start:stop],
+                lidar_scans=stream.lidar_scans[start:stop],
+            )
+            layout = dict(gt.layout)
+            layout["true_poses"] = layout["true_poses"][start:stop]
+            layout.pop("coverage", None)  # measured over the whole trajectory
+            gt = dataclasses.replace(gt, frame_labels=FrameWindow(gt.frame_labels, start, stop), layout=layout)
+        self.note("scene", {"objects": len(gt.objects), "frames": len(stream), "skipped": seq.scene.skipped})
+        if "coverage" in gt.layout:
+            self.note("coverage", {k: v for k, v in gt.layout["coverage"].items() if k != "per_object"})
+        return {"frames": stream, "ground_truth": gt}
 
 
 @hookimpl

@@ -28,6 +28,7 @@ CORE_RANKS = {
     "paths": 0,
     "documents": 0,
     "lazy": 0,
+    "parallel": 0,
     "geometry": 1,
     "map": 2,
     "io": 3,

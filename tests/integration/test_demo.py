@@ -106,9 +106,9 @@ def test_template_plugin_swaps_in_for_bbox(tmp_path, monkeypatch):
     sys.modules.pop("stratamap_hull", None)
     eps = [EntryPoint("hull", "stratamap_hull", "stratamap.completers")]
     registry = build_registry(eps=eps, extra_modules=[], autoload=True)
-    validated = load_pipeline(REPO / "configs" / "demo.yaml", [*SMALL, "stages[3].plugin=hull"], registry)
+    validated = load_pipeline(REPO / "configs" / "demo.yaml", [*SMALL, "stages[2].plugin=hull"], registry)
     report = Pipeline(validated, registry).run(tmp_path)
-    assert [s["plugin"] for s in report["stages"]][4] == "hull"
+    assert [s["plugin"] for s in report["stages"]][3] == "hull"
     m = LayeredMap.load(tmp_path / "map")
     assert {i.completion.completer for i in m.instances} == {"hull"}
 

@@ -64,11 +64,25 @@ class PanopticState:
     next_label: int = 1
     next_instance: int = 1
     voxels_per_block: int = 512
+    #: The label each label stands for now (itself until merged): voxels keep the label they were
+    #: given and are read through this table, so a merge costs a pass over the labels, not over
+    #: every voxel of the map (which made merges slower the larger the map).
+    canonical: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
 
     def new_label(self) -> int:
         label = self.next_label
         self.next_label += 1
+        if label >= len(self.canonical):
+            self.canonical = np.append(self.canonical, np.arange(len(self.canonical), 2 * len(self.canonical) + 1))
         return label
+
+    def current(self, voxel_labels: np.ndarray) -> np.ndarray:
+        """What labels stand for now (merges applied), as int64."""
+        labels = np.asarray(voxel_labels, np.int64)
+        if len(self.canonical) < self.next_label:  # labels set from outside (tests): none merged yet
+            self.canonical = np.append(self.canonical, np.arange(len(self.canonical), self.next_label))
+        inside = labels < len(self.canonical)
+        return np.where(inside, self.canonical[np.where(inside, labels, 0)], labels)
 
     def resolve(self, label: int) -> int:
         while label in self.merged_into:
@@ -89,15 +103,15 @@ class PanopticState:
         """Fuse one frame. ``flat`` are the voxel indices of the frame's sampled pixels (one per voxel),
         ``seg_class``/``seg_instance`` the segmenter's labels of those pixels; ``voxel_labels`` and
         ``voxel_conf`` are writable views of the TSDF's label attributes, shaped (blocks, voxels per
-        block) or flat; ``active`` lists the allocated blocks (merges only scan those)."""
-        self._active = active
+        block) or flat; ``active`` (the allocated blocks) is no longer needed, kept for existing callers:
+        merges rewrite no voxel (see ``canonical``)."""
         if len(flat) == 0:
             return
         p = self.params
         code = (seg_class.astype(np.int64) << 32) | seg_instance.astype(np.int64)
         seg_codes, seg_of_point = np.unique(code, return_inverse=True)
         seg_sizes = np.bincount(seg_of_point)
-        current = voxel_labels[flat].astype(np.int64)
+        current = self.current(voxel_labels[flat])
 
         # Overlap Pi(s, l) of frame segments with existing labels.
         has = current > 0
@@ -149,7 +163,7 @@ class PanopticState:
 
         # Voxel label update with Voxblox++'s confidence counts.
         new = np.array([assigned[s] for s in range(len(seg_codes))], dtype=np.int64)[seg_of_point]
-        cur = voxel_labels[flat]
+        cur = self.current(voxel_labels[flat])
         conf = voxel_conf[flat]
         agree = cur == new
         conf = np.where(agree, conf + 1, conf - 1)
@@ -215,14 +229,7 @@ class PanopticState:
         keep, drop = self.resolve(keep), self.resolve(drop)
         if keep == drop:
             return
-        active = getattr(self, "_active", None)
-        if active is not None and voxel_labels.ndim == 1:
-            blocks = voxel_labels.reshape(-1, self.voxels_per_block)
-            sub = blocks[active]
-            sub[sub == drop] = keep
-            blocks[active] = sub
-        else:
-            voxel_labels[voxel_labels == drop] = keep
+        self.canonical[self.canonical == drop] = keep
         self.phi[keep].update(self.phi.pop(drop, Counter()))
         self.merged_into[drop] = keep
 
@@ -271,39 +278,60 @@ class PanopticState:
         ids = [int(i) for i in np.unique(point_instance) if i > 0]
         if len(ids) < 2:
             return {}
-        cls = {i: int(np.bincount(point_class[point_instance == i]).argmax()) for i in ids}
-        trees = {i: cKDTree(points[point_instance == i]) for i in ids}
-        lo = {i: trees[i].mins - touch for i in ids}
-        hi = {i: trees[i].maxes + touch for i in ids}
+        # Points grouped by instance once (a mask per instance would scan every point per instance).
+        order = np.argsort(point_instance, kind="stable")
+        uniq, starts = np.unique(point_instance[order], return_index=True)
+        bounds = dict(
+            zip(uniq.tolist(), zip(starts.tolist(), [*starts[1:].tolist(), len(order)], strict=True), strict=True)
+        )
+        members_of = {i: order[bounds[i][0] : bounds[i][1]] for i in ids}
+        cls = {i: int(np.bincount(point_class[members_of[i]]).argmax()) for i in ids}
+        trees = {i: cKDTree(points[members_of[i]]) for i in ids}
+        lo = np.array([trees[i].mins - touch for i in ids])
+        hi = np.array([trees[i].maxes + touch for i in ids])
         parent = {i: i for i in ids}
+        members = {i: [i] for i in ids}  # per root: the instances merged into it
+        apart_from = {i: set() for i in ids}  # per root: instances some member was segmented apart from
+        for a, b in self.seen_apart:
+            if a in apart_from and b in apart_from:
+                apart_from[a].add(b)
+                apart_from[b].add(a)
 
         def find(x: int) -> int:
             while parent[x] != x:
                 x = parent[x]
             return x
 
-        def apart(a: int, b: int) -> bool:
-            members_a = [i for i in ids if find(i) == find(a)]
-            members_b = [i for i in ids if find(i) == find(b)]
-            return any((min(x, y), max(x, y)) in self.seen_apart for x in members_a for y in members_b)
-
-        for k, a in enumerate(ids):
-            for b in ids[k + 1 :]:
-                if (
-                    cls[a] != cls[b]
-                    or np.any(lo[a] > hi[b])
-                    or np.any(lo[b] > hi[a])
-                    or find(a) == find(b)
-                    or apart(a, b)
-                ):
-                    continue
-                if trees[a].sparse_distance_matrix(trees[b], touch, output_type="ndarray").size == 0:
-                    continue
-                ra, rb = find(a), find(b)
-                parent[max(ra, rb)] = min(ra, rb)
+        # Candidate pairs: boxes (grown by ``touch``) that overlap, by a sweep along x, in the
+        # order the all-pairs loop took them (merges depend on the order).
+        by_x = np.argsort(lo[:, 0], kind="stable")
+        candidates = []
+        for pos, a_idx in enumerate(by_x):
+            for b_idx in by_x[pos + 1 :]:
+                if lo[b_idx, 0] > hi[a_idx, 0]:
+                    break
+                if np.all(lo[a_idx] <= hi[b_idx]) and np.all(lo[b_idx] <= hi[a_idx]):
+                    candidates.append((min(a_idx, b_idx), max(a_idx, b_idx)))
+        for a_idx, b_idx in sorted(candidates):
+            a, b = ids[a_idx], ids[b_idx]
+            if cls[a] != cls[b]:
+                continue
+            ra, rb = find(a), find(b)
+            if ra == rb or any(m in apart_from[ra] for m in members[rb]):
+                continue
+            if trees[a].sparse_distance_matrix(trees[b], touch, output_type="ndarray").size == 0:
+                continue
+            keep, drop = min(ra, rb), max(ra, rb)
+            parent[drop] = keep
+            members[keep] += members.pop(drop)
+            apart_from[keep] |= apart_from.pop(drop)
         mapping = {i: find(i) for i in ids if find(i) != i}
-        for old, new in mapping.items():
-            point_instance[point_instance == old] = new
+        if mapping:
+            lookup = np.arange(int(point_instance.max()) + 1, dtype=point_instance.dtype)
+            for old, new in mapping.items():
+                lookup[old] = new
+            positive = point_instance > 0
+            point_instance[positive] = lookup[point_instance[positive]]
         return mapping
 
     def label_table(self) -> tuple[np.ndarray, np.ndarray]:

@@ -82,7 +82,7 @@ def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
     assert min(cd_icp, cd_pbm) <= 0.03, (cd_icp, cd_pbm)
     res = evaluate_completion(icp.map.instances, icp.ground_truth.objects)
     chairs = [r for r in res["per_object"] if r["class"] == "chair"]
-    assert np.mean([r["same_family"] for r in chairs]) >= 0.75
+    assert np.mean([bool(r.get("same_family")) for r in chairs]) >= 0.75
     assert np.median([r["yaw_error_deg"] for r in chairs]) < 10
 
 
@@ -141,7 +141,7 @@ def test_robustness_warns_and_leaves_objects_uncompleted(tmp_path):
     )
     data = PipelineData()
     data.map.instances = insts
-    out = ICPMatchCompleter(library=str(tmp_path)).run(data)
+    out = ICPMatchCompleter(library=str(tmp_path), reject_distance=None).run(data)
     assert out["instances"][1].completion is not None
     assert out["instances"][2].completion is None and out["instances"][3].completion is None
     text = "\n".join(data.warnings)

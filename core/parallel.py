@@ -1,0 +1,197 @@
+"""Per-item work in parallel: threads or worker processes on this machine, or Ray tasks on a
+local Ray instance or a cluster, with the same results in the same order whichever runs it.
+
+``map_tasks(fn, items, shared)`` computes ``[fn(shared, item) for item in items]``. ``fn`` is a
+module-level function (Ray and worker processes import it by name), ``shared`` the read-only state
+every item needs (a model index, a config): on Ray it is put into the object store once and each
+worker process fetches it once, whatever the number of items; items and results are plain data
+(numpy arrays, dataclasses), pickled both ways. Ray is optional: it is imported on first use, and
+a missing Ray is a one-line :class:`~stratamap.core.errors.ConfigError`.
+
+Stage configs take :class:`ExecutorConfig` as a mixin to offer ``executor: local|ray`` and
+``ray_address`` (see docs/ray.md).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Generic, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from stratamap.core.errors import ConfigError
+
+S = TypeVar("S")
+T = TypeVar("T")
+R = TypeVar("R")
+
+Executor = Literal["local", "processes", "ray"]
+
+
+class ExecutorConfig(BaseModel):
+    """Mixin of stage configs whose per-item work can run as Ray tasks (``class C(StageConfig, ExecutorConfig)``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    executor: Literal["local", "ray"] = Field(
+        default="local",
+        description=(
+            "Where the per-object work runs: local (threads of this process) or ray (Ray tasks; results are identical, "
+            "see docs/ray.md)."
+        ),
+    )
+    ray_address: str | None = Field(
+        default=None,
+        description=(
+            "With executor: ray, the address of an existing Ray cluster ('auto', 'HOST:6379' or 'ray://HOST:10001'); "
+            "null: the Ray instance this process already joined, else $RAY_ADDRESS, else a local instance started "
+            "with `workers` CPUs."
+        ),
+    )
+
+
+@dataclass
+class Mapped(Generic[R]):
+    """What :func:`map_tasks` returns: the results in input order, and what the work cost."""
+
+    results: list[R]
+    seconds: list[float]  # per item, measured where it ran
+    #: Ray only: bytes pickled for the shared state (once), the items and the results (totals).
+    shipped: dict[str, int] = field(default_factory=dict)
+
+
+def map_tasks(
+    fn: Callable[[S, T], R],
+    items: Sequence[T],
+    shared: S,
+    *,
+    executor: Executor = "local",
+    workers: int = 2,
+    ray_address: str | None = None,
+) -> Mapped[R]:
+    """``[fn(shared, item) for item in items]``, in parallel (``workers`` at a time), results in input order.
+
+    ``local``: threads of this process (for work that releases the GIL: numpy, KD-trees, Open3D);
+    ``processes``: fresh worker processes (``shared`` pickled once per process);
+    ``ray``: Ray tasks of one CPU each, on the Ray instance this process joined, else on the cluster at
+    ``ray_address``, else on a local instance with ``workers`` CPUs started here (and left running
+    for later calls; Ray stops it when the process exits).
+    """
+    items = list(items)
+    if executor == "ray":
+        return _map_ray(fn, items, shared, workers, ray_address)
+    if not items:
+        return Mapped([], [])
+    if executor == "processes":
+        import multiprocessing as mp
+
+        # spawn, not fork: Open3D and OpenMP threads do not survive a fork.
+        with ProcessPoolExecutor(
+            max_workers=max(1, min(workers, len(items))),
+            mp_context=mp.get_context("spawn"),
+            initializer=_set_process_shared,
+            initargs=(pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL),),
+        ) as pool:
+            timed = list(pool.map(_process_task, [fn] * len(items), items))
+    elif executor == "local":
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+            timed = list(pool.map(lambda item: _timed(fn, shared, item), items))
+    else:
+        raise ConfigError([("executor", f"expected 'local', 'processes' or 'ray', got {executor!r}")])
+    return Mapped([r for r, _ in timed], [s for _, s in timed])
+
+
+def _timed(fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> tuple[Any, float]:
+    start = time.perf_counter()
+    result = fn(shared, item)
+    return result, time.perf_counter() - start
+
+
+# ------------------------------------------------------------------------------- worker processes
+
+_PROCESS_SHARED: list[Any] = []
+
+
+def _set_process_shared(payload: bytes) -> None:
+    _PROCESS_SHARED[:] = [pickle.loads(payload)]
+
+
+def _process_task(fn: Callable[[Any, Any], Any], item: Any) -> tuple[Any, float]:
+    return _timed(fn, _PROCESS_SHARED[0], item)
+
+
+# ------------------------------------------------------------------------------- Ray
+
+#: In a Ray worker process: the shared state of the current map, by object id, fetched once per process.
+_RAY_SHARED: dict[str, Any] = {}
+_RAY_LOCK = threading.Lock()
+_RAY_TASK: Any = None
+
+
+def ray_module() -> Any:
+    """Ray, imported now; a one-line ConfigError when it is not installed."""
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError(
+            [("executor", "ray needs the Ray package: pip install 'stratamap[ray]' (or set executor: local)")]
+        ) from None
+    return ray
+
+
+def ensure_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
+    """Join Ray: the instance this process already joined, else the cluster at ``address`` (or at
+    $RAY_ADDRESS, as Ray's own tools do), else a new local instance of ``num_cpus`` CPUs. Returns
+    whether this call started or joined it."""
+    ray = ray_module()
+    with _RAY_LOCK:
+        if ray.is_initialized():
+            return False
+        address = address or os.environ.get("RAY_ADDRESS") or None
+        kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": num_cpus}
+        try:
+            ray.init(include_dashboard=False, log_to_driver=False, **kwargs)
+        except ConnectionError as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ConfigError([("ray_address", f"cannot reach a Ray cluster at {address!r}: {first}")]) from None
+        return True
+
+
+def _ray_task(fn: Callable[[Any, Any], Any], shared_box: list[Any], item: Any) -> tuple[Any, float]:
+    # The reference travels inside a list so that Ray does not resolve it per task: each worker
+    # process fetches (and deserializes) the shared state once and keeps it for the following items.
+    ref = shared_box[0]
+    key = ref.hex()
+    if key not in _RAY_SHARED:
+        import ray
+
+        _RAY_SHARED.clear()  # the previous map's state: no task of it is left on this process
+        _RAY_SHARED[key] = ray.get(ref)
+    return _timed(fn, _RAY_SHARED[key], item)
+
+
+def _map_ray(
+    fn: Callable[[Any, Any], Any], items: list[Any], shared: Any, workers: int, address: str | None
+) -> Mapped[Any]:
+    global _RAY_TASK
+    ray = ray_module()
+    if not items:
+        return Mapped([], [], {"shared": 0, "items": 0, "results": 0})
+    ensure_ray(address, num_cpus=max(1, workers))
+    if _RAY_TASK is None:
+        # One CPU per task; OMP/BLAS threads of a Ray worker are limited to that CPU.
+        _RAY_TASK = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
+    dumps = ray.cloudpickle.dumps
+    shipped = {"shared": len(dumps(shared)), "items": sum(len(dumps(item)) for item in items)}
+    shared_ref = ray.put(shared)
+    refs = [_RAY_TASK.remote(fn, [shared_ref], item) for item in items]
+    timed = ray.get(refs)  # in input order
+    del shared_ref, refs
+    shipped["results"] = sum(len(dumps(result)) for result, _ in timed)
+    return Mapped([r for r, _ in timed], [s for _, s in timed], shipped)

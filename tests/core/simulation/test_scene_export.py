@@ -1,0 +1,184 @@
+"""Scenes for simulators on hand-made maps: convex collision parts, the room's slabs, the rest plan,
+geometry-less helper links and segmented fronts."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import trimesh
+
+from stratamap.core.map.layers import (
+    Completion,
+    Geometry,
+    Joint,
+    LayeredMap,
+    ObjectInstance,
+    ObjectInstances,
+    OrientedBox,
+    Part,
+    Semantics,
+)
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.simulation.kinematics import build_tree, front_joint
+from stratamap.core.simulation.physics import MIN_PART_THICKNESS, collision_parts
+from stratamap.core.simulation.rest import REST_GAP, rest_offsets
+from stratamap.core.simulation.structure import SLAB_THICKNESS, room_structure
+from stratamap.core.stages import PipelineData
+from tests.core.simulation.test_physics import box_object, graph_of
+
+
+def test_a_flat_piece_becomes_a_thin_box_and_a_solid_one_its_hull():
+    flat = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])
+    (part,) = collision_parts(flat)
+    assert part.is_volume and min(part.extents) == pytest.approx(MIN_PART_THICKNESS)
+    solid = trimesh.creation.icosphere(radius=0.2)
+    (hull,) = collision_parts(solid)
+    assert hull.is_volume and hull.volume == pytest.approx(solid.volume, rel=1e-6)
+
+
+def room_map(width=4.0, depth=3.0, height=2.5) -> LayeredMap:
+    """Floor, four walls and a ceiling as labelled points of a width x depth room at the origin."""
+    rng = np.random.default_rng(0)
+    n = 3000
+    floor = np.c_[rng.uniform(0, width, n), rng.uniform(0, depth, n), np.zeros(n)]
+    ceiling = floor + [0, 0, height]
+    z = rng.uniform(0, height, n)
+    walls = np.concatenate(
+        [
+            np.c_[rng.uniform(0, width, n), np.zeros(n), z],
+            np.c_[rng.uniform(0, width, n), np.full(n, depth), z],
+            np.c_[np.zeros(n), rng.uniform(0, depth, n), z],
+            np.c_[np.full(n, width), rng.uniform(0, depth, n), z],
+        ]
+    )
+    vocab = Vocabulary.default()
+    points = np.concatenate([floor, ceiling, walls])
+    classes = np.concatenate(
+        [np.full(n, vocab.id("floor")), np.full(n, vocab.id("ceiling")), np.full(len(walls), vocab.id("wall"))]
+    )
+    layered = LayeredMap()
+    layered.geometry = Geometry(points)
+    layered.semantics = Semantics(classes, np.zeros(len(points)), vocab)
+    layered.instances = ObjectInstances()
+    return layered
+
+
+def test_room_slabs_lie_outside_the_room():
+    slabs = {s.name: s for s in room_structure(room_map())}
+    assert {"floor", "ceiling"} <= set(slabs) and sum(n.startswith("wall_") for n in slabs) == 4
+    assert slabs["floor"].pose[2, 3] + slabs["floor"].size[2] / 2 == pytest.approx(0.0, abs=1e-9)
+    assert slabs["ceiling"].pose[2, 3] - SLAB_THICKNESS / 2 == pytest.approx(2.5, abs=1e-6)
+    for slab in slabs.values():
+        if slab.class_name != "wall":
+            continue
+        center = slab.pose[:3, 3]
+        # Each wall's slab is just outside one side of the 4 x 3 room, spanning it.
+        outside = min(abs(center[0] + SLAB_THICKNESS / 2), abs(center[0] - 4 - SLAB_THICKNESS / 2))
+        outside = min(outside, abs(center[1] + SLAB_THICKNESS / 2), abs(center[1] - 3 - SLAB_THICKNESS / 2))
+        assert outside < 0.01 and slab.size[0] > 2.5
+
+
+def test_rest_plan_drops_floating_objects_and_keeps_overlapping_ones_static():
+    table = box_object(1, "table", [1.0, 0.6, 0.7], [0.0, 0.0, 0.0])
+    cup = box_object(2, "cup", [0.08, 0.08, 0.1], [0.1, 0.0, 0.75])  # 5 cm above the table
+    box = box_object(3, "box", [0.3, 0.3, 0.3], [2.0, 0.0, 0.04])  # 4 cm above the floor
+    stuck = box_object(4, "box", [0.3, 0.3, 0.3], [0.4, 0.1, 0.5])  # half inside the table top
+    overhang = box_object(5, "book", [0.3, 0.2, 0.03], [0.58, -0.2, 0.7])  # mostly off the table's edge
+    instances = ObjectInstances([table, cup, box, stuck, overhang])
+    graph = graph_of(instances, {2: 1, 4: 1, 5: 1})
+    layered = room_map()
+    slabs = [s for s in room_structure(layered) if s.name == "floor"]
+    plan = rest_offsets(instances, graph, ["cup", "box", "book"], slabs)
+    assert plan.offsets[2][2] == pytest.approx(-0.05 + REST_GAP, abs=1e-6)
+    assert plan.offsets[3][2] == pytest.approx(-0.04 + REST_GAP, abs=1e-6)
+    assert "penetrate" in plan.static[4] and "centre of mass" in plan.static[5]
+    assert plan.free_ids(instances, ["cup", "box", "book"]) == {2, 3}
+    tree = build_tree(instances, graph, offsets=plan.offsets, floating_ids={2, 3})
+    joints = {j.child: j for j in tree.joints}
+    assert joints["cup_2"].type == "floating" and joints["cup_2"].parent == "world"
+    assert joints["box_4"].type == "fixed" and joints["box_4"].parent == "table_1"
+    assert joints["cup_2"].origin[2, 3] == pytest.approx(0.7 + REST_GAP)
+
+
+def test_the_rest_plan_is_what_mujoco_keeps_at_rest(tmp_path):
+    pytest.importorskip("mujoco")
+    from stratamap.core.simulation.mjcf import write_mjcf
+    from stratamap.core.simulation.physics import settle
+
+    table = box_object(1, "table", [1.0, 0.6, 0.7], [1.5, 1.5, 0.0])
+    cup = box_object(2, "cup", [0.08, 0.08, 0.1], [1.6, 1.5, 0.8])
+    chair = box_object(3, "chair", [0.5, 0.5, 0.9], [3.0, 1.5, 0.1])
+    instances = ObjectInstances([table, cup, chair])
+    graph = graph_of(instances, {2: 1})
+    path = write_mjcf(instances, tmp_path, graph=graph, statics=room_structure(room_map()), rest=True)[0]
+    result = settle(path, seconds=2.0)
+    assert result["free_bodies"] == 2 and result["max_displacement_m"] < 0.005
+    root = ET.parse(path).getroot()
+    assert {g.get("name") for g in root.iter("geom")} >= {"floor", "wall_0", "ceiling"}
+
+
+def articulated_with_helper() -> ObjectInstance:
+    """A completed object whose seat slides on a geometry-less helper link and turns on it."""
+    body = trimesh.creation.box(extents=[0.5, 0.5, 0.4])
+    body.apply_translation((0, 0, 0.2))
+    seat = trimesh.creation.box(extents=[0.4, 0.4, 0.05])
+    lift = np.eye(4)
+    lift[2, 3] = 0.45
+    joints = [
+        Joint("swivel", "continuous", "helper", "seat", np.eye(4), np.array([0.0, 0.0, 1.0])),
+        Joint("lift", "prismatic", "body", "helper", lift, np.array([0.0, 0.0, 1.0]), 0.0, 0.1),
+    ]
+    parts = [Part("body", body), Part("seat", seat, lift)]
+    mesh = trimesh.util.concatenate([body, seat.copy().apply_transform(lift)])
+    box = OrientedBox([1.0, 1.0, 0.25], 0.0, [0.5, 0.5, 0.5])
+    completion = Completion(mesh, np.eye(4), "test", parts=parts, joints=joints)
+    return ObjectInstance(1, "chair", np.asarray(mesh.vertices), box, completion=completion)
+
+
+def test_helper_links_without_geometry_keep_their_joints_in_the_urdf(tmp_path):
+    pybullet = pytest.importorskip("pybullet")
+    from stratamap.plugins.exporters.urdf import URDFExporter
+
+    data = PipelineData()
+    data.map.instances = ObjectInstances([articulated_with_helper()])
+    path = URDFExporter(structure=False).run(data, tmp_path)[0]
+    robot = ET.parse(path).getroot()
+    links = {el.get("name") for el in robot.findall("link")}
+    for joint in robot.findall("joint"):
+        assert joint.find("parent").get("link") in links and joint.find("child").get("link") in links
+    assert "chair_1__helper" in links
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(path), useFixedBase=True, physicsClientId=client)
+        count = pybullet.getNumJoints(body, physicsClientId=client)
+        kinds = {pybullet.getJointInfo(body, k, physicsClientId=client)[2] for k in range(count)}
+        assert count == 3  # the floating joint (PyBullet fixes it), the lift and the swivel
+        assert {pybullet.JOINT_PRISMATIC, pybullet.JOINT_REVOLUTE} <= kinds
+    finally:
+        pybullet.disconnect(client)
+
+
+@pytest.mark.parametrize(
+    ("hinge", "edge"), [("left", (0, -1)), ("right", (0, 1)), ("top", (2, 1)), ("bottom", (2, -1))]
+)
+def test_a_door_opens_outwards_about_its_hinge_side(hinge, edge):
+    # A 0.5 x 0.7 door facing -y (its normal), face at y = 0.
+    box = OrientedBox([1.0, 0.01, 1.0], 0.0, [0.5, 0.02, 0.7])
+    door = ObjectInstance(1, "cupboard", np.zeros((4, 3)), box, attributes={"joint": "revolute", "hinge": hinge})
+    kind, frame, axis, lower, upper = front_joint(door)
+    assert kind == "revolute" and lower == 0 and upper > 1.5
+    local = frame[:3, 3] - box.center
+    axis_index, sign = edge
+    assert local[axis_index] == pytest.approx(sign * box.size[axis_index] / 2)
+    assert local[1] == pytest.approx(-0.01)  # on the face
+    # Opening a little swings the door's centre out of the furniture (towards -y).
+    angle = 0.3
+    k = axis / np.linalg.norm(axis)
+    rotation = trimesh.transformations.rotation_matrix(angle, k)[:3, :3]
+    center_in_hinge = box.center - frame[:3, 3]
+    assert (rotation @ center_in_hinge)[1] < center_in_hinge[1] - 0.01
+    drawer = ObjectInstance(2, "drawer", np.zeros((4, 3)), box, attributes={"joint": "prismatic", "hinge": None})
+    kind, frame, axis, lower, upper = front_joint(drawer)
+    assert kind == "prismatic" and np.allclose(frame[:3, :3] @ axis, [0, -1, 0]) and upper > 0

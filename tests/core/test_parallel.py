@@ -1,0 +1,100 @@
+"""core/parallel.py: per-item work in threads or processes gives the serial results in input order;
+the executor choice is a described, validated stage setting; a missing Ray is a one-line ConfigError.
+(Ray itself: tests/integration/test_ray_completion.py.)"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from stratamap.core.config import load_pipeline
+from stratamap.core.errors import ConfigError
+from stratamap.core.parallel import ExecutorConfig, ensure_ray, map_tasks
+from stratamap.plugins.completers.bbox import BBoxCompleter
+from stratamap.plugins.completers.icp_match import ICPMatchCompleter
+from tests.conftest import REPO
+
+
+def scaled_sum(shared: dict, item: np.ndarray) -> tuple[float, int, int]:
+    """A numpy reduction of the item against the shared array, and where it ran."""
+    return float(np.sum(item * shared["weights"])), os.getpid(), id(shared)
+
+
+@pytest.fixture
+def work():
+    rng = np.random.default_rng(0)
+    return {"weights": rng.normal(size=100)}, [rng.normal(size=100) for _ in range(12)]
+
+
+def test_threads_give_the_serial_results_in_input_order(work):
+    shared, items = work
+    mapped = map_tasks(scaled_sum, items, shared, executor="local", workers=3)
+    assert [r[0] for r in mapped.results] == [scaled_sum(shared, i)[0] for i in items]
+    assert len(mapped.seconds) == len(items) and all(s >= 0 for s in mapped.seconds)
+    assert mapped.shipped == {}  # nothing leaves the process
+    assert map_tasks(scaled_sum, [], shared).results == []
+
+
+def test_processes_get_the_shared_state_once_each_and_give_the_same_bytes(work):
+    shared, items = work
+    mapped = map_tasks(scaled_sum, items, shared, executor="processes", workers=2)
+    assert [r[0] for r in mapped.results] == [scaled_sum(shared, i)[0] for i in items]
+    by_process: dict[int, set[int]] = {}
+    for _, pid, shared_id in mapped.results:
+        by_process.setdefault(pid, set()).add(shared_id)
+    assert os.getpid() not in by_process and 1 <= len(by_process) <= 2
+    assert all(len(ids) == 1 for ids in by_process.values())
+
+
+def test_unknown_executor_is_a_config_error(work):
+    shared, items = work
+    with pytest.raises(ConfigError, match="executor: expected 'local', 'processes' or 'ray', got 'dask'"):
+        map_tasks(scaled_sum, items, shared, executor="dask")  # type: ignore[arg-type]
+
+
+def test_missing_ray_is_a_one_line_config_error(monkeypatch, work):
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` meets where Ray is not installed
+    shared, items = work
+    for call in (lambda: map_tasks(scaled_sum, items, shared, executor="ray"), lambda: ensure_ray()):
+        with pytest.raises(ConfigError) as err:
+            call()
+        assert "\n" not in str(err.value) and "pip install 'stratamap[ray]'" in str(err.value)
+
+
+def test_executor_fields_are_described_and_validated_in_pipelines():
+    for field in ExecutorConfig.model_fields.values():
+        assert field.description
+    for completer in (ICPMatchCompleter, BBoxCompleter):
+        assert {"executor", "ray_address"} <= set(completer.Config.model_fields)
+        assert completer(executor="ray", ray_address="auto").config.executor == "ray"
+    demo = REPO / "configs" / "demo.yaml"
+    at = [s["plugin"] for s in yaml.safe_load(demo.read_text())["stages"]].index("bbox")
+    assert load_pipeline(demo, [f"stages[{at}].params.executor=ray"]).stages[at].config.executor == "ray"
+    with pytest.raises(ConfigError, match=rf"stages\[{at}\]\.params\.executor: .*'local' or 'ray'"):
+        load_pipeline(demo, [f"stages[{at}].params.executor=dask"])
+
+
+def test_a_closure_cannot_go_to_ray():
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.map.layers import ObjectInstance
+
+    pts = np.random.default_rng(1).uniform(0, 1, size=(60, 3))
+    inst = ObjectInstance(1, "chair", pts, gravity_aligned_box(pts))
+    local = ICPMatchCompleter()
+    assert local.map_objects([inst], lambda i: len(i.points)) == [(inst, 60)]
+    with pytest.raises(ConfigError, match="executor: icp_match matches objects in a closure"):
+        ICPMatchCompleter(executor="ray").map_objects([inst], lambda i: len(i.points))
+
+
+def test_no_cluster_at_the_address_is_a_one_line_config_error(monkeypatch):
+    ray = pytest.importorskip("ray")
+    if ray.is_initialized():
+        pytest.skip("this process already joined a Ray instance")
+    monkeypatch.setenv("RAY_ADDRESS", "auto")  # what `ray_address: null` falls back to, as Ray's tools do
+    with pytest.raises(ConfigError, match="ray_address: cannot reach a Ray cluster at 'auto'") as err:
+        ensure_ray()
+    assert "\n" not in str(err.value)
