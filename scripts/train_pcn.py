@@ -8,7 +8,7 @@ those benchmark families (never used to choose anything) and written, with the t
 the provenance, into the JSON sidecar beside the ONNX file.
 
     .venv/bin/pip install torch==2.13.0
-    .venv/bin/python scripts/train_pcn.py    # 5 + 29 minutes (data + 500 steps) on 2 shared cores
+    .venv/bin/python scripts/train_pcn.py    # 1-5 + 11-29 minutes (data + 500 steps) on 2 shared cores
     .venv/bin/python scripts/train_pcn.py --out /tmp/pcn.onnx --compare plugins/completers/pcn/models/pcn.json
 """
 

@@ -318,6 +318,12 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
             "metrics": metrics,
             "details": details,
             "warnings": data.warnings,
+            # What each learned model was trained on and what it never saw, so the results say it.
+            "networks": {
+                stage: facts["network"]
+                for stage, facts in data.notes.items()
+                if isinstance(facts, dict) and isinstance(facts.get("network"), dict)
+            },
         }
         write_run_report(data, record, stages, pipe.validated.origin, pipe.out_dir)
         write_json(record_path(out, scene["name"], v), record)

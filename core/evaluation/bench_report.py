@@ -151,6 +151,23 @@ def summary_lines(results: dict[str, Any], spec: Any, variants: list[str]) -> li
     )
     if results.get("skipped"):
         lines.append("Skipped: " + "; ".join(results["skipped"]))
+    lines += network_lines(records, variants)
+    return lines
+
+
+def network_lines(records: list[dict[str, Any]], variants: list[str]) -> list[str]:
+    """One paragraph per learned model a variant ran: its file, the families it was trained on and
+    those it never saw (from the model's provenance)."""
+    lines = []
+    for variant in variants:
+        networks = next((r.get("networks") for r in records if r["variant"] == variant and r.get("networks")), {})
+        for stage, facts in sorted(networks.items()):
+            text = f"Variant `{variant}`, stage `{stage}`: network `{facts.get('model', '?')}`"
+            if facts.get("trained_on"):
+                text += ", trained on the families " + ", ".join(f"`{f}`" for f in facts["trained_on"])
+            if facts.get("held_out"):
+                text += f". Held out: {facts['held_out']}"
+            lines.append(text.rstrip(".") + ".")
     return lines
 
 

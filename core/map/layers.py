@@ -212,6 +212,9 @@ class Completion:
 
     ``mesh`` is the whole model in the *object frame*; ``pose`` maps the object frame (origin at the
     bottom center of the model, +z up) into the world; ``scale`` has already been applied to ``mesh``.
+    ``alternatives`` are the completer's next-best candidates for the same object, best first, each
+    posed as it would be chosen (the physical check swaps to one that removes a conflict); they live
+    in memory only: saved maps keep the chosen model.
     """
 
     mesh: trimesh.Trimesh
@@ -222,6 +225,7 @@ class Completion:
     score: float = 0.0
     parts: list[Part] = field(default_factory=list)
     joints: list[Joint] = field(default_factory=list)
+    alternatives: list[Completion] = field(default_factory=list, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.pose = np.asarray(self.pose, dtype=np.float64).reshape(4, 4)

@@ -10,6 +10,9 @@ test here works on those same convex shells, as half-space sets ``A x + b <= 0``
   surface of its supporter, then, if it overlaps an object placed before it, moved to the nearest
   horizontal offset without conflict (or with the least penetration if none is free within reach).
   A moved object carries what it supports along.
+* :func:`min_conflict` chooses one of each object's placements (a completer's candidates) so that
+  no two chosen meshes interpenetrate, independently of object ids; the completers and the physical
+  check share it.
 * :func:`penetration_volume` is the exact overlap volume of the scene's shells, pair by pair.
 * :func:`settle` drops the exported MJCF into MuJoCo and reports how far free bodies move.
 """
@@ -193,6 +196,81 @@ def _conflicts(mine: list[Shell], others: list[Shell], shifts: np.ndarray) -> np
                 continue
             total += np.maximum(penetration_depths(s, o, shifts) - CONTACT_TOLERANCE, 0.0)
     return total
+
+
+@dataclass
+class Placement:
+    """One way to place an object in the min-conflict search: its convex shells (world frame), what
+    choosing it gives up (an alignment error, metres: lower is better), a label ordering equal ones
+    (never an object id), and what it stands for (a completer's candidate, a completion)."""
+
+    shells: list[Shell]
+    cost: float = 0.0
+    label: tuple = ()
+    item: Any = None
+
+
+def shells_penetration(a: list[Shell], b: list[Shell], tolerance: float) -> float:
+    """Summed penetration depth (m) beyond ``tolerance`` between two sets of convex shells (the mesh
+    pieces a simulator collides): a chair pushed under a table whose meshes do not touch is 0."""
+    total = 0.0
+    for s in a:
+        for o in b:
+            if np.any(o.lo > s.hi + tolerance) or np.any(o.hi < s.lo - tolerance):
+                continue
+            total += max(float(penetration_depths(s, o, np.zeros((1, 3)))[0]) - tolerance, 0.0)
+    return total
+
+
+def min_conflict(options: dict[int, list[Placement]], tolerance: float, iterations: int = 200) -> dict[int, Placement]:
+    """One placement per object (each object's first to start) so that no two chosen ones
+    interpenetrate (functional-scenes paper, section 4.4). Every step tries every placement of every
+    conflicted object and makes the move that removes the most penetration (ties: the least cost
+    given up, then the label), until no conflict is left or no move helps. No step looks at object
+    ids, so the result is the same whatever ids the objects carry. An object with one placement (an
+    observation) is an obstacle that never changes."""
+    ids = [i for i, c in options.items() if c]
+    choice = {i: options[i][0] for i in ids}
+    cache: dict[tuple[int, int], float] = {}
+
+    def pen(a: Placement, b: Placement) -> float:
+        key = (id(a), id(b)) if id(a) < id(b) else (id(b), id(a))
+        if key not in cache:
+            cache[key] = shells_penetration(a.shells, b.shells, tolerance)
+        return cache[key]
+
+    def conflict(i: int, cand: Placement) -> float:
+        return float(sum(sorted(pen(cand, choice[j]) for j in ids if j != i)))
+
+    for _ in range(iterations):
+        best_key, best_move = None, None
+        for i in ids:
+            now = conflict(i, choice[i])
+            if now <= 0.0:
+                continue
+            for cand in options[i]:
+                if cand is choice[i]:
+                    continue
+                gain = round(now - conflict(i, cand), 9)
+                if gain <= 0.0:
+                    continue
+                key = (-gain, round(cand.cost - choice[i].cost, 9), cand.cost, cand.label)
+                if best_key is None or key < best_key:
+                    best_key, best_move = key, (i, cand)
+        if best_move is None:
+            break
+        choice[best_move[0]] = best_move[1]
+    return choice
+
+
+def conflicted(choice: dict[int, Placement], tolerance: float) -> list[int]:
+    """The objects whose chosen placement still penetrates another's beyond ``tolerance``."""
+    ids = sorted(choice)
+    return [
+        i
+        for i in ids
+        if any(j != i and shells_penetration(choice[i].shells, choice[j].shells, tolerance) > 0 for j in ids)
+    ]
 
 
 @dataclass

@@ -1,8 +1,6 @@
 """Shared machinery of model-matching completers: the library, per-object matching in parallel,
-posing a library model (with its articulation) in the world, and the augmented scene.
-
-The augmented scene (augmented-representations paper, section IV-B3) is A = (G \\ S) U O: S are
-the points of the geometry G within ``epsilon`` of a completed model, O the completed models.
+posing a library model (with its articulation) in the world, the ranked alternatives kept beside
+the chosen model, and the augmented scene (built by :mod:`stratamap.core.map.augmented`).
 """
 
 from __future__ import annotations
@@ -24,8 +22,9 @@ from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
 from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
+from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.instances import plausible
-from stratamap.core.map.layers import Completion, Geometry, Joint, ObjectInstance, ObjectInstances, Part
+from stratamap.core.map.layers import Completion, Joint, ObjectInstance, ObjectInstances, Part
 from stratamap.core.map.priors import plausible_heights
 from stratamap.core.parallel import ExecutorConfig, map_tasks
 from stratamap.core.stages import Completer, PipelineData, StageConfig
@@ -117,6 +116,15 @@ class MatcherConfig(StageConfig, ExecutorConfig):
         lt=1.0,
         description="Share of observed points allowed beyond reject_distance from a completion's surface.",
     )
+    alternatives: int = Field(
+        default=2,
+        ge=0,
+        le=10,
+        description=(
+            "Next-best candidates kept per object beside the chosen model, posed and checked against the observed "
+            "points like it (in memory, not saved): the physical check swaps to one that removes a conflict."
+        ),
+    )
 
 
 @dataclass
@@ -127,6 +135,7 @@ class Match:
     scale: float | np.ndarray  # uniform, or (sx, sy, sz) along the model's own axes
     score: float
     details: dict[str, Any]
+    alternatives: list[Match] = field(default_factory=list)  # next-best matches, best first
 
 
 def default_cache_dir(configured: str | None) -> Path:
@@ -291,51 +300,6 @@ def posed_completion(model: LibraryModel, match: Match, completer: str) -> Compl
         parts=parts,
         joints=joints,
     )
-
-
-def augmented_scene(
-    geometry: Geometry | None, instances: ObjectInstances, epsilon: float, spacing: float
-) -> Geometry | None:
-    """A = (G \\ S) U O: observed points near completed models are replaced by the models."""
-    completed = instances.completed()
-    if geometry is None:
-        return None
-    if not completed:
-        return Geometry(
-            points=geometry.points.copy(),
-            colors=None if geometry.colors is None else geometry.colors.copy(),
-            mesh=geometry.mesh,
-        )
-    scene = o3d.t.geometry.RaycastingScene()
-    model_pts, model_cols = [], []
-    meshes = []
-    for inst in completed:
-        world = inst.completion.world_mesh()  # type: ignore[union-attr]
-        meshes.append(world)
-        scene.add_triangles(o3c.Tensor(world.vertices.astype(np.float32)), o3c.Tensor(world.faces.astype(np.uint32)))
-        count = int(np.clip(world.area / spacing**2, 64, 20000))
-        pts, _ = trimesh.sample.sample_surface(world, count, seed=inst.id)
-        model_pts.append(pts)
-        color = (
-            np.mean(inst.colors, axis=0) if inst.colors is not None and len(inst.colors) else np.array([0.6, 0.6, 0.6])
-        )
-        model_cols.append(np.tile(color, (len(pts), 1)))
-    dist = scene.compute_distance(o3c.Tensor(geometry.points.astype(np.float32))).numpy()
-    keep = dist > epsilon
-    points = np.vstack([geometry.points[keep], *model_pts])
-    colors = None
-    if geometry.colors is not None:
-        colors = np.vstack([geometry.colors[keep], *model_cols])
-    mesh = None
-    if geometry.mesh is not None:
-        g = geometry.mesh
-        vd = scene.compute_distance(o3c.Tensor(np.asarray(g.vertices, dtype=np.float32))).numpy()
-        face_keep = (vd[g.faces] > epsilon).all(axis=1)
-        kept = g.copy()
-        kept.update_faces(face_keep)
-        kept.remove_unreferenced_vertices()
-        mesh = trimesh.util.concatenate([kept, *meshes])
-    return Geometry(points=points, colors=colors, mesh=mesh, voxel_size=geometry.voxel_size)
 
 
 MatcherConfigT = TypeVar("MatcherConfigT", bound=MatcherConfig)
@@ -532,8 +496,21 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             if reason is not None:
                 self.reject(inst, reason)
                 continue
+            completion.alternatives = self.alternative_completions(inst, match, index)
             inst.completion = completion
         return self.finish(insts, data, len(todo))
+
+    def alternative_completions(self, inst: ObjectInstance, match: Match, index: ModelIndex) -> list[Completion]:
+        """The match's next-best models posed like it, those the observed points reject left out, at most
+        ``alternatives`` of them, best first."""
+        out: list[Completion] = []
+        for alt in match.alternatives:
+            if len(out) >= self.config.alternatives:
+                break
+            completion = posed_completion(index.library.get(alt.model_id), alt, self.name)
+            if rejection_reason(inst, completion, self.config) is None:
+                out.append(completion)
+        return out
 
     def reject(self, inst: ObjectInstance, reason: str) -> None:
         """Leave ``inst`` as observed, with the reason in its attributes and the run's warnings."""

@@ -15,7 +15,9 @@ For each object of a class the library has:
    model parts cost nothing) plus a coverage term (how far the observation sticks out of the
    model's extent, so a tiny model cannot win by sitting inside the observation);
 5. search the best model's width and depth scale per axis around its height scale (pose kept) and
-   place it in the world; the scale used is in the match details and the report (``scales``).
+   place it in the world; the scale used is in the match details and the report (``scales``). The
+   next ``alternatives`` models by score are placed the same way and kept beside it, for the
+   physical check to swap to.
 """
 
 from __future__ import annotations
@@ -160,6 +162,7 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
         yaw, t, _ = icp_yaw(obs, ref, float(yaws[best_yaw]), shifts[best_yaw], s_ref, cfg.icp_iterations)
 
         best: Match | None = None
+        scored: list[Match] = []
         for mid in cands:
             m = index.models[mid]
             s = scale_for(m)
@@ -171,18 +174,24 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
             out_xy = np.maximum(np.percentile(np.abs(q[:, :2]), 98, axis=0) - half, 0).sum()
             out_z = max(float(np.percentile(q[:, 2], 98)) - m.size[2] * s, 0.0)
             score = fit + cfg.coverage_weight * float(out_xy + out_z)
+            candidate = Match(
+                mid,
+                y,
+                base + np.append(tt, 0.0),
+                s,
+                score,
+                {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)},
+            )
+            scored.append(candidate)
             if best is None or score < best.score - 1e-12:
-                best = Match(
-                    mid,
-                    y,
-                    base + np.append(tt, 0.0),
-                    s,
-                    score,
-                    {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)},
-                )
-        if best is not None:
-            best = self.fit_footprint(obs, base, index.models[best.model_id], best)
-        return best
+                best = candidate
+        if best is None:
+            return None
+        # The next-best models (shortlist order breaks ties), each with its own footprint scale.
+        others = sorted((m for m in scored if m is not best), key=lambda m: m.score)[: cfg.alternatives]
+        chosen = self.fit_footprint(obs, base, index.models[best.model_id], best)
+        chosen.alternatives = [self.fit_footprint(obs, base, index.models[m.model_id], m) for m in others]
+        return chosen
 
     def fit_footprint(self, obs: np.ndarray, base: np.ndarray, m: IndexedModel, best: Match) -> Match:
         """Search width and depth scale per axis around the height scale (pose kept); the scale used

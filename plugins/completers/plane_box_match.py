@@ -21,7 +21,9 @@ disagree with the observed points (see ``rejection_reason``), penetrate the layo
 wall points inside the model) or cannot support their children (support area ratio below b_th,
 eq. 2) are discarded; the min-conflict algorithm then chooses one candidate per object so that no
 two chosen models' meshes interpenetrate, trying every conflicted object's candidates and
-preferring low AE, independently of object ids (:func:`min_conflict`).
+preferring low AE, independently of object ids (``core/simulation/physics.py``'s :func:`min_conflict`).
+The candidates left beside the chosen one are kept on its completion (``alternatives``, best
+first) for the physical check.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from stratamap.core.geometry.points import ransac_plane
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 from stratamap.core.map.layers import Completion, ObjectInstance, OrientedBox
-from stratamap.core.simulation.physics import Shell, mesh_shells, penetration_depths
+from stratamap.core.simulation.physics import Placement, Shell, conflicted, mesh_shells, min_conflict
 from stratamap.plugins.completers._matching import (
     Match,
     MatcherConfig,
@@ -295,16 +297,19 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
             inside = [c for c in seen_ok if c.layout_depth <= 0.0]
             options[inst.id] = inside or sorted(seen_ok, key=lambda c: c.layout_depth)[:1]
         self._support_check(options, data, cfg)
-        choice = min_conflict(options, cfg.penetration_tolerance, cfg.min_conflict_iterations)
-        tol = cfg.penetration_tolerance
-        left = sorted({i for i in choice for j in choice if i != j and pair_penetration(choice[i], choice[j], tol) > 0})
+        placements = {i: [placement(c) for c in cands] for i, cands in options.items()}
+        choice = min_conflict(placements, cfg.penetration_tolerance, cfg.min_conflict_iterations)
+        left = conflicted(choice, cfg.penetration_tolerance)
         if left:
             self.warn(f"completed models still interpenetrating after the min-conflict search: {left}")
         for inst, _ in results:
-            cnd = choice.get(inst.id)
-            if cnd is None:
+            if inst.id not in choice:
                 continue
+            cnd: Candidate = choice[inst.id].item
             inst.completion = cnd.completion
+            # The other candidates that passed every check, best first: the physical check may swap to one.
+            others = [c for c in options[inst.id] if c is not cnd][: cfg.alternatives]
+            inst.completion.alternatives = [c.completion for c in others]  # type: ignore[union-attr,misc]
             inst.attributes["match"].update({"me": cnd.me, "ae": cnd.ae, "layout_penetration_m": cnd.layout_depth})
         return self.finish(insts, data, len(todo))
 
@@ -410,56 +415,9 @@ class Layout:
         return max(depth - tolerance, 0.0)
 
 
-def pair_penetration(a: Candidate, b: Candidate, tolerance: float) -> float:
-    """Summed penetration depth (m) beyond ``tolerance`` between two candidates' convex shells (the
-    mesh pieces a simulator collides): a chair pushed under a table whose meshes do not touch is 0."""
-    total = 0.0
-    for s in a.shells or []:
-        for o in b.shells or []:
-            if np.any(o.lo > s.hi + tolerance) or np.any(o.hi < s.lo - tolerance):
-                continue
-            total += max(float(penetration_depths(s, o, np.zeros((1, 3)))[0]) - tolerance, 0.0)
-    return total
-
-
-def min_conflict(options: dict[int, list[Candidate]], tolerance: float, iterations: int = 200) -> dict[int, Candidate]:
-    """One candidate per object (each object's best first) so that no two chosen models interpenetrate
-    (functional-scenes paper, section 4.4). Every step tries every candidate of every conflicted
-    object and makes the move that removes the most penetration (ties: the least alignment error
-    given up), until no conflict is left or no move helps. No step looks at object ids, so the
-    result is the same whatever ids the objects carry."""
-    ids = [i for i, c in options.items() if c]
-    choice = {i: options[i][0] for i in ids}
-    cache: dict[tuple[int, int], float] = {}
-
-    def pen(a: Candidate, b: Candidate) -> float:
-        key = (id(a), id(b)) if id(a) < id(b) else (id(b), id(a))
-        if key not in cache:
-            cache[key] = pair_penetration(a, b, tolerance)
-        return cache[key]
-
-    def conflict(i: int, cand: Candidate) -> float:
-        return float(sum(sorted(pen(cand, choice[j]) for j in ids if j != i)))
-
-    for _ in range(iterations):
-        best_key, best_move = None, None
-        for i in ids:
-            now = conflict(i, choice[i])
-            if now <= 0.0:
-                continue
-            for cand in options[i]:
-                if cand is choice[i]:
-                    continue
-                gain = round(now - conflict(i, cand), 9)
-                if gain <= 0.0:
-                    continue
-                key = (-gain, round(cand.ae - choice[i].ae, 9), cand.ae, cand.model_id, cand.orientation)
-                if best_key is None or key < best_key:
-                    best_key, best_move = key, (i, cand)
-        if best_move is None:
-            break
-        choice[best_move[0]] = best_move[1]
-    return choice
+def placement(cnd: Candidate) -> Placement:
+    """A candidate for the min-conflict search: shells, alignment error, ties broken by model and orientation."""
+    return Placement(cnd.shells or [], cnd.ae, (cnd.model_id, cnd.orientation), cnd)
 
 
 @hookimpl

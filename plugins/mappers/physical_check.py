@@ -1,18 +1,23 @@
 """Mapper ``physical_check``: make the completed scene physically plausible before export.
 
-The functional-scenes paper checks the matched CAD models for physical conflicts; here every
-object is rested on the surface of its supporter from the contact graph, and an object that
-overlaps one placed before it moves to the nearest horizontal offset without overlap (the
-min-conflict choice; the least overlapping one when none is free within ``max_shift``). A move
-that takes a model away from what was observed of it is undone (the observations are evidence;
-the overlap is reported instead). The contact graph is updated after: a moved object's surface
-moves with it, and completed nodes get the box of their model as placed. What moved, what was
-undone, and any overlap left go into the run's notes.
+The functional-scenes paper (section 4.4) checks the matched CAD models for physical conflicts. Here,
+before anything moves, the min-conflict search (``core/simulation/physics.py``) chooses among each
+completed object's candidates (the chosen model and the ranked ``alternatives`` a matching completer
+kept) so that no two meshes interpenetrate, whatever ids the objects carry; uncompleted objects are
+observations, obstacles that never change. Then every object is rested on the surface of its
+supporter from the contact graph, and an object that still overlaps one placed before it moves to
+the nearest horizontal offset without overlap (the least overlapping one when none is free within
+``max_shift``). A move that takes a model away from what was observed of it is undone (the
+observations are evidence; the overlap is reported instead). The contact graph and the augmented
+layer are updated after: a moved or swapped object's surface moves with it, completed nodes get the
+box of their model as placed, and the augmented scene is rebuilt from the models where they now are.
+What was swapped, moved or undone, and any overlap left, go into the run's notes.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -21,8 +26,16 @@ from pydantic import Field
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.geometry.transforms import yaw_of
 from stratamap.core.lazy import lazy_module
+from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.layers import ContactGraph, ObjectInstances, OrientedBox
-from stratamap.core.simulation.physics import resolve_scene
+from stratamap.core.simulation.physics import (
+    CONTACT_TOLERANCE,
+    Placement,
+    mesh_shells,
+    min_conflict,
+    resolve_scene,
+    world_mesh,
+)
 from stratamap.plugins.mappers._floor import floor_height
 
 o3d = lazy_module("open3d")
@@ -50,35 +63,61 @@ class PhysicalCheckConfig(StageConfig):
     observed_share: float = Field(
         default=0.1, gt=0.0, lt=1.0, description="Share of observed points allowed beyond observed_distance."
     )
+    swap: bool = Field(
+        default=True,
+        description=(
+            "Before moving anything, choose among each completed object's candidates (the alternatives a matching "
+            "completer kept) so that no two models interpenetrate (min-conflict); false: keep every chosen model."
+        ),
+    )
+    swap_iterations: int = Field(
+        default=200, ge=1, description="Iterations of the min-conflict search among candidates."
+    )
+    epsilon: float = Field(
+        default=0.1,
+        gt=0.0,
+        description=(
+            "Augmented scene rebuilt after a move or swap: observed points this close to a completed model are "
+            "replaced, metres (the matching completers' epsilon)."
+        ),
+    )
+    sample_spacing: float = Field(
+        default=0.02,
+        gt=0.0,
+        description="Surface sampling spacing of models in the rebuilt augmented scene, metres (the completers').",
+    )
 
 
 class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
-    """Rests objects on their supporters and moves overlapping ones apart (min-conflict)."""
+    """Chooses among candidates (min-conflict), rests objects on their supporters and moves overlapping ones apart."""
 
     name = "physical_check"
     Config = PhysicalCheckConfig
     requires = frozenset({"instances"})
-    optional = frozenset({"contact_graph"})
-    provides = frozenset({"instances", "contact_graph"})
+    optional = frozenset({"contact_graph", "geometry", "augmented"})
+    provides = frozenset({"instances", "contact_graph", "augmented"})
 
     def map(self, data: PipelineData) -> dict[str, Any]:
         cfg = self.config
         before: ObjectInstances = data.map.instances  # type: ignore[assignment]
         instances = before.copy()
+        swapped = self._swap(instances) if cfg.swap else {}
+        chosen = instances.copy()  # the models chosen, before anything moves: moves are measured from here
         floor_z = floor_height(data)
         result = resolve_scene(
             instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance
         )
-        undone = self._undo_contradicted_moves(before, instances)
+        undone = self._undo_contradicted_moves(chosen, instances)
         shifts = {
-            inst.id: inst.completion.pose[:3, 3] - before[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
+            inst.id: inst.completion.pose[:3, 3] - chosen[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
             for inst in instances
-            if inst.completion is not None and inst.id in before and before[inst.id].completion is not None
+            if inst.completion is not None and inst.id in chosen and chosen[inst.id].completion is not None
         }
         moved = {k: v for k, v in shifts.items() if np.linalg.norm(v) > 1e-4}
         summary = result.to_dict()
         summary.update(
             {
+                "swapped": sorted(swapped),
                 "moved": len(moved),
                 "max_shift_m": max((float(np.linalg.norm(v)) for v in moved.values()), default=0.0),
                 "undone": undone,
@@ -91,8 +130,44 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             self.warn(f"objects still overlapping after the physical check: {summary['unresolved']}")
         out: dict[str, Any] = {"instances": instances}
         if data.map.contact_graph is not None:
-            out["contact_graph"] = updated_graph(data.map.contact_graph, instances, moved)
+            out["contact_graph"] = updated_graph(data.map.contact_graph, instances, moved, set(swapped))
+        if (swapped or moved) and data.map.augmented is not None and data.map.geometry is not None:
+            # The augmented scene of the models where they now are (a completer built it where they were).
+            out["augmented"] = augmented_scene(data.map.geometry, instances, cfg.epsilon, cfg.sample_spacing)
         return out
+
+    def _swap(self, instances: ObjectInstances) -> dict[int, tuple[str | None, str | None]]:
+        """Min-conflict choice among every completed object's candidates, in place, before anything
+        moves (conflicts are mesh penetrations beyond contact; uncompleted objects are fixed
+        obstacles). Returns ``{id: (model before, model after)}`` for the objects that changed."""
+        if not any(inst.completion is not None and inst.completion.alternatives for inst in instances):
+            return {}
+        options: dict[int, list[Placement]] = {}
+        for inst in instances:
+            c = inst.completion
+            if c is None:
+                options[inst.id] = [Placement(mesh_shells(world_mesh(inst)), 0.0, ("observed",))]
+                continue
+            ranked = [c, *c.alternatives]
+            options[inst.id] = [
+                Placement(mesh_shells(alt.world_mesh()), float(alt.score), (alt.model_id or "", rank), alt)
+                for rank, alt in enumerate(ranked)
+            ]
+        choice = min_conflict(options, CONTACT_TOLERANCE, self.config.swap_iterations)
+        swapped: dict[int, tuple[str | None, str | None]] = {}
+        for inst in instances:
+            old = inst.completion
+            new = choice[inst.id].item if inst.id in choice else old
+            if old is None or new is old:
+                continue
+            # The model given up becomes an alternative in turn (ranked where the completer put it).
+            rest = [alt for alt in [old, *old.alternatives] if alt is not new]
+            inst.completion = dataclasses.replace(
+                new, alternatives=[dataclasses.replace(a, alternatives=[]) for a in rest]
+            )
+            inst.attributes["physical_check"] = {"swapped_from": old.model_id, "swapped_to": new.model_id}
+            swapped[inst.id] = (old.model_id, new.model_id)
+        return swapped
 
     def _undo_contradicted_moves(self, before: ObjectInstances, after: ObjectInstances) -> list[int]:
         """Put back every completed object whose move leaves its model disagreeing with what was
@@ -116,14 +191,24 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
         return undone
 
 
-def updated_graph(graph: ContactGraph, instances: ObjectInstances, moved: dict[int, np.ndarray]) -> ContactGraph:
+def updated_graph(
+    graph: ContactGraph, instances: ObjectInstances, moved: dict[int, np.ndarray], swapped: set[int] | None = None
+) -> ContactGraph:
     """The contact graph after the check: the surface a moved object offers its children moves
-    with it, and every completed object's node carries the box of its model as placed
-    (``box_completed``, in the object's yaw)."""
+    with it, a swapped object's surface is the new model's top under each child, and every completed
+    object's node carries the box of its model as placed (``box_completed``, in the object's yaw)."""
     graph = copy.deepcopy(graph)
-    for parent, _child, edge in graph.support.edges(data=True):
+    swapped = swapped or set()
+    for parent, child, edge in graph.support.edges(data=True):
         plane = edge.get("plane")
-        if plane is not None and parent in moved:
+        if plane is None:
+            continue
+        if parent in swapped and abs(plane[2]) > 0.9 and child in instances:
+            top = swapped_surface(instances[parent], instances[child])
+            if top is not None:
+                edge["plane"] = [0.0, 0.0, 1.0, -top]
+                continue
+        if parent in moved:
             a, b, c, d = plane
             t = moved[parent]
             edge["plane"] = [a, b, c, float(d - (a * t[0] + b * t[1] + c * t[2]))]
@@ -139,6 +224,14 @@ def updated_graph(graph: ContactGraph, instances: ObjectInstances, moved: dict[i
         center = np.array([c * mid[0] - s * mid[1], s * mid[0] + c * mid[1], mid[2]])
         graph.support.nodes[inst.id]["box_completed"] = OrientedBox(center, yaw, hi - lo).to_dict()
     return graph
+
+
+def swapped_surface(parent: Any, child: Any) -> float | None:
+    """Height of the parent's model top under the child's footprint centre (None where it has none)."""
+    xy = np.asarray(child.box.center[:2], dtype=float).reshape(1, 2)
+    tops = [float(s.top_at(xy)[0]) for s in mesh_shells(world_mesh(parent))]
+    tops = [t for t in tops if np.isfinite(t)]
+    return max(tops) if tops else None
 
 
 def observed_share_beyond(points: np.ndarray, mesh: Any, distance: float) -> float:

@@ -27,8 +27,9 @@ from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import ConfigError, DataError
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.lazy import lazy_module
+from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.layers import Completion, ObjectInstance
-from stratamap.plugins.completers._matching import augmented_scene, object_base
+from stratamap.plugins.completers._matching import object_base
 from stratamap.plugins.completers.pcn.data import (
     CLASSES,
     DENSE_POINTS,

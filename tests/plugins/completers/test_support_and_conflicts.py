@@ -11,7 +11,7 @@ import trimesh
 from stratamap.core.geometry.boxes import box_iou_3d, gravity_aligned_box
 from stratamap.core.library.models import LibraryModel, LibraryPart
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, OrientedBox
-from stratamap.core.simulation.physics import mesh_shells
+from stratamap.core.simulation.physics import Placement, mesh_shells, min_conflict, shells_penetration
 from stratamap.core.stages import PipelineData
 from stratamap.plugins.completers._matching import (
     Match,
@@ -21,7 +21,11 @@ from stratamap.plugins.completers._matching import (
     rejection_reason,
 )
 from stratamap.plugins.completers.icp_match import ICPMatchCompleter
-from stratamap.plugins.completers.plane_box_match import Candidate, Layout, min_conflict, pair_penetration
+from stratamap.plugins.completers.plane_box_match import Candidate, Layout, placement
+
+
+def pair_penetration(a: Placement, b: Placement, tolerance: float) -> float:
+    return shells_penetration(a.shells, b.shells, tolerance)
 
 
 def boxes(*specs: tuple[tuple[float, float, float], tuple[float, float, float]]) -> trimesh.Trimesh:
@@ -41,20 +45,21 @@ def chair_mesh() -> trimesh.Trimesh:
     return boxes(((0.45, 0.45, 0.04), (0.0, 0.0, 0.46)), ((0.45, 0.04, 0.2), (0.0, 0.22, 0.58)), *legs)
 
 
-def candidate(mesh: trimesh.Trimesh, xy: tuple[float, float], ae: float, name: str) -> Candidate:
+def candidate(mesh: trimesh.Trimesh, xy: tuple[float, float], ae: float, name: str) -> Placement:
+    """A plane_box_match candidate as its min-conflict search sees it (``item``: the candidate)."""
     world = mesh.copy()
     world.apply_translation([xy[0], xy[1], 0.0])
     lo, hi = world.bounds
     cnd = Candidate(name, 0, 0.0, 0.0, 1.0, np.array([*(lo[:2] + hi[:2]) / 2, 0.0]), ae, hi - lo)
     cnd.shells = mesh_shells(world)
-    return cnd
+    return placement(cnd)
 
 
 def test_a_chair_pushed_under_a_table_whose_meshes_do_not_touch_is_no_conflict():
     table = candidate(table_mesh(), (0.0, 0.0), 0.01, "table")
     chair = candidate(chair_mesh(), (0.0, -0.2), 0.01, "chair")  # seat and back under the tabletop
-    box_a = OrientedBox(table.translation + [0, 0, table.size[2] / 2], 0.0, table.size)
-    box_b = OrientedBox(chair.translation + [0, 0, chair.size[2] / 2], 0.0, chair.size)
+    box_a = OrientedBox(table.item.translation + [0, 0, table.item.size[2] / 2], 0.0, table.item.size)
+    box_b = OrientedBox(chair.item.translation + [0, 0, chair.item.size[2] / 2], 0.0, chair.item.size)
     assert box_iou_3d(box_a, box_b) > 0.05  # what the box test called a conflict
     assert pair_penetration(table, chair, 0.02) == 0.0
     choice = min_conflict({1: [table], 2: [chair]}, 0.02)
@@ -64,7 +69,7 @@ def test_a_chair_pushed_under_a_table_whose_meshes_do_not_touch_is_no_conflict()
     assert pair_penetration(table, sunk, 0.02) > 0.0
 
 
-def scene_options(ids: list[int]) -> dict[int, list[Candidate]]:
+def scene_options(ids: list[int]) -> dict[int, list[Placement]]:
     """Three objects: the first has one candidate, which the second's best candidate penetrates; the
     second has a free alternative; the third stands alone. Repairing the first conflicted object
     only (by id) would leave the conflict whenever the first object has the lower id."""
@@ -81,7 +86,7 @@ def scene_options(ids: list[int]) -> dict[int, list[Candidate]]:
 def test_min_conflict_is_the_same_for_any_order_of_object_ids(ids):
     options = scene_options(ids)
     choice = min_conflict(options, 0.02)
-    chosen = [choice[i].model_id for i in ids]
+    chosen = [choice[i].item.model_id for i in ids]
     assert chosen == ["fixed", "beside", "alone"]
     assert all(pair_penetration(choice[i], choice[j], 0.02) == 0.0 for i in ids for j in ids if i != j)
 
@@ -160,3 +165,31 @@ def test_icp_match_keeps_what_was_seen_when_no_model_agrees(tmp_path):
     out = ICPMatchCompleter(library=str(tmp_path)).run(data)
     inst = out["instances"][1]
     assert inst.completion is None and "observed points" in inst.attributes["completion_rejected"]
+
+
+def test_matching_completers_keep_ranked_alternatives_in_memory_not_in_the_map(tmp_path):
+    """Both matching completers keep the next-best models beside the chosen one, posed where the
+    observation is and agreeing with it; a saved map keeps the chosen model only, and loads."""
+    from stratamap.core.map.layers import LayeredMap
+    from stratamap.plugins.completers.plane_box_match import PlaneBoxMatchCompleter
+
+    library = tmp_path / "library"
+    library.mkdir()
+    for name, width in (("a", 1.4), ("b", 1.3), ("c", 1.2)):
+        boxes(((width, 0.5, 0.6), (0, 0, 0.3))).export(library / f"{name}.stl")
+    (library / "classes.csv").write_text("file,class\na.stl,cabinet\nb.stl,cabinet\nc.stl,cabinet\n")
+    seen = surface_points(boxes(((1.35, 0.5, 0.6), (1.0, 1.0, 0.3))), (0, 0, 0), n=1500)
+    seen = seen[seen[:, 2] > 0.01]
+    for completer in (ICPMatchCompleter(library=str(library)), PlaneBoxMatchCompleter(library=str(library))):
+        data = PipelineData()
+        data.map.instances = ObjectInstances([ObjectInstance(1, "cabinet", seen, gravity_aligned_box(seen))])
+        completion = completer.run(data)["instances"][1].completion
+        assert completion is not None and 1 <= len(completion.alternatives) <= MatcherConfig().alternatives
+        for alt in completion.alternatives:
+            assert alt.completer == completer.name
+            assert np.linalg.norm(alt.pose[:2, 3] - completion.pose[:2, 3]) < 0.1  # posed where it was seen
+            assert alt.model_id != completion.model_id or completer.name == "plane_box_match"
+        saved = LayeredMap(instances=ObjectInstances([data.map.instances[1]]))
+        saved.instances[1].completion = completion
+        loaded = LayeredMap.load(saved.save(tmp_path / completer.name)).instances[1].completion
+        assert loaded.model_id == completion.model_id and loaded.alternatives == []

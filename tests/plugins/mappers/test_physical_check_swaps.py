@@ -1,0 +1,136 @@
+"""The physical check chooses among each object's candidates before it moves anything (functional-scenes
+paper, section 4.4): a conflict that a completer's next-best model removes is resolved by swapping,
+not sliding, whatever ids the objects carry; and the augmented layer follows what it moved."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+
+from stratamap.core.geometry.boxes import gravity_aligned_box
+from stratamap.core.map.augmented import augmented_scene
+from stratamap.core.map.layers import Completion, ContactGraph, Geometry, ObjectInstance, ObjectInstances, Semantics
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.stages import PipelineData
+from stratamap.plugins.mappers.physical_check import PhysicalCheckMapper
+
+WIDE = (0.6, 0.6, 0.8)
+NARROW = (0.3, 0.6, 0.8)
+
+
+def block(extents: tuple[float, float, float]) -> trimesh.Trimesh:
+    """A box in its object frame: origin at its bottom centre."""
+    return trimesh.creation.box(
+        extents=extents, transform=trimesh.transformations.translation_matrix((0, 0, extents[2] / 2))
+    )
+
+
+def completion(extents: tuple[float, float, float], x: float, model_id: str, score: float) -> Completion:
+    pose = np.eye(4)
+    pose[0, 3] = x
+    return Completion(block(extents), pose, "test", model_id=model_id, score=score)
+
+
+def observed(extents: tuple[float, float, float], x: float) -> np.ndarray:
+    pts = trimesh.sample.sample_surface_even(block(extents), 1500, seed=0)[0] + np.array([x, 0.0, 0.0])
+    return pts[pts[:, 2] > 0.01]
+
+
+def scene(objects: list[tuple[int, np.ndarray, Completion]]) -> PipelineData:
+    """A floor (labelled points at z = 0) and the given (id, observed points, completion) objects, all
+    standing on it in the contact graph."""
+    vocab = Vocabulary.default()
+    grid = np.linspace(-2, 2, 81)
+    floor = np.stack(np.meshgrid(grid, grid, [0.0]), -1).reshape(-1, 3)
+    points = np.concatenate([floor, *(p for _, p, _ in objects)])
+    classes = np.concatenate(
+        [np.full(len(floor), vocab.id("floor")), *(np.full(len(p), vocab.id("cabinet")) for _, p, _ in objects)]
+    )
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points)
+    data.map.semantics = Semantics(classes.astype(np.int32), np.zeros(len(points), np.int32), vocab)
+    insts = []
+    for oid, pts, comp in objects:
+        inst = ObjectInstance(oid, "cabinet", pts, gravity_aligned_box(pts))
+        inst.completion = comp
+        insts.append(inst)
+    data.map.instances = ObjectInstances(insts)
+    graph = ContactGraph()
+    for oid, _, _ in objects:
+        graph.support.add_edge("floor", oid, relation="support", plane=[0.0, 0.0, 1.0, 0.0])
+    data.map.contact_graph = graph
+    data.map.augmented = augmented_scene(data.map.geometry, data.map.instances, 0.1, 0.02)
+    return data
+
+
+def two_cabinets(first: int, second: int) -> PipelineData:
+    """Two cabinets side by side, each completed by a wide model that reaches into the other; each has a
+    narrow model that fits what was seen as an alternative, the second's a better one (lower score)."""
+    a = completion(WIDE, 0.0, "wide", 0.01)
+    a.alternatives = [completion(NARROW, -0.15, "narrow", 0.03)]
+    b = completion(WIDE, 0.3, "wide", 0.01)
+    b.alternatives = [completion(NARROW, 0.5, "narrow", 0.02)]
+    return scene([(first, observed(WIDE, 0.0), a), (second, observed(NARROW, 0.5), b)])
+
+
+def test_a_conflict_the_next_best_model_removes_is_resolved_by_swapping_not_sliding():
+    data = two_cabinets(1, 2)
+    out = PhysicalCheckMapper().run(data)
+    a, b = out["instances"][1], out["instances"][2]
+    assert (a.completion.model_id, b.completion.model_id) == ("wide", "narrow")
+    assert a.completion.pose[0, 3] == pytest.approx(0.0, abs=1e-9)  # nothing slid sideways
+    assert b.completion.pose[0, 3] == pytest.approx(0.5, abs=1e-9)
+    notes = data.notes["physical_check"]
+    assert notes["swapped"] == [2] and notes["unresolved"] == [] and notes["max_shift_m"] < 0.01
+    assert b.attributes["physical_check"] == {"swapped_from": "wide", "swapped_to": "narrow"}
+    assert [alt.model_id for alt in b.completion.alternatives] == ["wide"]  # the model given up, kept
+    assert data.map.instances[2].completion.model_id == "wide"  # the input map is left as it was
+    box = out["contact_graph"].support.nodes[2]["box_completed"]
+    assert np.allclose(box["size"], NARROW, atol=1e-6)
+    # Without the candidates the same conflict is slid apart (what the check did before).
+    slid = PhysicalCheckMapper(swap=False, observed_distance=None).run(two_cabinets(1, 2))["instances"]
+    assert max(abs(slid[1].completion.pose[0, 3]), abs(slid[2].completion.pose[0, 3] - 0.3)) > 0.05
+
+
+@pytest.mark.parametrize("ids", [(1, 2), (2, 1), (9, 4), (3, 30)])
+def test_the_swap_is_the_same_for_any_object_ids(ids):
+    data = two_cabinets(*ids)
+    out = PhysicalCheckMapper().run(data)["instances"]
+    first, second = out[ids[0]], out[ids[1]]
+    assert (first.completion.model_id, second.completion.model_id) == ("wide", "narrow")
+    reference = PhysicalCheckMapper().run(two_cabinets(1, 2))["instances"]
+    assert np.allclose(first.completion.pose, reference[1].completion.pose)
+    assert np.allclose(second.completion.pose, reference[2].completion.pose)
+    assert data.notes["physical_check"]["swapped"] == [ids[1]]
+
+
+def distances(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
+    """Distance of each point to the surface of ``mesh``."""
+    raycast = o3d.t.geometry.RaycastingScene()
+    raycast.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
+    )
+    return raycast.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+
+
+def test_the_augmented_layer_has_the_moved_model_where_the_check_put_it():
+    data = scene(
+        [
+            (1, observed(WIDE, 0.0), completion(WIDE, 0.0, "wide", 0.01)),
+            (2, observed(WIDE, 0.4), completion(WIDE, 0.4, "wide", 0.01)),  # 0.2 m into the first
+        ]
+    )
+    old = [inst.completion.world_mesh() for inst in data.map.instances]
+    out = PhysicalCheckMapper(observed_distance=None).run(data)
+    assert abs(out["instances"][2].completion.pose[0, 3] - 0.4) > 0.15  # slid out of the first
+    moved = out["instances"][2].completion.world_mesh()
+
+    def new_place(points: np.ndarray) -> int:
+        """Points on the moved model's surface, away from where either model was before."""
+        away = np.minimum(distances(points, old[0]), distances(points, old[1])) > 0.02
+        return int(((distances(points, moved) < 1e-4) & away).sum())
+
+    assert new_place(data.map.augmented.points) == 0
+    assert new_place(out["augmented"].points) >= 500  # the model's samples moved with it
