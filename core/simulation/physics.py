@@ -397,6 +397,18 @@ def resolve_scene(
     return result
 
 
+def conflicting(instances: ObjectInstances, ids: list[int]) -> list[int]:
+    """Those of ``ids`` whose mesh, as it stands, conflicts with another object's (the measure
+    ``resolve_scene`` leaves as residual)."""
+    shells = {inst.id: mesh_shells(world_mesh(inst)) for inst in instances}
+    out = []
+    for i in sorted(set(ids) & set(shells)):
+        others = [s for j, part in shells.items() if j != i for s in part]
+        if shells[i] and others and float(_conflicts(shells[i], others, np.zeros((1, 3)))[0]) > 0:
+            out.append(i)
+    return out
+
+
 def _overlap_volume(a: Shell, b: Shell) -> float:
     if np.any(a.lo >= b.hi) or np.any(b.lo >= a.hi):
         return 0.0

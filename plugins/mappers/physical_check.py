@@ -31,6 +31,7 @@ from stratamap.core.map.layers import ContactGraph, ObjectInstances, OrientedBox
 from stratamap.core.simulation.physics import (
     CONTACT_TOLERANCE,
     Placement,
+    conflicting,
     mesh_shells,
     min_conflict,
     resolve_scene,
@@ -121,7 +122,9 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
                 "moved": len(moved),
                 "max_shift_m": max((float(np.linalg.norm(v)) for v in moved.values()), default=0.0),
                 "undone": undone,
-                "unresolved": sorted({*summary["unresolved"], *undone}),
+                # An undone move puts the object back where it was seen: unresolved only if it
+                # conflicts there.
+                "unresolved": sorted({*summary["unresolved"], *conflicting(instances, undone)}),
             }
         )
         for key, value in summary.items():
