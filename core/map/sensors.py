@@ -158,7 +158,25 @@ class MappedFrames(Sequence):
         return self.function(self.source[k])
 
 
-class ConcatenatedFrames(Sequence):
+class _RenumberedFrames(Sequence):
+    """A read-on-access sequence whose ``k``-th item is ``_item(k)`` renumbered to ``k``; slices and
+    negative indices as a list has them."""
+
+    def _item(self, k: int) -> Any:
+        raise NotImplementedError
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        k = int(k)
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(f"frame {k} out of range ({type(self).__name__} has {len(self)} frames)")
+        return renumbered(self._item(k), k)
+
+
+class ConcatenatedFrames(_RenumberedFrames):
     """Several frame sequences read as one, each item read from its own sequence on access. Items
     that carry an ``index`` (frames, segmentations) are renumbered to their place in the whole, so
     that labels stay aligned with frames."""
@@ -170,19 +188,12 @@ class ConcatenatedFrames(Sequence):
     def __len__(self) -> int:
         return int(self.starts[-1])
 
-    def __getitem__(self, k):  # type: ignore[override]
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        k = int(k)
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError(f"frame {k} out of range (sequence has {len(self)} frames)")
+    def _item(self, k: int) -> Any:
         part = int(np.searchsorted(self.starts, k, side="right")) - 1
-        return renumbered(self.parts[part][k - int(self.starts[part])], k)
+        return self.parts[part][k - int(self.starts[part])]
 
 
-class FrameWindow(Sequence):
+class FrameWindow(_RenumberedFrames):
     """Items ``start`` to ``stop`` of a sequence, read on access and renumbered from 0 (a part of a
     recording as a recording of its own)."""
 
@@ -193,15 +204,8 @@ class FrameWindow(Sequence):
     def __len__(self) -> int:
         return max(0, self.stop - self.start)
 
-    def __getitem__(self, k):  # type: ignore[override]
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        k = int(k)
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError(f"frame {k} out of range (window has {len(self)} frames)")
-        return renumbered(self.source[self.start + k], k)
+    def _item(self, k: int) -> Any:
+        return self.source[self.start + k]
 
 
 def renumbered(item: Any, index: int) -> Any:

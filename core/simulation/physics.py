@@ -186,16 +186,25 @@ def penetration_depths(a: Shell, b: Shell, shifts: np.ndarray) -> np.ndarray:
     return np.maximum(overlap.min(axis=1), 0.0)
 
 
-def _conflicts(mine: list[Shell], others: list[Shell], shifts: np.ndarray) -> np.ndarray:
-    """Summed penetration beyond contact between ``mine`` moved by each shift and ``others``."""
+def shifted_penetration(
+    mine: list[Shell], others: list[Shell], shifts: np.ndarray, deepest: bool = False
+) -> np.ndarray:
+    """Penetration beyond contact between ``mine`` moved by each shift and ``others``: summed over
+    shell pairs, or the deepest pair's with ``deepest``."""
+    combine = np.maximum if deepest else np.add
     total = np.zeros(len(shifts))
     reach = np.abs(shifts).max(axis=0) if len(shifts) else np.zeros(3)
     for s in mine:
         for o in others:
             if np.any(o.lo > s.hi + reach + CONTACT_TOLERANCE) or np.any(o.hi < s.lo - reach - CONTACT_TOLERANCE):
                 continue
-            total += np.maximum(penetration_depths(s, o, shifts) - CONTACT_TOLERANCE, 0.0)
+            total = combine(total, np.maximum(penetration_depths(s, o, shifts) - CONTACT_TOLERANCE, 0.0))
     return total
+
+
+def _conflicts(mine: list[Shell], others: list[Shell], shifts: np.ndarray) -> np.ndarray:
+    """Summed penetration beyond contact between ``mine`` moved by each shift and ``others``."""
+    return shifted_penetration(mine, others, shifts)
 
 
 @dataclass

@@ -27,11 +27,10 @@ import numpy as np
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstances
 from stratamap.core.simulation.physics import (
-    CONTACT_TOLERANCE,
     Shell,
     collision_parts,
     convex_shell,
-    penetration_depths,
+    shifted_penetration,
     support_order,
     world_mesh,
 )
@@ -78,18 +77,6 @@ def _shells(mesh) -> list[Shell]:
 
 def _slab_shell(box) -> Shell | None:
     return convex_shell(np.asarray(trimesh.creation.box(extents=box.size, transform=box.pose).vertices))
-
-
-def _penetration(mine: list[Shell], others: list[Shell], shifts: np.ndarray) -> np.ndarray:
-    """Deepest penetration beyond contact of ``mine`` moved by each shift into any of ``others``."""
-    worst = np.zeros(len(shifts))
-    reach = np.abs(shifts).max(axis=0) if len(shifts) else np.zeros(3)
-    for s in mine:
-        for o in others:
-            if np.any(o.lo > s.hi + reach + CONTACT_TOLERANCE) or np.any(o.hi < s.lo - reach - CONTACT_TOLERANCE):
-                continue
-            worst = np.maximum(worst, penetration_depths(s, o, shifts) - CONTACT_TOLERANCE)
-    return np.maximum(worst, 0.0)
 
 
 def _footprint(mine: list[Shell], spacing: float = 0.01, most: int = 400) -> tuple[np.ndarray, float]:
@@ -185,10 +172,10 @@ def rest_offsets(
             continue
         surface = float(tops.max())
         offset = np.array([0.0, 0.0, surface + REST_GAP - bottom])
-        depth = float(_penetration(mine, others, offset[None])[0])
+        depth = float(shifted_penetration(mine, others, offset[None], deepest=True)[0])
         if depth > 0:
             candidates = np.concatenate([offset + lifts, offset + sideways])
-            depths = _penetration(mine, others, candidates)
+            depths = shifted_penetration(mine, others, candidates, deepest=True)
             free = np.flatnonzero(depths <= 0)
             if len(free):
                 offset, depth = candidates[free[0]], 0.0
