@@ -109,6 +109,14 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance
         )
         undone = self._undo_contradicted_moves(chosen, instances)
+        # A model that can neither stay (it penetrates a neighbour) nor move (its observed points
+        # say where it is) is wrong: the object keeps its observed shape, as a completer's
+        # rejection leaves it.
+        for i in conflicting(instances, undone):
+            reason = "penetrates a neighbour where it was seen"
+            instances[i].completion = None
+            instances[i].attributes["completion_rejected"] = reason
+            self.warn(f"object {i} ({instances[i].class_name}): completion rejected, kept as observed: {reason}")
         shifts = {
             inst.id: inst.completion.pose[:3, 3] - chosen[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
             for inst in instances
@@ -124,7 +132,7 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
                 "undone": undone,
                 # An undone move puts the object back where it was seen: unresolved only if it
                 # conflicts there.
-                "unresolved": sorted({*summary["unresolved"], *conflicting(instances, undone)}),
+                "unresolved": sorted(set(summary["unresolved"]) - set(undone)),
             }
         )
         for key, value in summary.items():
