@@ -18,14 +18,18 @@ import os
 import pickle
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.errors import ConfigError
+from stratamap.core.lazy import lazy_module
+
+o3d = lazy_module("open3d")
 
 S = TypeVar("S")
 T = TypeVar("T")
@@ -195,3 +199,18 @@ def _map_ray(
     del shared_ref, refs
     shipped["results"] = sum(len(dumps(result)) for result, _ in timed)
     return Mapped([r for r, _ in timed], [s for _, s in timed], shipped)
+
+
+@contextmanager
+def open3d_threads(n: int) -> Iterator[None]:
+    """Limit Open3D's CPU (TBB) threads to ``n`` inside the block, then restore the previous limit.
+    Some of its parallel loops give results that depend on how the work was split (odometry's
+    reductions, point extraction from 16-bit voxels): one thread makes them repeat exactly."""
+    previous = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(0)
+    default = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(n)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(0 if previous == default else previous)

@@ -14,15 +14,25 @@ class ClassSize:
     #: Longest horizontal side one object has, with a margin for the map's noise; None for classes
     #: whose single objects come in any length (tables, shelves, counters, sofas).
     max_length: float | None = None
+    #: Shortest longest-horizontal-side one object has (a counter is a run of base units under one
+    #: worktop); None when small ones exist.
+    min_length: float | None = None
+    #: Tallest one object is, where the class comes far taller than its typical height range (a
+    #: kitchen's tall unit, a wardrobe); None: the typical range (TYPICAL_HEIGHTS) with its slack.
+    max_height: float | None = None
+    #: Shallowest one object is front to back (a unit holds things: a panel on a wall is none); None: any.
+    min_depth: float | None = None
 
 
 CLASS_SIZES: dict[str, ClassSize] = {
     "chair": ClassSize((0.2, 0.9)),
     "table": ClassSize((0.3, 1.6)),
     "desk": ClassSize((0.4, 1.4)),
-    "cabinet": ClassSize((0.25, 1.3), max_length=1.3),  # one unit; wider runs of cabinets are several units
-    "shelf": ClassSize((0.3, 1.4)),
-    "counter": ClassSize((0.4, 1.8)),
+    "cabinet": ClassSize(
+        (0.25, 1.3), max_length=1.3, max_height=2.4, min_depth=0.2
+    ),  # one unit; wider runs of cabinets are several units
+    "shelf": ClassSize((0.3, 1.4), max_height=2.4),
+    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_depth=0.45),
     "sofa": ClassSize((0.5, 1.6)),
     "bench": ClassSize((0.3, 1.2)),
     "fridge": ClassSize((0.4, 1.2)),

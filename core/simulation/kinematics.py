@@ -68,6 +68,9 @@ class Link:
     inertial: Inertial
     instance_id: int | None = None
     class_name: str = ""
+    #: Convex collision parts in the link frame when they differ from the mesh's own
+    #: (:func:`link_collision`): a rest plan's support-completed base of a partially observed object.
+    collision: list[trimesh.Trimesh] | None = None
 
 
 @dataclass
@@ -91,6 +94,16 @@ class KinematicTree:
 
     def link_names(self) -> list[str]:
         return [ROOT_LINK] + [link.name for link in self.links]
+
+
+def link_collision(link: Link) -> list[trimesh.Trimesh]:
+    """The convex parts a simulator collides for ``link``: its own collision parts if it has them,
+    else those of its mesh (none for a helper link)."""
+    from stratamap.core.simulation.physics import collision_parts
+
+    if link.collision is not None:
+        return [part.copy() for part in link.collision]
+    return collision_parts(link.mesh) if link.mesh is not None else []
 
 
 def safe_name(text: str) -> str:
@@ -241,15 +254,22 @@ def build_tree(
     offsets: dict[int, np.ndarray] | None = None,
     statics: list | None = None,
     floating_ids: set[int] | None = None,
+    rotations: dict[int, np.ndarray] | None = None,
+    collision: dict[int, list[trimesh.Trimesh]] | None = None,
 ) -> KinematicTree:
     """Links for every object; joints to the supporting object (or the world) from the contact graph.
 
     Objects of ``floating_classes`` hang from the world by floating joints (free bodies, whatever
-    supports them); ``offsets`` moves objects by a world translation first (a rest plan's
-    settling offsets, :func:`stratamap.core.simulation.rest.rest_offsets`); ``statics`` are the room's slabs;
-    ``floating_ids``, when given, names the free objects instead of ``floating_classes``."""
+    supports them); ``offsets`` moves objects by a world translation first, after turning them by the
+    world rotation in ``rotations`` if any (x -> R x + offset: a rest plan's settling,
+    :func:`stratamap.core.simulation.rest.rest_offsets`); ``statics`` are the room's slabs;
+    ``floating_ids``, when given, names the free objects instead of ``floating_classes``;
+    ``collision`` gives an object's convex collision parts in its object frame (a rest plan's
+    support-completed base) instead of its mesh's."""
     density = {**DEFAULT_DENSITY, **(density or {})}
+    collision = collision or {}
     offsets = offsets or {}
+    rotations = rotations or {}
     poses: dict[int, np.ndarray] = {}
     links: list[Link] = []
     names: dict[int, str] = {}
@@ -257,8 +277,10 @@ def build_tree(
     fronts: set[int] = set()
     for inst in instances:
         mesh, pose = object_mesh(inst)
-        pose = pose.copy()
-        pose[:3, 3] += np.asarray(offsets.get(inst.id, np.zeros(3)), float)
+        settle = np.eye(4)
+        settle[:3, :3] = np.asarray(rotations.get(inst.id, np.eye(3)), float)
+        settle[:3, 3] = np.asarray(offsets.get(inst.id, np.zeros(3)), float)
+        pose = settle @ pose
         poses[inst.id] = pose
         names[inst.id] = link_name(inst)
         rho = density.get(inst.class_name, FALLBACK_DENSITY)
@@ -314,7 +336,9 @@ def build_tree(
                     )
                 )
         else:
-            links.append(Link(names[inst.id], mesh, inertial_of(mesh, rho), inst.id, inst.class_name))
+            links.append(
+                Link(names[inst.id], mesh, inertial_of(mesh, rho), inst.id, inst.class_name, collision.get(inst.id))
+            )
     for inst in instances:
         if inst.id in fronts:
             continue

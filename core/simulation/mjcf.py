@@ -21,8 +21,7 @@ import numpy as np
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstances
-from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree
-from stratamap.core.simulation.physics import collision_parts
+from stratamap.core.simulation.kinematics import ROOT_LINK, build_tree, link_collision
 from stratamap.core.simulation.rest import RestPlan, rest_offsets
 
 rotations = lazy_module("scipy.spatial.transform")
@@ -68,7 +67,16 @@ def write_mjcf(
         plan = rest_offsets(instances, graph, free_classes, statics) if rest else RestPlan()
     free_ids = plan.free_ids(instances, free_classes)
     # Free objects are children of the world in MuJoCo (a free joint must sit on a top-level body).
-    tree = build_tree(instances, None, dict(density), offsets=plan.offsets, statics=statics, floating_ids=free_ids)
+    tree = build_tree(
+        instances,
+        None,
+        dict(density),
+        offsets=plan.offsets,
+        statics=statics,
+        floating_ids=free_ids,
+        rotations=plan.rotations,
+        collision=plan.collision,
+    )
     root = ET.Element("mujoco", model="stratamap_scene")
     ET.SubElement(root, "compiler", angle="radian", meshdir=mesh_dir, autolimits="true")
     ET.SubElement(root, "option", timestep=f"{timestep:g}", gravity="0 0 -9.81")
@@ -150,7 +158,7 @@ def write_mjcf(
             mass=f"{i.mass:.6g}",
             diaginertia=_fmt(np.maximum(evals, 1e-8)),
         )
-        for k, shell in enumerate(collision_parts(link.mesh) if link.mesh is not None else []):
+        for k, shell in enumerate(link_collision(link)):
             mesh_name = f"{link.name}_{k}"
             rel = f"{mesh_name}.stl"
             path = out_dir / mesh_dir / rel

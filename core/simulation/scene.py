@@ -38,6 +38,8 @@ def scene_tree(
         graph if use_graph else None,
         dict(density or {}),
         offsets=plan.offsets,
+        rotations=plan.rotations,
+        collision=plan.collision,
         statics=statics,
         floating_ids=free,
     )

@@ -18,8 +18,7 @@ from pydantic import Field
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK
-from stratamap.core.simulation.physics import collision_parts
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
 
 
@@ -128,7 +127,7 @@ class SDFExporter(Exporter[SDFConfig]):
                     written.append(out_dir / rel)
                     g = ET.SubElement(ET.SubElement(ET.SubElement(el, "visual", name="visual"), "geometry"), "mesh")
                     ET.SubElement(g, "uri").text = rel
-                    for k, part in enumerate(collision_parts(lk.mesh)):
+                    for k, part in enumerate(link_collision(lk)):
                         rel = f"{cfg.mesh_dir}/{name}_c{k}.stl"
                         with atomic_path(out_dir / rel) as tmp:
                             part.export(tmp, file_type="stl")

@@ -23,8 +23,7 @@ from pydantic import Field
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK
-from stratamap.core.simulation.physics import collision_parts
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
 
 
@@ -99,7 +98,7 @@ class URDFExporter(Exporter[URDFConfig]):
             ET.SubElement(block, "origin", xyz="0 0 0", rpy="0 0 0")
             ET.SubElement(ET.SubElement(block, "geometry"), "mesh", filename=mesh_file(link.mesh, link.name))
             # Simulators collide convex hulls: one collision block per convex part.
-            for k, part in enumerate(collision_parts(link.mesh)):
+            for k, part in enumerate(link_collision(link)):
                 block = ET.SubElement(el, "collision", name=f"{link.name}_collision_{k}")
                 ET.SubElement(block, "origin", xyz="0 0 0", rpy="0 0 0")
                 ET.SubElement(ET.SubElement(block, "geometry"), "mesh", filename=mesh_file(part, f"{link.name}_c{k}"))

@@ -16,6 +16,7 @@ from stratamap.core.geometry.transforms import invert
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Geometry
 from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.parallel import open3d_threads
 
 o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
@@ -133,7 +134,9 @@ class TSDFVolume:
     ):
         self.cfg = cfg
         self.intrinsics = intrinsics
-        names, dtypes, channels = ["tsdf", "weight", "color"], [o3c.float32, o3c.float32, o3c.float32], [1, 1, 3]
+        # 16-bit weights and colours (the pair Open3D integrates besides float/float; colours are kept on 0-255
+        # either way and averaged in integers): 18 bytes a voxel with labels instead of 28, most of a large map.
+        names, dtypes, channels = ["tsdf", "weight", "color"], [o3c.float32, o3c.uint16, o3c.uint16], [1, 1, 3]
         for name, dtype, n in extra:
             names.append(name)
             dtypes.append(dtype)
@@ -176,7 +179,8 @@ class TSDFVolume:
     def surface(self) -> Geometry:
         """Surface points (sorted by position, so runs are reproducible) and, if configured, the mesh."""
         # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
-        pcd = self.grid.extract_point_cloud()
+        with open3d_threads(1):  # extraction from 16-bit voxels differs with the threads' split of the blocks
+            pcd = self.grid.extract_point_cloud()
         points = pcd.point.positions.numpy().astype(np.float64)
         raw_colors = pcd.point.colors.numpy() if "colors" in pcd.point else None
         order = position_order(points, raw_colors)
@@ -184,7 +188,8 @@ class TSDFVolume:
         colors = None if raw_colors is None else np.clip(raw_colors[order], 0, 1)
         mesh = None
         if self.cfg.extract_mesh:
-            tmesh = self.grid.extract_triangle_mesh()
+            with open3d_threads(1):
+                tmesh = self.grid.extract_triangle_mesh()
             verts = tmesh.vertex.positions.numpy().astype(np.float64)
             faces = tmesh.triangle.indices.numpy().astype(np.int64)
             vcol = None

@@ -47,7 +47,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, LayoutParams, find_layout
+from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 
 
 class ClassRule(BaseModel):
@@ -185,6 +185,31 @@ class ClustersConfig(StageConfig):
     cut_depth: int = Field(default=2, ge=0, description="Cuts applied in sequence at most per segment.")
     class_rules: list[ClassRule] = Field(
         default_factory=list, description="Size rules naming clusters when the map has no class votes."
+    )
+    keep_instances: bool = Field(
+        default=False,
+        description=(
+            "Keep the instances already on the map (a tsdf mapper's, from a detector's masks) and add every "
+            "geometric object they leave uncovered as an instance of its own; an instance's unmasked parts (a "
+            "table's legs under its masked top) join it. False: the clusters alone are the instances."
+        ),
+    )
+    covered_share: float = Field(
+        default=0.5,
+        gt=0.0,
+        le=1.0,
+        description=(
+            "keep_instances: a geometric object with less than this share of its points in kept instances is a "
+            "new instance (what no detector box covered); otherwise its unmasked points join the nearest instance."
+        ),
+    )
+    recognize: bool = Field(
+        default=False,
+        description=(
+            "Name objects with no thing votes, or with a voted class their size rules out (a 1.7 m box, a 12 cm "
+            "table), by class size priors (core/map/priors.py) and support context: what stands on a support "
+            "surface, whether it stands against a wall, has a flat top, a solid body or legs."
+        ),
     )
 
 
@@ -574,6 +599,162 @@ def join_supports(
     return np.where(node >= 0, obj[np.maximum(node, 0)], -1)
 
 
+class Shape(NamedTuple):
+    """What recognition by priors knows of an object: its size and where it stands."""
+
+    length: float  # longest horizontal side of its gravity-aligned box, m
+    depth: float  # shorter horizontal side, m
+    height: float  # own height, m
+    bottom: float  # foot above the floor (or the map's base), m
+    reach: float  # farthest point from the centroid, m
+    against_wall: bool  # a wall plane within WALL_GAP of it
+    flat_top: bool  # its highest points form a flat top over most of its footprint
+    solid: bool  # its body (middle heights) spans most of its length: a front, not legs
+
+
+#: An object this close (m) to a wall plane stands against it (a unit's back edge, a countertop's).
+WALL_GAP = 0.12
+#: An object whose foot is this close (m) to the floor stands on it.
+FLOOR_GAP = 0.1
+#: A floor-standing object's foot may be this high (m) when its legs or base went unseen.
+STANDING_GAP = 0.3
+#: Thinner than this (m), a geometric object that frames called floor, wall or ceiling is that stuff.
+THIN = 0.15
+#: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
+SIZE_MARGIN = 1.3
+
+
+def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
+    """The size and support context of an object's points (world, z up)."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.plugins.segmenters._layout import footprint_area
+
+    box = gravity_aligned_box(pts)
+    length, depth = float(max(box.size[:2])), float(min(box.size[:2]))
+    z = pts[:, 2]
+    zmin, zmax = float(z.min()), float(z.max())
+    height = zmax - zmin
+    reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
+    near_wall = any((plane.near(pts, WALL_GAP)).any() for plane in walls)
+    # A flat top: a level of its upper third whose points (within 2 cm) cover half its footprint (5 cm
+    # cells), as a table's, a counter's or a cabinet's top do (under a kettle too) and a chair's backrest
+    # does not.
+    cell = 0.05
+    footprint = max(footprint_area(pts[:, :2], cell), cell * cell)
+    flat_top = False
+    for level in np.arange(zmax, zmax - height / 3.0, -0.02):
+        layer = pts[np.abs(z - level) <= 0.02]
+        if len(layer) and footprint_area(layer[:, :2], cell) >= 0.5 * footprint:
+            flat_top = True
+            break
+    # A solid body: the middle heights' points, projected on the box's long axis, cover most of its
+    # length (a unit's front or side) rather than two or four spots (a table's legs).
+    axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
+    if box.size[1] > box.size[0]:
+        axis = np.array([-axis[1], axis[0]])
+    middle = pts[(z >= zmin + 0.25 * height) & (z <= zmin + 0.75 * height)]
+    along = middle[:, :2] @ axis
+    full = pts[:, :2] @ axis
+    bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
+    covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
+    return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, covered / bins >= 0.6)
+
+
+def fits_class(name: str, shape: Shape) -> bool:
+    """Whether an object of this shape can be of the class by the class size priors
+    (core/map/priors.py), with SIZE_MARGIN: its reach within the class's extents, its length within the
+    class's longest and shortest sides, its height (standing on the floor: also from below) within the
+    plausible heights. Classes without priors always fit."""
+    from stratamap.core.map.priors import CLASS_SIZES, NOT_STACKED, plausible_heights
+
+    size = CLASS_SIZES.get(name)
+    if size is not None:
+        if not size.extent[0] / SIZE_MARGIN <= shape.reach <= size.extent[1] * SIZE_MARGIN:
+            return False
+        if size.max_length is not None and shape.length > size.max_length * SIZE_MARGIN:
+            return False
+        if size.min_length is not None and shape.length < size.min_length / SIZE_MARGIN:
+            return False
+        if size.min_depth is not None and shape.depth < size.min_depth / SIZE_MARGIN:
+            return False
+    heights = plausible_heights(name)
+    # Furniture whose objects stand on the floor, not on one another (a chair, a table, a counter),
+    # seen in the air: the upper part of one whose legs or base went unseen only when it is as large
+    # as a whole one and its top is at the class's height; else a part of something.
+    if name in NOT_STACKED and shape.bottom > STANDING_GAP:
+        if size is not None and shape.reach < size.extent[0]:
+            return False
+        top = shape.bottom + shape.height
+        if heights is not None and not heights[0] / SIZE_MARGIN <= top <= heights[1] * SIZE_MARGIN:
+            return False
+    if heights is not None:
+        tallest = size.max_height if size is not None and size.max_height is not None else heights[1] * SIZE_MARGIN
+        if shape.height > tallest:
+            return False
+        if shape.bottom <= FLOOR_GAP and shape.height < heights[0] / SIZE_MARGIN:
+            return False
+    return True
+
+
+def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05) -> bool:
+    """Whether the class the shape gives overrules a voted class that fits: the object's height lies
+    in the geometric class's typical range (TYPICAL_HEIGHTS, within ``slack`` m) and outside the
+    voted one's (a 0.9 m solid unit against a wall that a detector without a 'counter' label calls a
+    table: tables are 0.72-0.76 m, counters 0.86-0.92 m). Objects standing on the floor only."""
+    from stratamap.core.map.priors import TYPICAL_HEIGHTS
+
+    if (
+        geometric == voted
+        or shape.bottom > FLOOR_GAP
+        or geometric not in TYPICAL_HEIGHTS
+        or voted not in TYPICAL_HEIGHTS
+    ):
+        return False
+
+    def within(name: str) -> bool:
+        low, high = TYPICAL_HEIGHTS[name]
+        return low - slack <= shape.height <= high + slack
+
+    return within(geometric) and not within(voted)
+
+
+def prior_class(shape: Shape, vocab: Vocabulary) -> tuple[str, str]:
+    """The class an object's shape and support context make most likely (and why), among the
+    vocabulary's thing classes; ``object`` when no rule fits. General rules of indoor objects, each
+    checked against the class size priors (``fits_class``):
+
+    * on a support surface (not the floor): a cup, a bottle or a box by size; on a wall, off the
+      floor: a (wall) cabinet;
+    * on the floor with a flat top and a solid body (a front, not legs): a counter when long, deep and
+      at worktop height, else a cabinet;
+    * on the floor with a flat top on legs: a table;
+    * on the floor against a wall, solid, its top unseen (a tall unit): a cabinet;
+    * on the floor, free-standing, no flat top, of a chair's size: a chair."""
+
+    def ok(name: str) -> bool:
+        return name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape)
+
+    if shape.bottom > FLOOR_GAP:
+        for name in ("cup", "bottle", "box"):
+            if ok(name):
+                return name, "on a support, its size"
+        if shape.against_wall and ok("cabinet"):
+            return "cabinet", "on a wall, off the floor"
+    else:
+        if shape.flat_top and shape.solid:
+            if ok("counter"):
+                return "counter", "flat top at worktop height, solid body, long and deep"
+            if ok("cabinet"):
+                return "cabinet", "flat top, solid body"
+        if shape.flat_top and not shape.solid and ok("table"):
+            return "table", "flat top on legs"
+        if shape.against_wall and shape.solid and ok("cabinet"):
+            return "cabinet", "solid unit against a wall"
+        if not shape.flat_top and not shape.against_wall and ok("chair"):
+            return "chair", "free-standing, no flat top, a chair's size"
+    return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), "no rule fits"
+
+
 class ClustersSegmenter(Segmenter[ClustersConfig]):
     """Model-free instances: gravity-aligned layout as stuff, convexity-aware clustering around support surfaces."""
 
@@ -690,6 +871,24 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         )
         on_plane = self._on_layout_planes(cells, obj, layout, n_obj, cfg.layout_voxels * voxel)
         next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
+        walls = [plane for plane in layout.planes if plane.label == WALL]
+        if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():
+            class_ids, instance_ids, added = self._complete_instances(
+                points,
+                point_obj,
+                kept,
+                on_plane,
+                cell_count,
+                top_area,
+                votes,
+                class_ids,
+                supports,
+                base_z,
+                walls,
+                voxel,
+            )
+            kept = kept[:0]  # the loop below is the clusters-only naming
+            things = added
         for k in kept:
             mask = point_obj == k
             name = None
@@ -700,6 +899,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             if vote_table is not None and vote_table[k].sum() > 0:
                 name = vocab.name(int(np.argmax(vote_table[k])))
+            if name is None and cfg.recognize:
+                name = prior_class(describe_shape(points[mask], base_z, walls), vocab)[0]
             if name is None:
                 name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
             class_ids[mask] = vocab.id(name)
@@ -709,6 +910,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 things += 1
             else:
                 turned_stuff += 1
+        if cfg.recognize:
+            class_ids, instance_ids = self._recognize(points, class_ids, instance_ids, vocab, base_z, walls)
         self.note(
             "segments",
             {
@@ -724,6 +927,181 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         )
         semantics = Semantics(class_ids, instance_ids, vocab)
         return {"semantics": semantics, "instances": instances_from_semantics(points, geometry.colors, semantics, 1)}
+
+    def _complete_instances(
+        self,
+        points: np.ndarray,
+        point_obj: np.ndarray,
+        kept: np.ndarray,
+        on_plane: np.ndarray,
+        cell_count: np.ndarray,
+        top_area: np.ndarray,
+        votes: Semantics,
+        layout_class: np.ndarray,
+        supports: Supports,
+        base_z: float,
+        walls: list[Any],
+        voxel: float,
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """keep_instances: the map's instances stay; each geometric object they leave (mostly)
+        uncovered becomes an instance; the unmasked points of a covered one join the nearest
+        instance. Stuff is where the fused map's own layout puts it (not each frame's guess).
+        Returns point classes, point instances and how many instances were added."""
+        from scipy.spatial import cKDTree
+
+        cfg = self.config
+        vocab = votes.vocabulary
+        prev_c, prev_i = votes.class_ids.astype(np.int32), votes.instance_ids.astype(np.int32)
+        out_c, out_i = prev_c.copy(), prev_i.copy()
+        free = prev_i == 0
+        relabel = free & (layout_class > 0)
+        out_c[relabel] = layout_class[relabel]
+        stuff_ids = [vocab.id(n) for n in LAYOUT_NAMES[1:] if n in vocab]
+        inst_size = np.bincount(prev_i[prev_i > 0], minlength=int(prev_i.max()) + 1)
+        tol = 2.0 * cfg.layout.plane_voxels * voxel
+        next_id, added = int(prev_i.max()) + 1, 0
+        for k in kept:
+            mask = np.flatnonzero(point_obj == k)
+            inside = prev_i[mask] > 0
+            if inside.mean() >= cfg.covered_share:
+                owner = np.bincount(prev_i[mask[inside]]).argmax()
+                # A small object standing on a support, inside a larger object's mask (a cup in the
+                # table's box): an object of its own.
+                foot = float(points[mask, 2].min())
+                on_support = bool(len(supports.height)) and bool(np.any(np.abs(supports.height - foot) <= tol))
+                if not (on_support and len(mask) < 0.15 * inst_size[owner] and top_area[k] == 0):
+                    rest = mask[~inside]
+                    if len(rest):
+                        near = cKDTree(points[mask[inside]]).query(points[rest])[1]
+                        out_i[rest] = prev_i[mask[inside][near]]
+                        out_c[rest] = prev_c[mask[inside][near]]
+                    continue
+                rest = mask
+            else:
+                rest = mask[~inside]
+                label = int(np.argmax(on_plane[k]))
+                if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
+                    continue
+            if len(rest) < max(cfg.min_cells, 30):
+                continue
+            # Mostly voted floor, wall or ceiling and thin: that stuff where the map's layout missed it (a
+            # floor patch, a poster). Thicker, the votes say nothing: a tall unit's front the frames took
+            # for a wall.
+            if np.isin(prev_c[rest], stuff_ids).mean() > 0.5:
+                extent = points[rest].max(axis=0) - points[rest].min(axis=0)
+                if min(extent[2], describe_shape(points[rest], base_z, walls).depth) < THIN:
+                    continue
+            # Instances lying within this object whose own class their shape rules out (a detector box
+            # that framed one side of a unit) are pieces of it.
+            for piece in np.unique(prev_i[mask[inside]]):
+                members = np.flatnonzero(prev_i == piece)
+                if (point_obj[members] == k).mean() < 0.8:
+                    continue
+                piece_cls = int(np.bincount(prev_c[members]).argmax())
+                if not fits_class(vocab.name(piece_cls), describe_shape(points[members], base_z, walls)):
+                    rest = np.union1d(rest, members)
+            thing = [c for c in np.unique(prev_c[rest]) if c > 0 and vocab.is_thing[c]]
+            shape = describe_shape(points[rest], base_z, walls)
+            counts = {int(c): int((prev_c[rest] == c).sum()) for c in thing}
+            # Leftover votes name it only where they hold most of its points (a vote its size rules
+            # out is kept for now: the piece may join an object of that class, else recognition renames it).
+            voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= 0.5 * len(rest)]
+            name = voted[0] if voted else prior_class(shape, vocab)[0] if cfg.recognize else "object"
+            out_i[rest] = next_id
+            out_c[rest] = vocab.id(name) if name in vocab else 0
+            next_id += 1
+            added += 1
+        # Scraps (a few points of a mask that missed its object) are no instances.
+        sizes = np.bincount(out_i[out_i > 0], minlength=int(out_i.max()) + 1)
+        scrap = (out_i > 0) & (sizes[out_i] < max(cfg.min_cells, 30))
+        out_c[scrap], out_i[scrap] = 0, 0
+        return out_c, out_i, added
+
+    def _recognize(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Instances named ``object`` or by a class their size rules out take the class the priors
+        and their support context give (``prior_class``), after pieces joined the object they belong
+        to (``_join_parts``); each change is noted. Returns the point classes and instances."""
+        from stratamap.core.map.instances import instance_members
+
+        class_ids = class_ids.copy()
+        instance_ids = instance_ids.copy()
+        self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls)
+        changes = []
+        for iid, sel in instance_members(instance_ids).items():
+            cls = int(np.bincount(class_ids[sel]).argmax())
+            name = vocab.name(cls)
+            if len(sel) < 4 or not vocab.is_thing[cls]:
+                continue
+            shape = describe_shape(points[sel], base_z, walls)
+            new, why = prior_class(shape, vocab)
+            if name != "object" and fits_class(name, shape) and not typical_rather(new, name, shape):
+                continue
+            if new != name:
+                class_ids[sel] = vocab.id(new)
+                changes.append({"instance": iid, "from": name, "to": new, "why": why})
+        if changes:
+            self.note("recognition", changes)
+        return class_ids, instance_ids
+
+    def _join_parts(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+    ) -> None:
+        """Pieces that are no object by themselves join the floor-standing object (a class of
+        NOT_STACKED: chairs, tables, counters) they lie over or under: a swivel chair's base under
+        its seat, an armrest over it. A piece is one named ``object`` by the priors, or one voted
+        the anchor's class that cannot be of it alone (a 20 cm "chair" at seat height). In place."""
+        from stratamap.core.map.instances import instance_members
+        from stratamap.core.map.priors import NOT_STACKED
+
+        members = instance_members(instance_ids)
+        if len(members) < 2:
+            return
+        info = {}
+        for iid, sel in members.items():
+            if len(sel) < 4:
+                continue
+            cls = int(np.bincount(class_ids[sel]).argmax())
+            if vocab.is_thing[cls]:
+                info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls), sel)
+        anchors = [i for i, (name, shape, _) in info.items() if name in NOT_STACKED and fits_class(name, shape)]
+        joined = []
+        for iid in sorted(info, key=lambda i: len(info[i][2])):
+            name, shape, sel = info[iid]
+            if iid in anchors or (name != "object" and fits_class(name, shape)):
+                continue
+            alone = prior_class(shape, vocab)[0]
+            z = points[sel, 2]
+            for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
+                a_name, _, a_sel = info[anchor]
+                if alone != "object" and a_name != name:
+                    continue
+                # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
+                az = points[a_sel, 2]
+                if z.max() > az.max() + 0.05 or z.max() < az.min() - 0.15:
+                    continue
+                a, b = _hull_equations(points[a_sel, :2])
+                inside = ((points[sel, :2] @ a.T + b) <= 0.05).all(axis=1).mean()
+                if inside >= 0.5:
+                    instance_ids[sel] = anchor
+                    class_ids[sel] = vocab.id(a_name)
+                    joined.append({"instance": iid, "into": anchor, "class": a_name})
+                    break
+        if joined:
+            self.note("parts_joined", joined)
 
     @staticmethod
     def _on_layout_planes(cells: np.ndarray, obj: np.ndarray, layout: Any, n_obj: int, distance: float) -> np.ndarray:

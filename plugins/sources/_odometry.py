@@ -14,30 +14,17 @@ KISS-ICP's registration reduces in parallel too.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame
+from stratamap.core.parallel import open3d_threads
 
 o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
-
-
-@contextmanager
-def open3d_threads(n: int) -> Iterator[None]:
-    """Limit Open3D's CPU (TBB) threads to ``n`` inside the block, then restore the previous limit."""
-    previous = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(0)
-    default = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(n)
-    try:
-        yield
-    finally:
-        o3d.utility.set_max_threads(0 if previous == default else previous)
 
 
 def rgbd_frame_to_model(

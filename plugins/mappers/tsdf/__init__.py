@@ -235,7 +235,7 @@ class TSDFMapper(Mapper[TSDFConfig]):
         volume = TSDFVolume(
             cfg,
             stream.intrinsics,
-            extra=[("label", o3c.int32, 1), ("conf", o3c.int32, 1)] if labels is not None else [],
+            extra=[("label", o3c.int32, 1), ("conf", o3c.int16, 1)] if labels is not None else [],
         )
         vbg = volume.grid
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary

@@ -1,0 +1,126 @@
+"""Geometry-first instances on a mapper's masks (``keep_instances``) and recognition by class size
+priors and support context (``recognize``): the detector pipeline's objects that no box covered, and
+labels a detector without 'counter' or 'cabinet' gives them (issue 28)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stratamap.core.map.layers import Geometry, Semantics
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.stages import PipelineData
+from stratamap.plugins.segmenters.clusters import (
+    ClustersSegmenter,
+    Shape,
+    describe_shape,
+    fits_class,
+    prior_class,
+    typical_rather,
+)
+from tests.plugins.segmenters.test_layout_planes import ROOM, box_surface, chair, solids, table
+
+VOCAB = Vocabulary.default()
+
+
+def shape(**kw) -> Shape:
+    base = dict(
+        length=0.5, depth=0.4, height=0.5, bottom=0.0, reach=0.4, against_wall=False, flat_top=False, solid=False
+    )
+    return Shape(**{**base, **kw})
+
+
+def test_size_priors_veto_impossible_labels():
+    assert not fits_class("box", shape(length=1.7, depth=0.7, height=0.9, reach=1.0))  # a 1.7 m box
+    assert not fits_class("table", shape(length=0.12, depth=0.1, height=0.09, bottom=0.7, reach=0.08))
+    assert not fits_class("chair", shape(length=0.3, depth=0.1, height=0.2, bottom=0.45, reach=0.18))  # in the air
+    assert not fits_class("counter", shape(length=0.4, depth=0.4, height=0.9, reach=0.55))  # shorter than any run
+    assert fits_class("cabinet", shape(length=0.6, depth=0.6, height=2.1, reach=1.1))  # a tall unit
+    assert fits_class("cup", shape(length=0.1, depth=0.08, height=0.1, bottom=0.75, reach=0.07))
+
+
+def test_support_context_names_units_tables_and_cups():
+    unit = dict(bottom=0.0, against_wall=True, flat_top=True, solid=True)
+    assert prior_class(shape(length=1.6, depth=0.6, height=0.9, reach=0.9, **unit), VOCAB)[0] == "counter"
+    assert prior_class(shape(length=0.6, depth=0.4, height=0.85, reach=0.6, **unit), VOCAB)[0] == "cabinet"
+    tall = shape(length=0.6, depth=0.6, height=2.0, reach=1.05, against_wall=True, solid=True)
+    assert prior_class(tall, VOCAB)[0] == "cabinet"  # its top above the camera, unseen
+    legs = shape(length=1.2, depth=0.8, height=0.75, reach=0.8, flat_top=True)
+    assert prior_class(legs, VOCAB)[0] == "table"
+    assert prior_class(shape(length=0.1, depth=0.08, height=0.1, bottom=0.75, reach=0.07), VOCAB)[0] == "cup"
+    hung = shape(length=0.8, depth=0.35, height=0.7, bottom=1.4, reach=0.55, against_wall=True, solid=True)
+    assert prior_class(hung, VOCAB)[0] == "cabinet"
+    assert prior_class(shape(length=0.6, depth=0.6, height=0.08, reach=0.4), VOCAB)[0] == "object"  # a chair's base
+    # A solid 0.9 m unit against a wall that a detector called a table: worktop height, not table height.
+    counter = shape(length=2.4, depth=0.7, height=0.9, reach=1.3, **unit)
+    assert typical_rather("counter", "table", counter) and not typical_rather("table", "table", counter)
+    assert not typical_rather("counter", "table", shape(length=1.6, depth=0.8, height=0.74, reach=0.9, **unit))
+
+
+def test_shape_tells_a_solid_unit_from_a_table_on_legs():
+    unit, _ = solids([("counter", (0.0, 0.0, 0.0), (1.6, 0.6, 0.9))], 0.02)
+    legs, _ = solids(table(3.0, 2.5), 0.02)
+    s_unit, s_table = describe_shape(unit, 0.0, []), describe_shape(legs, 0.0, [])
+    assert s_unit.solid and s_unit.flat_top and abs(s_unit.height - 0.9) < 0.03
+    assert s_table.flat_top and not s_table.solid
+
+
+def kitchen_room(spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """A room with a table (a cup on it), a chair, and a counter unit against the x=0 wall."""
+    lx, ly, lz = ROOM
+    layout = [
+        ("floor", box_surface((0, 0, 0), (lx, ly, 0), spacing, "z")),
+        ("ceiling", box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z")),
+        ("wall", box_surface((0, 0, 0), (0, ly, lz), spacing, "x")),
+        ("wall", box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X")),
+        ("wall", box_surface((0, 0, 0), (lx, 0, lz), spacing, "y")),
+        ("wall", box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y")),
+    ]
+    parts = table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35)
+    parts.append(("counter", (0.02, 1.0, 0.0), (0.62, 2.6, 0.9)))  # its back 2 cm off the wall
+    objects, names = solids(parts, spacing)
+    # Nothing of an object is seen where it stands on the floor, nor the counter's back on the wall.
+    keep = (objects[:, 2] > 1e-6) & ~((names == "counter") & (objects[:, 0] < 0.03))
+    points = np.concatenate([p for _, p in layout] + [objects[keep]])
+    labels = np.concatenate([np.full(len(p), n) for n, p in layout] + [names[keep]])
+    return points, labels
+
+
+def test_keep_instances_adds_what_no_mask_covered_and_names_it():
+    """A mapper's masks: the table's top only (its box also over the cup), the chair; no box on the
+    counter (a detector without that label), its frames' guesses 'wall' on its front."""
+    points, names = kitchen_room(0.02)
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    top = (names == "table") & (points[:, 2] > 0.7)
+    masked = top | (names == "cup")
+    classes[masked], instances[masked] = VOCAB.id("table"), 1
+    classes[names == "chair"], instances[names == "chair"] = VOCAB.id("chair"), 2
+    front = (names == "counter") & (points[:, 0] > 0.61)
+    classes[front] = VOCAB.id("wall")
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    sem = out["semantics"]
+    by_class = {}
+    for inst in out["instances"]:
+        by_class.setdefault(inst.class_name, []).append(inst)
+    assert sorted(by_class) == ["chair", "counter", "cup", "table"], {k: len(v) for k, v in by_class.items()}
+    assert all(len(v) == 1 for v in by_class.values())
+    # The table's unmasked legs joined it; the cup in its mask is an object of its own.
+    assert by_class["table"][0].box.size[2] > 0.7
+    assert (sem.instance_ids[names == "cup"] == by_class["cup"][0].id).mean() > 0.7
+    assert (sem.instance_ids[names == "counter"] == by_class["counter"][0].id).mean() > 0.9
+    stuff = np.isin(names, ["floor", "wall", "ceiling"])
+    assert (sem.instance_ids[stuff] > 0).sum() <= 3 * len(out["instances"])
+
+
+def test_without_keep_instances_nothing_changes_by_default():
+    """Both options are off by default: clusters alone, as configs/bench/completion.yaml runs it."""
+    points, names = kitchen_room(0.03)
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.03)
+    out = ClustersSegmenter().run(data)
+    assert "counter" not in {i.class_name for i in out["instances"]}
