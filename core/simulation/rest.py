@@ -39,6 +39,10 @@ same plan.
 
 from __future__ import annotations
 
+import copy
+import hashlib
+import pickle
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -356,13 +360,45 @@ def _stable(feet: np.ndarray, tops: np.ndarray, surface: float, center: np.ndarr
     return bool(inside.max() <= -STABILITY_MARGIN)
 
 
+#: The last plans made, by a digest of their inputs: the URDF, SDF and MJCF exporters of one run
+#: plan the same scene, and a plan takes seconds on a room.
+_PLANS: OrderedDict[str, RestPlan] = OrderedDict()
+_PLANS_KEPT = 4
+
+
 def rest_offsets(
     instances: ObjectInstances,
     graph: ContactGraph | None,
     movable: Iterable[str],
     statics: list | None = None,
 ) -> RestPlan:
-    """Plan where each object of a ``movable`` class starts so that it rests (see the module doc)."""
+    """Plan where each object of a ``movable`` class starts so that it rests (see the module doc).
+    The same inputs give the same plan (a copy of the one made first)."""
+    movable = set(movable)
+    try:
+        key = hashlib.blake2b(
+            pickle.dumps((instances, graph, sorted(movable), statics), protocol=pickle.HIGHEST_PROTOCOL),
+            digest_size=20,
+        ).hexdigest()
+    except (pickle.PicklingError, TypeError, AttributeError):
+        key = None
+    if key is not None and key in _PLANS:
+        _PLANS.move_to_end(key)
+        return copy.deepcopy(_PLANS[key])
+    plan = _plan_rest(instances, graph, movable, statics)
+    if key is not None:
+        _PLANS[key] = copy.deepcopy(plan)
+        while len(_PLANS) > _PLANS_KEPT:
+            _PLANS.popitem(last=False)
+    return plan
+
+
+def _plan_rest(
+    instances: ObjectInstances,
+    graph: ContactGraph | None,
+    movable: set[str],
+    statics: list | None,
+) -> RestPlan:
     from stratamap.core.simulation.kinematics import inertial_of
 
     movable = set(movable)
