@@ -12,6 +12,10 @@ PIP := $(PY) -m pip
 STAMP := $(VENV)/.stratamap-installed
 BROWSER_STAMP := $(VENV)/.stratamap-browser
 OUT ?= out/demo
+# Test files run on this many processes side by side (pytest-xdist; a file's tests stay together,
+# so its shared fixtures run once): most tests use one core.
+TEST_WORKERS ?= 2
+PYTEST := $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 .PHONY: demo test test-fast lint format install system-deps clean
 
@@ -19,10 +23,10 @@ demo: $(STAMP)
 	$(VENV)/bin/stratamap demo --out $(OUT)
 
 test: $(STAMP) $(BROWSER_STAMP)
-	$(PY) -m pytest -q
+	$(PYTEST)
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+	$(PYTEST) -m "not slow"
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -20,6 +20,7 @@ test here works on those same convex shells, as half-space sets ``A x + b <= 0``
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -406,13 +407,20 @@ def resolve_scene(
     return result
 
 
-def conflicting(instances: ObjectInstances, ids: list[int]) -> list[int]:
-    """Those of ``ids`` whose mesh, as it stands, conflicts with another object's (the measure
-    ``resolve_scene`` leaves as residual)."""
+def conflicting(
+    instances: ObjectInstances,
+    ids: Iterable[int],
+    against: Iterable[int] | None = None,
+    exempt: set[tuple[int, int]] = frozenset(),
+) -> list[int]:
+    """Those of ``ids`` whose mesh, as it stands, conflicts with another object's (of ``against``
+    only, when given; never ``j`` for ``(i, j)`` in ``exempt``): the measure ``resolve_scene``
+    leaves as residual."""
     shells = {inst.id: mesh_shells(world_mesh(inst)) for inst in instances}
+    among = set(shells) if against is None else set(against)
     out = []
     for i in sorted(set(ids) & set(shells)):
-        others = [s for j, part in shells.items() if j != i for s in part]
+        others = [s for j, part in shells.items() if j != i and j in among and (i, j) not in exempt for s in part]
         if shells[i] and others and float(_conflicts(shells[i], others, np.zeros((1, 3)))[0]) > 0:
             out.append(i)
     return out

@@ -11,15 +11,19 @@ along the contact graph:
 2. if its convex parts still penetrate a neighbour beyond contact, nudge it up by a few
    millimetres, else sideways by up to :data:`MAX_NUDGE`;
 3. if it still penetrates, or its centre of mass is not over the convex hull of its contact
-   points, it stays where it is and is exported static (with the reason).
+   points, it stays where it is and is exported static (with the reason); a free body that such a
+   static one then penetrates (placed before it: a chair under a table that a box on the table
+   reaches into) is kept static too, and the plan made again.
 
 The support in step 1 is the highest surface no higher than the object's centre of mass (one above
 it cannot hold it up), of its supporter first. Two kinds of collision geometry are replaced first,
 in :attr:`RestPlan.collision` (visuals keep the mapped shapes):
 
-* a static object's convex part that holds what was seen of another object (one hull over a
-  shelf's boards and the book on them, a desk's box around the chair seen under it) is cut into
-  hulls of its own observed points around the other's (:func:`_carved_parts`);
+* a static object's convex part that holds what was seen of another object, or a free body's
+  convex parts (one hull over a shelf's boards and the book on them, a desk's box around the chair
+  seen under it, a desk's apron the coarse hull of a chair's seat and back reaches into), is cut
+  into hulls of its own observed points around the other's (:func:`_carved_parts`); only the
+  object's supporter keeps the band where the other's underside meets it;
 * a movable object known only by its observed surface (no completion, or a rejected one) is open
   underneath, and its centre of mass need not lie over anything it stands on: each of its parts is
   completed down to the surface under it (:func:`_based_parts`), as the issue's "support and rest"
@@ -140,32 +144,35 @@ def _slab_shell(box) -> Shell | None:
     return convex_shell(np.asarray(trimesh.creation.box(extents=box.size, transform=box.pose).vertices))
 
 
-def _near(mine: list[Shell], others: list[np.ndarray]) -> list[np.ndarray]:
-    """Each other object's points (but its lowest :data:`CARVE_QUANTILE`) inside the box around
-    ``mine``, for those that have any."""
+def _near(mine: list[Shell], others: list[tuple[np.ndarray, bool]]) -> list[tuple[np.ndarray, bool]]:
+    """Each other object's points inside the box around ``mine`` (but the lowest
+    :data:`CARVE_QUANTILE` of those ``mine`` supports), for those that have any, with whether
+    ``mine`` supports it."""
     lo = np.min([s.lo for s in mine], axis=0) - CONTACT_TOLERANCE
     hi = np.max([s.hi for s in mine], axis=0) + CONTACT_TOLERANCE
     near = []
-    for p in others:
+    for p, supported in others:
         if len(p) < CARVE_MIN_FOREIGN:
             continue
         # Its lowest points mix with what it stands on (see _cut_around): left to the supporter.
-        body = p[p[:, 2] >= np.quantile(p[:, 2], CARVE_QUANTILE)]
+        body = p[p[:, 2] >= np.quantile(p[:, 2], CARVE_QUANTILE)] if supported else p
         body = body[np.all((body >= lo) & (body <= hi), axis=1)]
         if len(body) >= CARVE_MIN_FOREIGN:
-            near.append(body)
+            near.append((body, supported))
     return near
 
 
-def _cut_around(points: np.ndarray, foreign: np.ndarray) -> list[np.ndarray]:
+def _cut_around(points: np.ndarray, foreign: np.ndarray, supports: bool) -> list[np.ndarray]:
     """``points`` cut into the (overlapping) pieces that lie wholly on one side of the box around
-    the ``foreign`` points, :data:`CARVE_MARGIN` wider (room for the rest plan's small moves) but
-    as much higher at its bottom (an object's underside meets its support, where the two
-    observations mix: the support keeps that band): below, above and beside it along each axis.
+    the ``foreign`` points, :data:`CARVE_MARGIN` wider (room for the rest plan's small moves), but
+    as much higher at its bottom when ``points`` are its supporter's (an object's underside meets
+    its support, where the two observations mix: the support keeps that band; a desk's feet beside
+    a chair standing on the floor are no such band): below, above and beside it along each axis.
     The points inside that box (where two objects' observations interleave) are left out.
     ``[points]`` when the points lie wholly on one side already, or every piece would be too small."""
     lo, hi = foreign.min(axis=0) - CARVE_MARGIN, foreign.max(axis=0) + CARVE_MARGIN
-    lo[2] = foreign[:, 2].min() + CARVE_MARGIN
+    if supports:
+        lo[2] = foreign[:, 2].min() + CARVE_MARGIN
     pieces = []
     for axis in range(3):
         for side in (points[points[:, axis] < lo[axis]], points[points[:, axis] > hi[axis]]):
@@ -176,7 +183,26 @@ def _cut_around(points: np.ndarray, foreign: np.ndarray) -> list[np.ndarray]:
     return pieces or [points]
 
 
-def _carved_parts(inst, mine: list[Shell], others: list[np.ndarray]) -> list | None:
+def _surface_points(shell: Shell, spacing: float = 0.02) -> np.ndarray:
+    """Points on a convex shell's surface no more than about ``spacing`` apart (its vertices and a
+    barycentric grid on each face; deterministic)."""
+    try:
+        faces = spatial.ConvexHull(shell.vertices).simplices
+    except (spatial.QhullError, ValueError):
+        return shell.vertices
+    out = [shell.vertices]
+    for a, b, c in shell.vertices[faces]:
+        n = int(np.ceil(max(np.linalg.norm(b - a), np.linalg.norm(c - a), np.linalg.norm(c - b)) / spacing))
+        if n < 2:
+            continue
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = i + j <= n
+        u, v = i[keep][:, None] / n, j[keep][:, None] / n
+        out.append(a + u * (b - a) + v * (c - a))
+    return np.concatenate(out)
+
+
+def _carved_parts(inst, mine: list[Shell], others: list[tuple[np.ndarray, bool]]) -> list | None:
     """A static object's convex parts with every part that holds another object's observed points
     (a hull spanning a shelf's boards, or a desk's box around the chair seen under it) replaced by
     the hulls of its own observed points in it, cut around each such object's points there
@@ -191,13 +217,13 @@ def _carved_parts(inst, mine: list[Shell], others: list[np.ndarray]) -> list | N
         # A piece cut around one object may still hold another, or one tried before: cut until none does.
         for _ in range(CARVE_ROUNDS if len(pieces[0]) >= CARVE_MIN_POINTS else 0):
             cut_now = False
-            for points in others:
+            for points, supports in others:
                 cut = []
                 for piece in pieces:
                     hull = convex_shell(piece)
                     depth = hull.depth(points) if hull is not None else np.zeros(len(points))
                     near = points[depth > -CARVE_MARGIN]
-                    split = _cut_around(piece, near) if len(near) >= CARVE_MIN_FOREIGN else [piece]
+                    split = _cut_around(piece, near, supports) if len(near) >= CARVE_MIN_FOREIGN else [piece]
                     cut_now |= split[0] is not piece
                     cut.extend(split)
                 pieces = cut
@@ -237,6 +263,14 @@ def _based_parts(mine: list[Shell], below: list[Shell]) -> list:
             vertices = np.concatenate([np.c_[vertices[:, :2], np.maximum(vertices[:, 2], base)], floor])
         hulls.append(trimesh.convex.convex_hull(vertices))
     return collision_parts(trimesh.util.concatenate(hulls))
+
+
+def _parent(graph: ContactGraph | None, object_id: int):
+    """The object's supporter in the contact graph (an object id, or a slab's name), None if unknown."""
+    if graph is None or object_id not in graph.support:
+        return None
+    parent = graph.parent(object_id)
+    return int(parent) if isinstance(parent, (int, np.integer)) else parent
 
 
 def _one_link(inst) -> bool:
@@ -291,6 +325,19 @@ def resting_normal(vertices: np.ndarray, center: np.ndarray, most: int = 50) -> 
             break
         down = normal
     return down
+
+
+def rocking_angle(mesh) -> float:
+    """How far (degrees) a body set down as it is rocks before it rests on a face of its convex
+    collision parts' hull (:func:`resting_normal`): 0 for a flat bottom, about 9 for a 20-sided cup
+    lying on its side, 90 or more for one that falls over."""
+    from stratamap.core.simulation.kinematics import inertial_of
+
+    parts = collision_parts(mesh)
+    if not parts:
+        return 0.0
+    vertices = np.concatenate([np.asarray(p.vertices, dtype=float) for p in parts])
+    return _angle_deg(_turn_down(resting_normal(vertices, inertial_of(mesh, 1.0).center)))
 
 
 def _turn_down(normal: np.ndarray) -> np.ndarray:
@@ -385,7 +432,15 @@ def rest_offsets(
     if key is not None and key in _PLANS:
         _PLANS.move_to_end(key)
         return copy.deepcopy(_PLANS[key])
-    plan = _plan_rest(instances, graph, movable, statics)
+    # A body kept static where it was mapped may hold a free body placed before it (a box on a table
+    # reaching into a chair pushed under it): that one cannot rest either, and the plan is made again
+    # with it static, until no static body holds a free one.
+    kept: dict[int, str] = {}
+    for _ in range(len(instances) + 1):
+        plan, held = _plan_rest(instances, graph, movable, statics, kept)
+        if not held:
+            break
+        kept.update(held)
     if key is not None:
         _PLANS[key] = copy.deepcopy(plan)
         while len(_PLANS) > _PLANS_KEPT:
@@ -398,7 +453,10 @@ def _plan_rest(
     graph: ContactGraph | None,
     movable: set[str],
     statics: list | None,
-) -> RestPlan:
+    kept: dict[int, str],
+) -> tuple[RestPlan, dict[int, str]]:
+    """The plan with the objects of ``kept`` static (with their reasons), and the free bodies that a
+    body kept static penetrates where it was mapped (with why they cannot be free)."""
     from stratamap.core.simulation.kinematics import inertial_of
 
     movable = set(movable)
@@ -407,7 +465,15 @@ def _plan_rest(
     shells = {inst.id: _shells(mesh) for inst, mesh in zip(instances, meshes.values(), strict=True)}
     slabs: list[Shell] = [s for b in statics or [] if (s := _slab_shell(b)) is not None]
     fixed = list(slabs)
-    points = {inst.id: np.asarray(inst.points, dtype=float).reshape(-1, 3) for inst in instances}
+    # What a static object's collision is cut around: what was seen of each neighbour and, of a free
+    # body, its convex parts too (a hull over a partly seen chair reaches where none of its points
+    # are, such as under a desk's apron it was pushed under).
+    seen = {}
+    for inst in instances:
+        observed = np.asarray(inst.points, dtype=float).reshape(-1, 3)
+        if inst.class_name in movable and shells[inst.id]:
+            observed = np.concatenate([observed, *(_surface_points(s) for s in shells[inst.id])])
+        seen[inst.id] = observed
     for inst in instances:
         if inst.class_name in movable:
             continue
@@ -415,12 +481,15 @@ def _plan_rest(
         # it rests on (a book whose edge mixes with the shelf's rail), while the neighbour only
         # loses the space the free body was seen in.
         if _one_link(inst) and shells[inst.id]:
-            near = _near(shells[inst.id], [p for k, p in points.items() if k != inst.id])
+            near = _near(shells[inst.id], [(p, _parent(graph, k) == inst.id) for k, p in seen.items() if k != inst.id])
             carved = _carved_parts(inst, shells[inst.id], near) if near else None
             if carved is not None:
                 shells[inst.id] = _shells_of(carved)
                 plan.collision[inst.id] = _in_object_frame(inst, carved)
         fixed.extend(shells[inst.id])
+    for k, reason in kept.items():
+        plan.static[k] = reason
+        fixed.extend(shells.get(k, []))
     placed: list[Shell] = []
     placed_by_id: dict[int, list[Shell]] = {}  # free bodies already placed, where they start
     lifts = np.arange(1, int(round(MAX_LIFT / 0.002)) + 1)[:, None] * np.array([[0.0, 0.0, 0.002]])
@@ -429,14 +498,14 @@ def _plan_rest(
     radii = np.arange(1, int(round(MAX_NUDGE / 0.005)) + 1) * 0.005
     sideways = (radii[:, None, None] * ring[None]).reshape(-1, 3)
     for inst in support_order(instances, graph):
-        if inst.class_name not in movable:
+        if inst.class_name not in movable or inst.id in kept:
             continue
         mine = shells[inst.id]
         if not mine:
             plan.static[inst.id] = "no collision geometry"
             continue
         # The supporter the contact graph names holds the object up; any other surface is a neighbour.
-        parent = graph.parent(inst.id) if graph is not None and inst.id in graph.support else None
+        parent = _parent(graph, inst.id)
         supporters = shells.get(int(parent), []) if isinstance(parent, (int, np.integer)) else slabs
         if isinstance(parent, (int, np.integer)) and int(parent) in placed_by_id:  # a free body placed before
             supporters = placed_by_id[int(parent)]
@@ -500,4 +569,13 @@ def _plan_rest(
         start = [_rotated(s, rotation, np.zeros(3)) for s in own] if turned else own
         placed_by_id[inst.id] = [s.translated(offset) for s in start]
         placed.extend(placed_by_id[inst.id])
-    return plan
+    names = {inst.id: f"{inst.class_name} {inst.id}" for inst in instances}
+    held: dict[int, str] = {}
+    for k in sorted(set(plan.static) - set(kept)):
+        for free, start in placed_by_id.items():
+            if free in held or not shells[k]:
+                continue
+            depth = float(shifted_penetration(start, shells[k], np.zeros((1, 3)), deepest=True)[0])
+            if depth > 0:
+                held[free] = f"{names[k]}, kept static, penetrates it by {depth * 1000:.0f} mm"
+    return plan, held

@@ -18,12 +18,13 @@ Per object:
 
 Globally (section 4.4): every candidate is posed resting on its supporting plane; candidates that
 disagree with the observed points (see ``rejection_reason``), penetrate the layout (floor, ceiling,
-wall points inside the model) or cannot support their children (support area ratio below b_th,
-eq. 2) are discarded; the min-conflict algorithm then chooses one candidate per object so that no
-two chosen models' meshes interpenetrate, trying every conflicted object's candidates and
-preferring low AE, independently of object ids (``core/simulation/physics.py``'s :func:`min_conflict`).
-The candidates left beside the chosen one are kept on its completion (``alternatives``, best
-first) for the physical check.
+wall points inside the model), would not stay as posed (they rock onto another face of their hull:
+a cup on its round side; not in the paper, whose scenes were not simulated) or cannot support their
+children (support area ratio below b_th, eq. 2) are discarded; the min-conflict algorithm then
+chooses one candidate per object so that no two chosen models' meshes interpenetrate, trying every
+conflicted object's candidates and preferring low AE, independently of object ids
+(``core/simulation/physics.py``'s :func:`min_conflict`). The candidates left beside the chosen one
+are kept on its completion (``alternatives``, best first) for the physical check.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import IndexedModel, ModelIndex, shape_descriptor
 from stratamap.core.map.layers import Completion, ObjectInstance, OrientedBox
 from stratamap.core.simulation.physics import Placement, Shell, conflicted, mesh_shells, min_conflict
+from stratamap.core.simulation.rest import rocking_angle
 from stratamap.plugins.completers._matching import (
     Match,
     MatcherConfig,
@@ -84,6 +86,7 @@ class Candidate:
     completion: Completion | None = None  # the posed model, once the global step poses it
     shells: list[Shell] | None = None  # its convex pieces, world frame
     layout_depth: float = 0.0  # how deep it reaches through floor, walls or ceiling beyond tolerance
+    rocking: float = 0.0  # degrees it rocks, set down as posed, before it rests on a face (0: at rest)
 
 
 class PlaneBoxConfig(MatcherConfig):
@@ -109,6 +112,14 @@ class PlaneBoxConfig(MatcherConfig):
         description="Tolerated overlap depth between models and of models below the floor, metres.",
     )
     min_conflict_iterations: int = Field(default=200, ge=1, description="Iterations of the min-conflict search.")
+    max_rocking_deg: float = Field(
+        default=5.0,
+        ge=0.0,
+        description=(
+            "Candidates that would rock further than this, set down as posed, before resting on a face (a cup on "
+            "its round side: about 9 degrees) are dropped unless every candidate would, degrees."
+        ),
+    )
 
 
 def observed_planes(points: np.ndarray, cfg: PlaneBoxConfig) -> list[tuple[np.ndarray, float, np.ndarray]]:
@@ -289,13 +300,16 @@ class PlaneBoxMatchCompleter(MatchingCompleter[PlaneBoxConfig]):
                     continue
                 cnd.shells = mesh_shells(cnd.completion.world_mesh())
                 cnd.layout_depth = layout.penetration(cnd.shells, cfg.penetration_tolerance)
+                cnd.rocking = rocking_angle(cnd.completion.world_mesh())
                 seen_ok.append(cnd)
             if not seen_ok:
                 self.reject(inst, reasons[0] if reasons else "no candidate")
                 continue
             # Layout (floor, walls, ceiling): candidates that penetrate it go, unless all do.
-            inside = [c for c in seen_ok if c.layout_depth <= 0.0]
-            options[inst.id] = inside or sorted(seen_ok, key=lambda c: c.layout_depth)[:1]
+            inside = [c for c in seen_ok if c.layout_depth <= 0.0] or sorted(seen_ok, key=lambda c: c.layout_depth)[:1]
+            # Candidates that would not stay as posed (a cup on its round side rocks onto a facet)
+            # go, unless all would: the scene is to rest as completed.
+            options[inst.id] = [c for c in inside if c.rocking <= cfg.max_rocking_deg] or inside
         self._support_check(options, data, cfg)
         placements = {i: [placement(c) for c in cands] for i, cands in options.items()}
         choice = min_conflict(placements, cfg.penetration_tolerance, cfg.min_conflict_iterations)

@@ -112,11 +112,25 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
         # A model that can neither stay (it penetrates a neighbour) nor move (its observed points
         # say where it is) is wrong: the object keeps its observed shape, as a completer's
         # rejection leaves it.
-        for i in conflicting(instances, undone):
-            reason = "penetrates a neighbour where it was seen"
-            instances[i].completion = None
-            instances[i].attributes["completion_rejected"] = reason
-            self.warn(f"object {i} ({instances[i].class_name}): completion rejected, kept as observed: {reason}")
+        # A kept model that then penetrates what was seen of a rejected neighbour contradicts that
+        # observation in turn, and goes too (until no rejection leaves such a conflict); not its
+        # supporter's, whose top mixes with the underside seen standing on it.
+        graph = data.map.contact_graph
+        supports = (
+            set()
+            if graph is None
+            else {(int(p), int(c)) for c in graph.support if isinstance(p := graph.parent(c), (int, np.integer))}
+        )
+        rejected = conflicting(instances, undone)
+        reason = "penetrates a neighbour where it was seen"
+        while rejected:
+            for i in rejected:
+                instances[i].completion = None
+                instances[i].attributes["completion_rejected"] = reason
+                self.warn(f"object {i} ({instances[i].class_name}): completion rejected, kept as observed: {reason}")
+            completed = [inst.id for inst in instances if inst.completion is not None]
+            rejected = conflicting(instances, completed, against=rejected, exempt=supports)
+            reason = "penetrates what was seen of a neighbour whose model was rejected"
         shifts = {
             inst.id: inst.completion.pose[:3, 3] - chosen[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
             for inst in instances

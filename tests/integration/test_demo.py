@@ -14,6 +14,9 @@ from stratamap.core.io.nav2 import read_map
 from stratamap.core.map.layers import LayeredMap
 from stratamap.core.pipeline import Pipeline
 from stratamap.core.registry import build_registry
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
+from stratamap.core.simulation.rest import rest_offsets
+from stratamap.core.simulation.structure import room_structure
 from tests.conftest import REPO
 
 SMALL = ["source.params.frames=16", "source.params.scene.camera={width: 320, height: 240}"]
@@ -93,10 +96,16 @@ def test_urdf_parses_with_yourdfpy_and_loads_in_pybullet(demo_run):
     structure = links - objects - {"world"}
     assert objects <= links and "floor" in structure
     assert all(name in ("floor", "ceiling") or name.startswith("wall_") for name in structure), sorted(structure)
-    # Every link's mesh, placed by the URDF's joints, sits where the map's completion is.
+    # Every link's mesh, placed by the URDF's joints, sits where the map's completion is, moved by the
+    # rest plan's settling (a few millimetres) if it is a free body.
+    plan = rest_offsets(m.instances, m.contact_graph, DEFAULT_MOVABLE_CLASSES, room_structure(m))
+    assert max(np.linalg.norm(v) for v in plan.offsets.values()) < 0.01
     for inst in m.instances:
         name = f"{inst.class_name}_{inst.id}"
-        np.testing.assert_allclose(robot.get_transform(name, "world"), inst.completion.pose, atol=1e-5)
+        settle = np.eye(4)
+        settle[:3, :3] = plan.rotations.get(inst.id, np.eye(3))
+        settle[:3, 3] = plan.offsets.get(inst.id, np.zeros(3))
+        np.testing.assert_allclose(robot.get_transform(name, "world"), settle @ inst.completion.pose, atol=1e-5)
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(urdf_path), useFixedBase=True, physicsClientId=client)

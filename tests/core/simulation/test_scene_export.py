@@ -338,3 +338,80 @@ def test_coarse_neighbours_and_partial_shapes_do_not_keep_movable_objects_static
     (urdf, *_) = URDFExporter(movable_classes=["book", "box"]).run(PipelineData(map=layered), tmp_path / "urdf")
     moved = bullet.settle(urdf, seconds=2.0)
     assert set(moved["displacement_m"]) == {"book_2", "box_3"} and moved["max_displacement_m"] < 0.02, moved
+
+
+def desk_and_chair_pushed_under_it() -> tuple[LayeredMap, ObjectInstances]:
+    """A desk seen as its top, a front apron, four legs and a frame joining them at the floor, and a
+    chair standing on the floor with
+    its seat and the front of its legs under the desk top, its back outside. Both stand on the floor:
+    the desk supports nothing."""
+    desk = observed(
+        1,
+        "desk",
+        np.concatenate(
+            [
+                slab_points([1.0, 1.0, 0.70], [2.2, 1.7, 0.72]),  # top
+                slab_points([1.0, 1.0, 0.47], [2.2, 1.02, 0.70]),  # front apron (y = 1.0 faces the room)
+                *(slab_points([x, y, 0.0], [x + 0.04, y + 0.04, 0.70]) for x in (1.0, 2.16) for y in (1.0, 1.66)),
+                # a frame joining the legs at the floor: one piece with them, whose hull spans the footprint
+                *(slab_points([1.0, y, 0.0], [2.2, y + 0.04, 0.02]) for y in (1.0, 1.66)),
+                *(slab_points([x, 1.0, 0.0], [x + 0.04, 1.7, 0.02]) for x in (1.0, 2.16)),
+            ]
+        ),
+    )
+    chair = observed(
+        2,
+        "chair",
+        np.concatenate(
+            [
+                slab_points([1.4, 0.75, 0.43], [1.85, 1.2, 0.45]),  # seat, its back half under the desk
+                slab_points([1.4, 0.73, 0.45], [1.85, 0.75, 0.9]),  # back, outside the desk
+                *(slab_points([x, y, 0.0], [x + 0.03, y + 0.03, 0.43]) for x in (1.4, 1.82) for y in (0.75, 1.17)),
+            ]
+        ),
+    )
+    instances = ObjectInstances([desk, chair])
+    layered = room_map()
+    layered.instances, layered.contact_graph = instances, graph_of(instances, {})
+    return layered, instances
+
+
+def test_a_chair_pushed_under_a_desk_it_does_not_stand_on_is_free():
+    """The desk's hull holds the chair's legs and seat. Cut around them, the desk used to keep the
+    band of its points at the chair's feet (a supporter's band, where an object's underside and its
+    support mix), which spans the desk's four legs: the chair's feet stood in it and the chair was
+    exported static. And the chair's coarse hull reaches from its back's top to its seat's front,
+    where none of its points are: the desk is cut around the chair's collision parts too."""
+    layered, instances = desk_and_chair_pushed_under_it()
+    plan = rest_offsets(instances, layered.contact_graph, ["chair"], room_structure(layered))
+    assert plan.static == {}, plan.static
+    assert set(plan.offsets) == {2} and 1 in plan.collision
+    assert np.linalg.norm(plan.offsets[2]) < 0.01  # dropped onto the floor where it stands, not pushed out
+
+
+def test_a_free_body_that_a_body_kept_static_penetrates_is_kept_static_too():
+    """A chair's box pushed under a table pokes up through its top (the table's observed parts are
+    cut around it, so the chair alone could be free), and a box on the table reaches into it: the
+    box cannot rest and stays static where it was mapped, inside the free chair, which a simulator
+    would then push out (the demo's chairs moved 5 cm in PyBullet). The chair is kept static too."""
+    from tests.core.simulation.test_physics import box_object
+
+    table = observed(
+        1,
+        "table",
+        np.concatenate(
+            [
+                slab_points([1.0, 1.0, 0.72], [2.2, 1.8, 0.75]),
+                *(slab_points([x, y, 0.0], [x + 0.04, y + 0.04, 0.72]) for x in (1.0, 2.16) for y in (1.0, 1.76)),
+            ]
+        ),
+    )
+    chair = box_object(2, "chair", (0.5, 0.5, 0.9), (1.6, 0.9, 0.0))  # its back half under the table
+    box = box_object(3, "box", (0.3, 0.3, 0.2), (1.6, 1.25, 0.75))  # on the table, over the chair's box
+    instances = ObjectInstances([table, chair, box])
+    layered = room_map()
+    graph = graph_of(instances, {3: 1})
+    plan = rest_offsets(instances, graph, ["chair", "box"], room_structure(layered))
+    assert set(plan.static) == {2, 3}, plan.static
+    assert "kept static" in plan.static[2] and "box 3" in plan.static[2]
+    assert plan.offsets == {}

@@ -193,3 +193,43 @@ def test_matching_completers_keep_ranked_alternatives_in_memory_not_in_the_map(t
         saved.instances[1].completion = completion
         loaded = LayeredMap.load(saved.save(tmp_path / completer.name)).instances[1].completion
         assert loaded.model_id == completion.model_id and loaded.alternatives == []
+
+
+def test_rocking_angle_of_a_cup_upright_and_on_its_side():
+    from stratamap.core.simulation.rest import rocking_angle
+
+    cup = trimesh.creation.cylinder(radius=0.05, height=0.14, sections=20)
+    assert rocking_angle(cup) < 0.5
+    on_side = cup.copy().apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    on_side.apply_transform(trimesh.transformations.rotation_matrix(np.radians(4.0), [0, 1, 0]))  # lowest: an edge
+    assert 4.0 < rocking_angle(on_side) < 14.0
+
+
+def test_plane_box_match_drops_candidates_that_would_rock_as_posed(tmp_path):
+    """A cup seen lying on its side, and a library of a round cup and a square one of the same size:
+    the round one on its side fits best but, posed on an edge of its 20 sides, would rock onto a
+    facet; the square one lies still. Without the check (any rocking allowed) the round one wins."""
+    from stratamap.core.simulation.rest import rocking_angle
+    from stratamap.plugins.completers.plane_box_match import PlaneBoxMatchCompleter
+
+    library = tmp_path / "library"
+    library.mkdir()
+    round_cup = trimesh.creation.cylinder(radius=0.05, height=0.14, sections=20)
+    round_cup.apply_translation((0, 0, 0.07))
+    round_cup.export(library / "round.stl")
+    boxes(((0.1, 0.1, 0.14), (0, 0, 0.07))).export(library / "square.stl")
+    (library / "classes.csv").write_text("file,class\nround.stl,cup\nsquare.stl,cup\n")
+    lying = trimesh.creation.cylinder(radius=0.05, height=0.14, sections=64)
+    lying.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    seen = surface_points(lying, (1.0, 1.0, 0.05), n=1500)
+    seen = seen[seen[:, 2] > 0.03]  # seen from above
+    chosen = {}
+    for limit in (5.0, 180.0):
+        data = PipelineData()
+        data.map.instances = ObjectInstances([ObjectInstance(1, "cup", seen, gravity_aligned_box(seen))])
+        completer = PlaneBoxMatchCompleter(library=str(library), max_rocking_deg=limit)
+        completion = completer.run(data)["instances"][1].completion
+        assert completion is not None
+        chosen[limit] = (completion.model_id, rocking_angle(completion.world_mesh()))
+    assert chosen[180.0][1] > 5.0, chosen  # the best fit alone would rock
+    assert chosen[5.0][1] <= 5.0 and chosen[5.0][0] != chosen[180.0][0], chosen

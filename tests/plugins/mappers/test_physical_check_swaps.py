@@ -134,3 +134,35 @@ def test_the_augmented_layer_has_the_moved_model_where_the_check_put_it():
 
     assert new_place(data.map.augmented.points) == 0
     assert new_place(out["augmented"].points) >= 500  # the model's samples moved with it
+
+
+@pytest.mark.parametrize("ids", [(1, 2), (2, 1)])
+def test_a_model_that_penetrates_what_was_seen_of_a_rejected_neighbour_is_rejected_too(ids):
+    """Two objects seen interleaved (a chair pushed under a desk), each completed by a model that
+    fits what was seen of it and penetrates the other's by 15 cm, with no other candidate. Moving
+    either contradicts its observation, so the one moved is put back and rejected (it keeps its
+    observed shape); the other's model then penetrates what was seen of the first, and goes too.
+    It used to stay, and the exported scene kept the observed object inside it (static in the
+    rest plan)."""
+    first, second = ids
+    wide, narrow = completion(WIDE, 0.15, "wide", 0.01), completion(NARROW, 0.45, "narrow", 0.01)
+    data = scene([(first, observed(WIDE, 0.15), wide), (second, observed(NARROW, 0.45), narrow)])
+    out = PhysicalCheckMapper().run(data)["instances"]
+    reasons = sorted(inst.attributes.get("completion_rejected") or "" for inst in out)
+    assert all(inst.completion is None for inst in out)
+    assert reasons == [
+        "penetrates a neighbour where it was seen",
+        "penetrates what was seen of a neighbour whose model was rejected",
+    ]
+
+
+def test_a_supporter_keeps_its_model_when_what_it_holds_is_rejected():
+    """As above, but the second object stands on the first: the top of a supporter's model mixes
+    with the underside seen standing on it, which contradicts nothing."""
+    wide, narrow = completion(WIDE, 0.15, "wide", 0.01), completion(NARROW, 0.45, "narrow", 0.01)
+    data = scene([(1, observed(WIDE, 0.15), wide), (2, observed(NARROW, 0.45), narrow)])
+    data.map.contact_graph.support.remove_edge("floor", 2)
+    data.map.contact_graph.support.add_edge(1, 2, relation="support", plane=[0.0, 0.0, 1.0, WIDE[2]])
+    out = PhysicalCheckMapper().run(data)["instances"]
+    assert out[1].completion is not None and out[1].completion.model_id == "wide"
+    assert out[2].completion is None
