@@ -19,3 +19,11 @@ def shared_data(*parts: str) -> Path:
 @pytest.fixture
 def repo() -> Path:
     return REPO
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files holding slow tests first: with the files spread over processes (`make test`,
+    pytest-xdist's `--dist loadfile`), a long file started last would leave the other processes
+    idle at the end."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)  # stable: file order kept within each group

@@ -460,18 +460,22 @@ def penetration_volume(instances: ObjectInstances) -> float:
 
 
 def settle(mjcf_path: str | Path, seconds: float = 2.0) -> dict[str, Any]:
-    """Simulate the exported MJCF under gravity; how far each free body moved (needs ``mujoco``)."""
+    """Simulate the exported MJCF under gravity; how far each free body moved (needs ``mujoco``): the
+    farther of its frame's origin and its centre of mass (a body framed at its base that tips over
+    an edge of it moves its centre of mass far more than its origin)."""
     import mujoco
 
     model = mujoco.MjModel.from_xml_path(str(mjcf_path))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     bodies = [int(model.jnt_bodyid[j]) for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
-    start = {b: data.xpos[b].copy() for b in bodies}
+    start = {b: (data.xpos[b].copy(), data.xipos[b].copy()) for b in bodies}
     for _ in range(int(round(seconds / model.opt.timestep))):
         mujoco.mj_step(model, data)
     moved = {
-        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): float(np.linalg.norm(data.xpos[b] - start[b]))
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): max(
+            float(np.linalg.norm(data.xpos[b] - start[b][0])), float(np.linalg.norm(data.xipos[b] - start[b][1]))
+        )
         for b in bodies
     }
     return {"free_bodies": len(bodies), "max_displacement_m": max(moved.values(), default=0.0), "displacement_m": moved}

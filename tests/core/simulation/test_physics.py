@@ -148,3 +148,22 @@ def test_contact_graph_planes_hidden_tabletop_wall_support_and_refined_boxes():
     assert len(heights) >= 2 and abs(heights[0] - 0.71) < 0.01 and abs(heights[-1] - 0.75) < 0.01  # underside and top
     refined = graph.support.nodes[2]["box_refined"]
     assert abs(refined["center"][2] - refined["size"][2] / 2 - 0.75) < 0.01  # reaches down to the tabletop
+
+
+def test_settle_sees_a_body_tip_over_its_base_edge(tmp_path):
+    """A tall post framed at the middle of its base, set down leaning 10 degrees: it falls flat. Its
+    frame's origin, next to the edge it turns about, moves a few centimetres; its centre of mass
+    falls some 40 cm. settle reports the latter."""
+    pytest.importorskip("mujoco")
+    from stratamap.core.simulation.physics import settle
+
+    path = tmp_path / "post.xml"
+    path.write_text(
+        """<mujoco><option timestep="0.002"/><worldbody>
+        <geom name="floor" type="plane" size="5 5 0.1"/>
+        <body name="post" pos="0 0 0.001" euler="0 10 0"><freejoint/>
+          <geom type="box" size="0.025 0.025 0.4" pos="0 0 0.4" density="500"/>
+        </body></worldbody></mujoco>"""
+    )
+    result = settle(path, seconds=2.0)
+    assert result["free_bodies"] == 1 and result["max_displacement_m"] > 0.3, result
