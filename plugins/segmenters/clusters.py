@@ -10,7 +10,10 @@
    layout plane, and objects lying mostly near one (``layout_share``: what the plane fit left at
    corners and edges). Horizontal surfaces at table and counter heights are *support surfaces*:
    kept out of the clustering too, so what stands on them comes apart from them, and then given
-   back to their object (below).
+   back to their object (below). Each takes up to three rings of neighbouring cells within half a
+   voxel of its height and inside its footprint (``grow_supports``): the plane fit leaves out the
+   top where normals bend at a cup's foot, and that ring would join the cup to the table's rim;
+   cells it took under a segment standing there go back to it (``return_feet``).
 3. Convexity-aware clustering of the rest (``method: convex``). Neighbouring cells (within
    ``radius_voxels``) stay connected when their surfaces are locally convex,
    ``(n_i - n_j) . (x_i - x_j) >= 0`` for normals facing the sensor, or nearly coplanar; the
@@ -513,6 +516,64 @@ def _hull_equations(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.array([[1.0, 0], [-1, 0], [0, 1], [0, -1]]), np.array([-hi[0], lo[0], -hi[1], lo[1]])
 
 
+def grow_supports(
+    cells: np.ndarray,
+    supports: Supports,
+    free: np.ndarray,
+    pairs: np.ndarray,
+    tolerance: float,
+    voxel: float,
+    rings: int = 3,
+) -> np.ndarray:
+    """Grow each support surface, in place, by up to ``rings`` rings of neighbouring ``free`` cells
+    within ``tolerance`` of its height and inside its footprint (convex hull, grown by a voxel);
+    returns the cells taken. Next to what stands on a table the normals bend and the layout's fit
+    leaves a ring of the top out, through which a cup's segment would reach the table's edge and
+    legs and join the table. Neighbours only: a chair's back at the table's height under its edge
+    stays the chair's."""
+    z = cells[:, 2]
+    both = np.concatenate([pairs, pairs[:, ::-1]]) if len(pairs) else np.zeros((0, 2), np.int64)
+    grown = []
+    for k, height in enumerate(supports.height):
+        on = supports.of_cell == k
+        if on.sum() < 3:
+            continue
+        a, b = _hull_equations(cells[on, :2])
+        may = free & (supports.of_cell < 0) & (np.abs(z - height) <= tolerance)
+        may[may] = ((cells[may, :2] @ a.T + b) <= voxel).all(axis=1)
+        for _ in range(rings):
+            new = np.unique(both[(supports.of_cell[both[:, 0]] == k) & may[both[:, 1]], 1])
+            if not len(new):
+                break
+            supports.of_cell[new] = k
+            may[new] = False
+            grown.append(new)
+    return np.concatenate(grown) if grown else np.zeros(0, np.int64)
+
+
+def return_feet(
+    cells: np.ndarray, obj: np.ndarray, segment: np.ndarray, grown: np.ndarray, pairs: np.ndarray, supports: Supports
+) -> None:
+    """Cells a support took by :func:`grow_supports` that touch a clustered cell above them (the
+    bottom row of a cup standing on a table) go back to that cell's object (the nearest such) and
+    leave the support, in place."""
+    if not len(grown) or not len(pairs):
+        return
+    is_grown = np.zeros(len(cells), bool)
+    is_grown[grown] = True
+    both = np.concatenate([pairs, pairs[:, ::-1]])
+    foot, above = both[:, 0], both[:, 1]
+    keep = is_grown[foot] & (segment[above] >= 0) & (obj[above] >= 0) & (cells[above, 2] > cells[foot, 2])
+    foot, above = foot[keep], above[keep]
+    if not len(foot):
+        return
+    order = np.lexsort((above, np.linalg.norm(cells[above] - cells[foot], axis=1), foot))
+    foot, above = foot[order], above[order]
+    first = np.r_[True, foot[1:] != foot[:-1]]
+    obj[foot[first]] = obj[above[first]]
+    supports.of_cell[foot[first]] = -1  # no longer the support's top
+
+
 def join_supports(
     cells: np.ndarray,
     segment: np.ndarray,
@@ -808,11 +869,12 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for k, surface in enumerate(layout.supports):
             supports.of_cell[surface.indices] = k
         stuff = layout.labels != NONE
+        objects = np.flatnonzero(~stuff)
+        pairs = objects[neighbour_pairs(cells[objects], cfg.radius_voxels * voxel)]
+        grown = grow_supports(cells, supports, ~stuff, pairs, 0.5 * voxel, voxel)
         free = np.flatnonzero(~stuff & (supports.of_cell < 0))
         # 2. Clustering of the rest.
         segment = np.full(len(cells), -1, np.int64)
-        objects = np.flatnonzero(~stuff)
-        pairs = objects[neighbour_pairs(cells[objects], cfg.radius_voxels * voxel)]
         if len(free):
             local = np.full(len(cells), -1, np.int64)
             local[free] = np.arange(len(free))
@@ -838,6 +900,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             segment[free] = absorb_lines(cells[free], comp, free_pairs, voxel)
         # 3. Support surfaces get their objects back; objects standing on them stay apart.
         obj = join_supports(cells, segment, supports, pairs, voxel, cfg, layout.floor_height is not None)
+        return_feet(cells, obj, segment, grown, pairs, supports)
 
         # Cells of an object lying on a layout plane and facing its way are the plane's (where the
         # object touches a wall, the normals there are bent and the layout fit left them out).
