@@ -1125,8 +1125,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
     ) -> None:
         """Pieces that are no object by themselves join the floor-standing object (a class of
         NOT_STACKED: chairs, tables, counters) they lie over or under: a swivel chair's base under
-        its seat, an armrest over it. A piece is one named ``object`` by the priors, or one voted
-        the anchor's class that cannot be of it alone (a 20 cm "chair" at seat height). In place."""
+        its seat, an armrest over it. A piece is one named ``object`` by the priors, one voted
+        the anchor's class that cannot be of it alone (a 20 cm "chair" at seat height), or one that
+        nothing of its own holds up (off the floor, off the walls, of no floor-standing class: a
+        backrest's top voted "monitor"). In place."""
         from stratamap.core.map.instances import instance_members
         from stratamap.core.map.priors import NOT_STACKED
 
@@ -1144,13 +1146,17 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         joined = []
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel = info[iid]
-            if iid in anchors or (name != "object" and fits_class(name, shape)):
+            # Held up by nothing of its own: neither floor-standing nor hung on a wall, its foot off the
+            # floor. Within a floor-standing object it is a piece of it, whatever it was voted (a
+            # chair's backrest seen as a "monitor"); on it, it rises above its top (a cup on a table).
+            floating = name not in NOT_STACKED and not shape.against_wall and shape.bottom > STANDING_GAP
+            if iid in anchors or (name != "object" and fits_class(name, shape) and not floating):
                 continue
             alone = prior_class(shape, vocab)[0]
             z = points[sel, 2]
             for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
                 a_name, _, a_sel = info[anchor]
-                if alone != "object" and a_name != name:
+                if not floating and alone != "object" and a_name != name:
                     continue
                 # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
                 az = points[a_sel, 2]

@@ -124,3 +124,27 @@ def test_without_keep_instances_nothing_changes_by_default():
     data.map.geometry = Geometry(points=points, voxel_size=0.03)
     out = ClustersSegmenter().run(data)
     assert "counter" not in {i.class_name for i in out["instances"]}
+
+
+def test_a_piece_nothing_holds_up_joins_the_chair_it_lies_within():
+    """The frames' boxes took the middle of the chair's backrest for a monitor: an instance of its
+    own, of a monitor's size, but off the floor, off the walls and within the chair (not rising
+    above it, as a cup does above a table). It is part of the chair."""
+    points, names = kitchen_room(0.02)
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    classes[names == "table"], instances[names == "table"] = VOCAB.id("table"), 1
+    chair_points = names == "chair"
+    classes[chair_points], instances[chair_points] = VOCAB.id("chair"), 2
+    backrest_top = chair_points & (points[:, 2] > 0.7) & (np.abs(points[:, 0] - 3.0) < 0.12)  # between the posts
+    classes[backrest_top], instances[backrest_top] = VOCAB.id("monitor"), 3
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    assert "monitor" not in {inst.class_name for inst in out["instances"]}
+    sem = out["semantics"]
+    chair_id = np.bincount(sem.instance_ids[chair_points]).argmax()
+    assert chair_id > 0 and (sem.instance_ids[backrest_top] == chair_id).mean() > 0.9
