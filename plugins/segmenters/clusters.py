@@ -530,24 +530,42 @@ def grow_supports(
     returns the cells taken. Next to what stands on a table the normals bend and the layout's fit
     leaves a ring of the top out, through which a cup's segment would reach the table's edge and
     legs and join the table. Neighbours only: a chair's back at the table's height under its edge
-    stays the chair's."""
+    stays the chair's. One pass over the neighbour pairs per ring, whatever the number of surfaces."""
+    n_sup = len(supports.height)
+    if not n_sup or not len(pairs):
+        return np.zeros(0, np.int64)
     z = cells[:, 2]
-    both = np.concatenate([pairs, pairs[:, ::-1]]) if len(pairs) else np.zeros((0, 2), np.int64)
+    hulls = [
+        _hull_equations(cells[supports.of_cell == k, :2]) if (supports.of_cell == k).sum() >= 3 else None
+        for k in range(n_sup)
+    ]
+    both = np.concatenate([pairs, pairs[:, ::-1]])
+    # Only pairs from a cell that could join a surface (free, not on one, at a surface's height) matter.
+    lo, hi = supports.height.min() - tolerance, supports.height.max() + tolerance
+    both = both[free[both[:, 1]] & (z[both[:, 1]] >= lo) & (z[both[:, 1]] <= hi)]
     grown = []
-    for k, height in enumerate(supports.height):
-        on = supports.of_cell == k
-        if on.sum() < 3:
-            continue
-        a, b = _hull_equations(cells[on, :2])
-        may = free & (supports.of_cell < 0) & (np.abs(z - height) <= tolerance)
-        may[may] = ((cells[may, :2] @ a.T + b) <= voxel).all(axis=1)
-        for _ in range(rings):
-            new = np.unique(both[(supports.of_cell[both[:, 0]] == k) & may[both[:, 1]], 1])
-            if not len(new):
-                break
-            supports.of_cell[new] = k
-            may[new] = False
-            grown.append(new)
+    for _ in range(rings):
+        k = supports.of_cell[both[:, 0]]
+        open_ = (k >= 0) & (supports.of_cell[both[:, 1]] < 0)
+        cand, k = both[open_, 1], k[open_]
+        ok = np.abs(z[cand] - supports.height[k]) <= tolerance
+        cand, k = cand[ok], k[ok]
+        inside = np.zeros(len(cand), bool)
+        for surface in np.unique(k):
+            if hulls[surface] is None:
+                continue
+            sel = np.flatnonzero(k == surface)
+            a, b = hulls[surface]
+            inside[sel] = ((cells[cand[sel], :2] @ a.T + b) <= voxel).all(axis=1)
+        cand, k = cand[inside], k[inside]
+        if not len(cand):
+            break
+        # A cell next to two surfaces joins the lowest-numbered (deterministic).
+        order = np.lexsort((k, cand))
+        cand, k = cand[order], k[order]
+        first = np.r_[True, cand[1:] != cand[:-1]]
+        supports.of_cell[cand[first]] = k[first]
+        grown.append(cand[first])
     return np.concatenate(grown) if grown else np.zeros(0, np.int64)
 
 
