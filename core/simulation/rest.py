@@ -435,9 +435,10 @@ def rest_offsets(
     # A body kept static where it was mapped may hold a free body placed before it (a box on a table
     # reaching into a chair pushed under it): that one cannot rest either, and the plan is made again
     # with it static, until no static body holds a free one.
+    scene = _scene(instances, graph, movable, statics)
     kept: dict[int, str] = {}
     for _ in range(len(instances) + 1):
-        plan, held = _plan_rest(instances, graph, movable, statics, kept)
+        plan, held = _plan_rest(instances, graph, movable, scene, kept)
         if not held:
             break
         kept.update(held)
@@ -448,23 +449,23 @@ def rest_offsets(
     return plan
 
 
-def _plan_rest(
-    instances: ObjectInstances,
-    graph: ContactGraph | None,
-    movable: set[str],
-    statics: list | None,
-    kept: dict[int, str],
-) -> tuple[RestPlan, dict[int, str]]:
-    """The plan with the objects of ``kept`` static (with their reasons), and the free bodies that a
-    body kept static penetrates where it was mapped (with why they cannot be free)."""
-    from stratamap.core.simulation.kinematics import inertial_of
+@dataclass
+class _Scene:
+    """What the rest plan starts from, made once per scene however often the placement is redone:
+    every object's world mesh and convex collision shells (a static object's cut around its
+    neighbours), the room's slabs, and the replaced collision parts."""
 
-    movable = set(movable)
-    plan = RestPlan()
+    meshes: dict
+    shells: dict[int, list[Shell]]
+    slabs: list[Shell]
+    collision: dict[int, list]
+
+
+def _scene(instances: ObjectInstances, graph: ContactGraph | None, movable: set[str], statics: list | None) -> _Scene:
     meshes = {inst.id: world_mesh(inst) for inst in instances}
     shells = {inst.id: _shells(mesh) for inst, mesh in zip(instances, meshes.values(), strict=True)}
     slabs: list[Shell] = [s for b in statics or [] if (s := _slab_shell(b)) is not None]
-    fixed = list(slabs)
+    collision: dict[int, list] = {}
     # What a static object's collision is cut around: what was seen of each neighbour and, of a free
     # body, its convex parts too (a hull over a partly seen chair reaches where none of its points
     # are, such as under a desk's apron it was pushed under).
@@ -475,18 +476,36 @@ def _plan_rest(
             observed = np.concatenate([observed, *(_surface_points(s) for s in shells[inst.id])])
         seen[inst.id] = observed
     for inst in instances:
-        if inst.class_name in movable:
-            continue
         # Static objects only are cut: a free body cut around its neighbour's points would lose what
         # it rests on (a book whose edge mixes with the shelf's rail), while the neighbour only
         # loses the space the free body was seen in.
-        if _one_link(inst) and shells[inst.id]:
-            near = _near(shells[inst.id], [(p, _parent(graph, k) == inst.id) for k, p in seen.items() if k != inst.id])
-            carved = _carved_parts(inst, shells[inst.id], near) if near else None
-            if carved is not None:
-                shells[inst.id] = _shells_of(carved)
-                plan.collision[inst.id] = _in_object_frame(inst, carved)
-        fixed.extend(shells[inst.id])
+        if inst.class_name in movable or not (_one_link(inst) and shells[inst.id]):
+            continue
+        near = _near(shells[inst.id], [(p, _parent(graph, k) == inst.id) for k, p in seen.items() if k != inst.id])
+        carved = _carved_parts(inst, shells[inst.id], near) if near else None
+        if carved is not None:
+            shells[inst.id] = _shells_of(carved)
+            collision[inst.id] = _in_object_frame(inst, carved)
+    return _Scene(meshes, shells, slabs, collision)
+
+
+def _plan_rest(
+    instances: ObjectInstances,
+    graph: ContactGraph | None,
+    movable: set[str],
+    scene: _Scene,
+    kept: dict[int, str],
+) -> tuple[RestPlan, dict[int, str]]:
+    """The plan with the objects of ``kept`` static (with their reasons), and the free bodies that a
+    body kept static penetrates where it was mapped (with why they cannot be free)."""
+    from stratamap.core.simulation.kinematics import inertial_of
+
+    plan = RestPlan(collision=dict(scene.collision))
+    meshes, shells, slabs = scene.meshes, scene.shells, scene.slabs
+    fixed = list(slabs)
+    for inst in instances:
+        if inst.class_name not in movable:
+            fixed.extend(shells[inst.id])
     for k, reason in kept.items():
         plan.static[k] = reason
         fixed.extend(shells.get(k, []))

@@ -286,21 +286,13 @@ def test_a_cup_near_the_table_edge_is_its_own_instance():
     the layout's fit leaves out there runs into the table's rim, through which the cup's segment
     joined the table's. The support surface takes that ring (cells at its height, next to it, in its
     footprint); the cup's own foot goes back to the cup."""
-    from tests.plugins.segmenters.test_layout_planes import ROOM, solids, table
+    from tests.plugins.segmenters.test_layout_planes import room_shell, solids, table
 
     spacing = 0.02
-    lx, ly, lz = ROOM
-    layout = [
-        box_surface((0, 0, 0), (lx, ly, 0), spacing, "z"),
-        box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z"),
-        box_surface((0, 0, 0), (0, ly, lz), spacing, "x"),
-        box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X"),
-        box_surface((0, 0, 0), (lx, 0, lz), spacing, "y"),
-        box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y"),
-    ]
+    layout = room_shell(spacing)
     objects, names = solids(table(3.0, 2.5) + [("cup", (3.5, 2.4, 0.75), (3.58, 2.48, 0.85))], spacing)
-    points = np.concatenate([*layout, objects])
-    names = np.concatenate([np.full(sum(map(len, layout)), "floor"), names])
+    points = np.concatenate([p for _, p in layout] + [objects])
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
     out = segment(points, spacing)
     (table_id, table_share), (cup_id, cup_share) = instance_of(names, out, "table"), instance_of(names, out, "cup")
     assert cup_id > 0 and cup_id != table_id, (table_id, cup_id)

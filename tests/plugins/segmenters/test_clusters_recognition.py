@@ -17,7 +17,7 @@ from stratamap.plugins.segmenters.clusters import (
     prior_class,
     typical_rather,
 )
-from tests.plugins.segmenters.test_layout_planes import ROOM, box_surface, chair, solids, table
+from tests.plugins.segmenters.test_layout_planes import chair, room_shell, solids, table
 
 VOCAB = Vocabulary.default()
 
@@ -66,15 +66,7 @@ def test_shape_tells_a_solid_unit_from_a_table_on_legs():
 
 def kitchen_room(spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """A room with a table (a cup on it), a chair, and a counter unit against the x=0 wall."""
-    lx, ly, lz = ROOM
-    layout = [
-        ("floor", box_surface((0, 0, 0), (lx, ly, 0), spacing, "z")),
-        ("ceiling", box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z")),
-        ("wall", box_surface((0, 0, 0), (0, ly, lz), spacing, "x")),
-        ("wall", box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X")),
-        ("wall", box_surface((0, 0, 0), (lx, 0, lz), spacing, "y")),
-        ("wall", box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y")),
-    ]
+    layout = room_shell(spacing)
     parts = table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35)
     parts.append(("counter", (0.02, 1.0, 0.0), (0.62, 2.6, 0.9)))  # its back 2 cm off the wall
     objects, names = solids(parts, spacing)

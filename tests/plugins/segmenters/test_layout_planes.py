@@ -62,11 +62,10 @@ def chair(x: float, y: float) -> list:
     return parts
 
 
-def synthetic_room(spacing: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """A 6 x 5 x 2.6 m room (floor, four walls, ceiling) with a table, a cup on it and a chair;
-    points on a grid of ``spacing`` (as a TSDF map of that voxel size), and a name per point."""
+def room_shell(spacing: float) -> list[tuple[str, np.ndarray]]:
+    """The empty ROOM's floor, ceiling and four walls as (name, points on a grid of ``spacing``)."""
     lx, ly, lz = ROOM
-    layout = [
+    return [
         ("floor", box_surface((0, 0, 0), (lx, ly, 0), spacing, "z")),
         ("ceiling", box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z")),
         ("wall", box_surface((0, 0, 0), (0, ly, lz), spacing, "x")),
@@ -74,6 +73,12 @@ def synthetic_room(spacing: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
         ("wall", box_surface((0, 0, 0), (lx, 0, lz), spacing, "y")),
         ("wall", box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y")),
     ]
+
+
+def synthetic_room(spacing: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """A 6 x 5 x 2.6 m room (floor, four walls, ceiling) with a table, a cup on it and a chair;
+    points on a grid of ``spacing`` (as a TSDF map of that voxel size), and a name per point."""
+    layout = room_shell(spacing)
     objects, names = solids(
         table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35), spacing
     )
