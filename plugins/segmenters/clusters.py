@@ -701,6 +701,8 @@ STANDING_GAP = 0.3
 THIN = 0.15
 #: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
 SIZE_MARGIN = 1.3
+#: Things the priors name when they stand on a support surface, by size.
+ON_SUPPORTS = ("cup", "bottle", "box")
 
 
 def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
@@ -737,6 +739,77 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
     bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
     covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
     return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, covered / bins >= 0.6)
+
+
+#: Units in a row differ in height by at least this (m) where one ends: a tall unit (a fridge, an oven
+#: column, a cupboard) rises far above a worktop; an appliance standing on it (a coffee machine, a
+#: microwave, 0.3-0.45 m) does not.
+STEP_HEIGHT = 0.5
+#: Each unit of a row is at least this long (m) along the row.
+UNIT_LENGTH = 0.3
+
+
+def split_at_step(pts: np.ndarray, base_z: float) -> np.ndarray | None:
+    """Where a floor-standing solid object is two units side by side (a counter against a tall unit,
+    their fronts in one plane, so that neither the frames' depth edges nor the map's convexity part
+    them): its top, along its long axis, is level on each side of one place and steps there by
+    STEP_HEIGHT or more, each side UNIT_LENGTH long or longer, and the taller side's front lies at the
+    same place across the row above and below the lower top (a unit's front from the floor up, not a
+    coffee machine standing back on a worktop). Returns a boolean mask of the taller unit's points,
+    or None."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
+    box = gravity_aligned_box(pts)
+    axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
+    if box.size[1] > box.size[0]:
+        axis = np.array([-axis[1], axis[0]])
+    length, depth = float(max(box.size[:2])), float(min(box.size[:2]))
+    if length < 2 * UNIT_LENGTH or float(pts[:, 2].min()) - base_z > FLOOR_GAP:
+        return None
+    cell = 0.05
+    along = pts[:, :2] @ axis
+    bins = np.floor((along - along.min()) / cell).astype(np.int64)
+    n_bins = int(bins.max()) + 1
+    top = np.full(n_bins, np.nan)
+    for b in np.unique(bins):
+        z = pts[bins == b, 2]
+        if len(z) >= 5:
+            top[b] = np.percentile(z, 95)
+    # The cut of the best two-level fit of the top profile (least absolute deviation).
+    best: tuple[float, int] | None = None
+    need = int(round(UNIT_LENGTH / cell))
+    for cut in range(need, n_bins - need + 1):
+        left, right = top[:cut], top[cut:]
+        left, right = left[np.isfinite(left)], right[np.isfinite(right)]
+        if len(left) < need or len(right) < need:
+            continue
+        cost = float(np.abs(left - np.median(left)).sum() + np.abs(right - np.median(right)).sum())
+        if best is None or cost < best[0]:
+            best = (cost, cut)
+    if best is None:
+        return None
+    cut = best[1]
+    left, right = top[:cut], top[cut:]
+    left, right = left[np.isfinite(left)], right[np.isfinite(right)]
+    left_top, right_top = float(np.median(left)), float(np.median(right))
+    level = (np.abs(left - left_top) <= 0.1).mean() >= 0.8 and (np.abs(right - right_top) <= 0.1).mean() >= 0.8
+    if abs(right_top - left_top) < STEP_HEIGHT or not level:
+        return None
+    tall = bins >= cut if right_top > left_top else bins < cut
+    lower_top = min(left_top, right_top)
+    across = pts[:, :2] @ np.array([-axis[1], axis[0]])
+    upper = across[tall & (pts[:, 2] > lower_top + 0.05)]
+    below = across[tall & (pts[:, 2] > base_z + 0.2) & (pts[:, 2] < lower_top - 0.1)]
+    if len(upper) < 20 or len(below) < 20:
+        return None
+    # The taller unit's body reaches the floor: its front (the row's side seen most: the back stands
+    # against a wall) lies at the same place across the row above and below the lower top; a coffee
+    # machine's front stands back from the worktop's.
+    back, front = float(across.min()), float(across.max())
+    sign = 1.0 if (across > front - 0.03).sum() >= (across < back + 0.03).sum() else -1.0
+    if abs(np.percentile(sign * upper, 95) - np.percentile(sign * below, 95)) > 0.05:
+        return None
+    return tall
 
 
 def fits_class(name: str, shape: Shape) -> bool:
@@ -814,7 +887,7 @@ def prior_class(shape: Shape, vocab: Vocabulary) -> tuple[str, str]:
         return name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape)
 
     if shape.bottom > FLOOR_GAP:
-        for name in ("cup", "bottle", "box"):
+        for name in ON_SUPPORTS:
             if ok(name):
                 return name, "on a support, its size"
         if shape.against_wall and ok("cabinet"):
@@ -1114,6 +1187,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
+        self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls)
         changes = []
         for iid, sel in instance_members(instance_ids).items():
@@ -1131,6 +1205,28 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         if changes:
             self.note("recognition", changes)
         return class_ids, instance_ids
+
+    def _split_units(
+        self, points: np.ndarray, class_ids: np.ndarray, instance_ids: np.ndarray, vocab: Vocabulary, base_z: float
+    ) -> None:
+        """Units side by side that came out as one instance (``split_at_step``) become two; the taller
+        one takes a new instance id. In place; each split is noted."""
+        from stratamap.core.map.instances import instance_members
+
+        splits = []
+        next_id = int(instance_ids.max()) + 1
+        for iid, sel in instance_members(instance_ids).items():
+            cls = int(np.bincount(class_ids[sel]).argmax())
+            if len(sel) < 200 or not vocab.is_thing[cls]:
+                continue
+            tall = split_at_step(points[sel], base_z)
+            if tall is None:
+                continue
+            instance_ids[sel[tall]] = next_id
+            splits.append({"instance": iid, "taller_unit": next_id, "points": int(tall.sum())})
+            next_id += 1
+        if splits:
+            self.note("units_split", splits)
 
     def _join_parts(
         self,
@@ -1160,7 +1256,14 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             cls = int(np.bincount(class_ids[sel]).argmax())
             if vocab.is_thing[cls]:
                 info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls), sel)
-        anchors = [i for i, (name, shape, _) in info.items() if name in NOT_STACKED and fits_class(name, shape)]
+        # Anchors by the class they will have: the voted one where their size allows it, else the
+        # priors' (a counter a detector without a 'counter' label framed as a "box").
+        anchor_class = {}
+        for i, (name, shape, _) in info.items():
+            settled = name if name != "object" and fits_class(name, shape) else prior_class(shape, vocab)[0]
+            if settled in NOT_STACKED and fits_class(settled, shape):
+                anchor_class[i] = settled
+        anchors = list(anchor_class)
         joined = []
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel = info[iid]
@@ -1168,17 +1271,25 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # floor. Within a floor-standing object it is a piece of it, whatever it was voted (a
             # chair's backrest seen as a "monitor"); on it, it rises above its top (a cup on a table).
             floating = name not in NOT_STACKED and not shape.against_wall and shape.bottom > STANDING_GAP
-            if iid in anchors or (name != "object" and fits_class(name, shape) and not floating):
-                continue
             alone = prior_class(shape, vocab)[0]
+            # Voted a floor-standing class, its foot off the floor, too large for a thing standing on a
+            # support: within a floor-standing object that reaches lower, it is a piece of that (a
+            # counter's upper front that a detector called a chair; a mug voted "table" stays a mug).
+            lifted = name in NOT_STACKED and shape.bottom > FLOOR_GAP and alone not in ON_SUPPORTS
+            if (iid in anchors and not lifted) or (
+                name != "object" and fits_class(name, shape) and not floating and not lifted
+            ):
+                continue
             z = points[sel, 2]
             for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
-                a_name, _, a_sel = info[anchor]
-                if not floating and alone != "object" and a_name != name:
+                a_name, a_sel = anchor_class[anchor], info[anchor][2]
+                if anchor == iid or (not floating and not lifted and alone != "object" and a_name != name):
                     continue
                 # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
                 az = points[a_sel, 2]
                 if z.max() > az.max() + 0.05 or z.max() < az.min() - 0.15:
+                    continue
+                if lifted and not az.min() < z.min() - FLOOR_GAP:
                     continue
                 a, b = _hull_equations(points[a_sel, :2])
                 inside = ((points[sel, :2] @ a.T + b) <= 0.05).all(axis=1).mean()
@@ -1186,6 +1297,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     instance_ids[sel] = anchor
                     class_ids[sel] = vocab.id(a_name)
                     joined.append({"instance": iid, "into": anchor, "class": a_name})
+                    if iid in anchors:
+                        anchors.remove(iid)
                     break
         if joined:
             self.note("parts_joined", joined)

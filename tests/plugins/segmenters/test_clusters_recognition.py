@@ -15,6 +15,7 @@ from stratamap.plugins.segmenters.clusters import (
     describe_shape,
     fits_class,
     prior_class,
+    split_at_step,
     typical_rather,
 )
 from tests.plugins.segmenters.test_layout_planes import chair, room_shell, solids, table
@@ -140,3 +141,90 @@ def test_a_piece_nothing_holds_up_joins_the_chair_it_lies_within():
     sem = out["semantics"]
     chair_id = np.bincount(sem.instance_ids[chair_points]).argmax()
     assert chair_id > 0 and (sem.instance_ids[backrest_top] == chair_id).mean() > 0.9
+
+
+def unit_row(
+    spacing: float, with_tall_unit: bool = True, machine: bool = False, microwave: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Against the x=0 wall: a 1.5 m counter (0.9 m) and, beside it, a 0.6 m tall unit (2.0 m, 0.6 m
+    deep like the counter, their fronts in one plane, no gap); optionally a coffee machine standing back
+    on the worktop, or a microwave at its front edge. Neither back nor the floor under them is seen."""
+    parts = [("counter", (0.0, 1.0, 0.0), (0.6, 2.5, 0.9))]
+    if with_tall_unit:
+        parts.append(("cabinet", (0.0, 2.5, 0.0), (0.6, 3.1, 2.0)))
+    if machine:
+        parts.append(("machine", (0.05, 2.1, 0.9), (0.4, 2.45, 1.35)))
+    if microwave:
+        parts.append(("microwave", (0.2, 1.95, 0.9), (0.6, 2.45, 1.22)))
+    points, names = solids(parts, spacing)
+    keep = (points[:, 2] > 1e-6) & (points[:, 0] > 1e-6)
+    return points[keep], names[keep]
+
+
+def test_units_side_by_side_are_split_where_the_top_steps():
+    points, names = unit_row(0.02)
+    tall = split_at_step(points, 0.0)
+    assert tall is not None
+    off_seam = np.abs(points[:, 1] - 2.5) > 0.03  # the side faces where the units meet go either way
+    assert (tall == (names == "cabinet"))[off_seam].mean() > 0.99
+    # A worktop alone, or with a coffee machine standing back on it, is one unit.
+    points, _ = unit_row(0.02, with_tall_unit=False)
+    assert split_at_step(points, 0.0) is None
+    points, _ = unit_row(0.02, with_tall_unit=False, machine=True)
+    assert split_at_step(points, 0.0) is None
+    # An appliance at the worktop's front edge rises less than any tall unit.
+    points, _ = unit_row(0.02, with_tall_unit=False, microwave=True)
+    assert split_at_step(points, 0.0) is None
+
+
+def test_a_detector_box_over_two_units_gives_a_counter_and_a_cabinet():
+    """The frames' detector framed the counter and the tall unit beside it as one "box" (their
+    fronts are one plane: no depth edge parts them), and the counter's upper front as a "chair".
+    Recognition splits the row at the step, the "chair" off the floor within the counter joins it."""
+    layout = room_shell(0.02)
+    row, row_names = unit_row(0.02)
+    points = np.concatenate([p for _, p in layout] + [row])
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [row_names])
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    units = np.isin(names, ["counter", "cabinet"])
+    classes[units], instances[units] = VOCAB.id("box"), 1
+    upper_front = (names == "counter") & (points[:, 2] > 0.35) & (points[:, 1] < 2.2)
+    classes[upper_front], instances[upper_front] = VOCAB.id("chair"), 2
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    named = sorted(inst.class_name for inst in out["instances"])
+    assert named == ["cabinet", "counter"], named
+    sem = out["semantics"]
+    counter_id = np.bincount(sem.instance_ids[names == "counter"]).argmax()
+    assert (sem.instance_ids[upper_front] == counter_id).mean() > 0.9
+    assert (sem.instance_ids[names == "cabinet"] != counter_id).mean() > 0.95
+
+
+def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
+    """A mug the frames voted "table" (off the floor, a floor-standing class) stands on a counter whose
+    coffee machine rises above it: it lies within the counter's height and footprint, yet it is a
+    thing on a support by its size, not a piece of the counter."""
+    layout = room_shell(0.02)
+    row, row_names = unit_row(0.02, with_tall_unit=False, machine=True)
+    mug, mug_names = solids([("mug", (0.3, 1.4, 0.9), (0.38, 1.48, 1.0))], 0.02)
+    points = np.concatenate([p for _, p in layout] + [row, mug[mug[:, 2] > 0.9 + 1e-6]])
+    names = np.concatenate(
+        [np.full(len(p), n) for n, p in layout] + [row_names, mug_names[mug[:, 2] > 0.9 + 1e-6]]
+    )
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    unit = np.isin(names, ["counter", "machine"])
+    classes[unit], instances[unit] = VOCAB.id("box"), 1
+    classes[names == "mug"], instances[names == "mug"] = VOCAB.id("table"), 2
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
