@@ -701,6 +701,9 @@ STANDING_GAP = 0.3
 THIN = 0.15
 #: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
 SIZE_MARGIN = 1.3
+#: The most (m) an object's seen height may exceed its class's plausible heights, for classes whose
+#: objects carry nothing that could join them (a chair, a monitor; not a table or a counter).
+TALLER_BY = 0.15
 #: Things the priors name when they stand on a support surface, by size.
 ON_SUPPORTS = ("cup", "bottle", "box")
 
@@ -763,7 +766,7 @@ def split_at_step(pts: np.ndarray, base_z: float) -> np.ndarray | None:
     axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
     if box.size[1] > box.size[0]:
         axis = np.array([-axis[1], axis[0]])
-    length, depth = float(max(box.size[:2])), float(min(box.size[:2]))
+    length = float(max(box.size[:2]))
     if length < 2 * UNIT_LENGTH or float(pts[:, 2].min()) - base_z > FLOOR_GAP:
         return None
     cell = 0.05
@@ -817,7 +820,7 @@ def fits_class(name: str, shape: Shape) -> bool:
     (core/map/priors.py), with SIZE_MARGIN: its reach within the class's extents, its length within the
     class's longest and shortest sides, its height (standing on the floor: also from below) within the
     plausible heights. Classes without priors always fit."""
-    from stratamap.core.map.priors import CLASS_SIZES, NOT_STACKED, plausible_heights
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, NOT_STACKED, plausible_heights
 
     size = CLASS_SIZES.get(name)
     if size is not None:
@@ -840,10 +843,18 @@ def fits_class(name: str, shape: Shape) -> bool:
         if heights is not None and not heights[0] / SIZE_MARGIN <= top <= heights[1] * SIZE_MARGIN:
             return False
     if heights is not None:
-        tallest = size.max_height if size is not None and size.max_height is not None else heights[1] * SIZE_MARGIN
+        # Noise adds centimetres to a height, not a third of it (a 1.7 m "chair" is a tall unit); what
+        # stands on a worktop, a table or a shelf may belong to it (a counter's coffee machine).
+        tallest = heights[1] * SIZE_MARGIN
+        if name not in ANY_LENGTH:
+            tallest = min(tallest, heights[1] + TALLER_BY)
+        if size is not None and size.max_height is not None:
+            tallest = size.max_height
         if shape.height > tallest:
             return False
-        if shape.bottom <= FLOOR_GAP and shape.height < heights[0] / SIZE_MARGIN:
+        # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
+        # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
+        if shape.height < heights[0] / SIZE_MARGIN and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
             return False
     return True
 
@@ -1065,7 +1076,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             else:
                 turned_stuff += 1
         if cfg.recognize:
-            class_ids, instance_ids = self._recognize(points, class_ids, instance_ids, vocab, base_z, walls)
+            class_ids, instance_ids = self._recognize(
+                points, class_ids, instance_ids, vocab, base_z, walls, supports.height, voxel
+            )
         self.note(
             "segments",
             {
@@ -1179,6 +1192,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        support_heights: np.ndarray,
+        voxel: float,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Instances named ``object`` or by a class their size rules out take the class the priors
         and their support context give (``prior_class``), after pieces joined the object they belong
@@ -1188,7 +1203,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
-        self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls)
+        self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
         changes = []
         for iid, sel in instance_members(instance_ids).items():
             cls = int(np.bincount(class_ids[sel]).argmax())
@@ -1236,6 +1251,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        support_heights: np.ndarray,
+        voxel: float,
     ) -> None:
         """Pieces that are no object by themselves join the floor-standing object (a class of
         NOT_STACKED: chairs, tables, counters) they lie over or under: a swivel chair's base under
@@ -1272,10 +1289,13 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # chair's backrest seen as a "monitor"); on it, it rises above its top (a cup on a table).
             floating = name not in NOT_STACKED and not shape.against_wall and shape.bottom > STANDING_GAP
             alone = prior_class(shape, vocab)[0]
-            # Voted a floor-standing class, its foot off the floor, too large for a thing standing on a
-            # support: within a floor-standing object that reaches lower, it is a piece of that (a
-            # counter's upper front that a detector called a chair; a mug voted "table" stays a mug).
-            lifted = name in NOT_STACKED and shape.bottom > FLOOR_GAP and alone not in ON_SUPPORTS
+            # Off the floor and not a small thing standing on a support surface: within a floor-standing
+            # object that reaches lower, it is a piece of that, whatever it was voted (a counter's upper
+            # front that a detector called a chair or a monitor; a mug voted "table" on the worktop
+            # stays a mug).
+            foot = float(points[sel, 2].min())
+            on_support = bool(np.any(np.abs(support_heights - foot) <= 1.5 * voxel))
+            lifted = shape.bottom > FLOOR_GAP and not (alone in ON_SUPPORTS and on_support)
             if (iid in anchors and not lifted) or (
                 name != "object" and fits_class(name, shape) and not floating and not lifted
             ):
@@ -1293,6 +1313,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     continue
                 a, b = _hull_equations(points[a_sel, :2])
                 inside = ((points[sel, :2] @ a.T + b) <= 0.05).all(axis=1).mean()
+                # A lifted piece lies wholly within (a table top beside a chair overlaps its footprint).
+                if lifted and inside < 0.9:
+                    continue
                 if inside >= 0.5:
                     instance_ids[sel] = anchor
                     class_ids[sel] = vocab.id(a_name)

@@ -5,6 +5,7 @@ labels a detector without 'counter' or 'cabinet' gives them (issue 28)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from stratamap.core.map.layers import Geometry, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
@@ -37,6 +38,12 @@ def test_size_priors_veto_impossible_labels():
     assert not fits_class("counter", shape(length=0.4, depth=0.4, height=0.9, reach=0.55))  # shorter than any run
     assert fits_class("cabinet", shape(length=0.6, depth=0.6, height=2.1, reach=1.1))  # a tall unit
     assert fits_class("cup", shape(length=0.1, depth=0.08, height=0.1, bottom=0.75, reach=0.07))
+    # Heights: a 1.7 m "chair" is a tall unit, a 10 cm "monitor" on a worktop is none; a counter may
+    # carry a coffee machine.
+    assert not fits_class("chair", shape(length=0.78, depth=0.6, height=1.68, reach=0.99))
+    assert fits_class("chair", shape(length=0.6, depth=0.55, height=1.2, reach=0.7))
+    assert not fits_class("monitor", shape(length=0.5, depth=0.3, height=0.1, bottom=0.9, reach=0.3))
+    assert fits_class("counter", shape(length=1.5, depth=0.6, height=1.35, reach=0.95, solid=True))
 
 
 def test_support_context_names_units_tables_and_cups():
@@ -177,10 +184,12 @@ def test_units_side_by_side_are_split_where_the_top_steps():
     assert split_at_step(points, 0.0) is None
 
 
-def test_a_detector_box_over_two_units_gives_a_counter_and_a_cabinet():
+@pytest.mark.parametrize("front_vote", ["chair", "monitor"])
+def test_a_detector_box_over_two_units_gives_a_counter_and_a_cabinet(front_vote):
     """The frames' detector framed the counter and the tall unit beside it as one "box" (their
-    fronts are one plane: no depth edge parts them), and the counter's upper front as a "chair".
-    Recognition splits the row at the step, the "chair" off the floor within the counter joins it."""
+    fronts are one plane: no depth edge parts them), and the counter's upper front as a chair or a
+    monitor. Recognition splits the row at the step; the piece off the floor within the counter,
+    no small thing on a support, joins it."""
     layout = room_shell(0.02)
     row, row_names = unit_row(0.02)
     points = np.concatenate([p for _, p in layout] + [row])
@@ -192,7 +201,7 @@ def test_a_detector_box_over_two_units_gives_a_counter_and_a_cabinet():
     units = np.isin(names, ["counter", "cabinet"])
     classes[units], instances[units] = VOCAB.id("box"), 1
     upper_front = (names == "counter") & (points[:, 2] > 0.35) & (points[:, 1] < 2.2)
-    classes[upper_front], instances[upper_front] = VOCAB.id("chair"), 2
+    classes[upper_front], instances[upper_front] = VOCAB.id(front_vote), 2
     data = PipelineData()
     data.map.geometry = Geometry(points=points, voxel_size=0.02)
     data.map.semantics = Semantics(classes, instances, VOCAB)
