@@ -222,9 +222,7 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     row, row_names = unit_row(0.02, with_tall_unit=False, machine=True)
     mug, mug_names = solids([("mug", (0.3, 1.4, 0.9), (0.38, 1.48, 1.0))], 0.02)
     points = np.concatenate([p for _, p in layout] + [row, mug[mug[:, 2] > 0.9 + 1e-6]])
-    names = np.concatenate(
-        [np.full(len(p), n) for n, p in layout] + [row_names, mug_names[mug[:, 2] > 0.9 + 1e-6]]
-    )
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [row_names, mug_names[mug[:, 2] > 0.9 + 1e-6]])
     classes = np.zeros(len(points), np.int32)
     instances = np.zeros(len(points), np.int32)
     for name in ("floor", "wall", "ceiling"):
