@@ -235,3 +235,25 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     data.map.semantics = Semantics(classes, instances, VOCAB)
     out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
     assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
+
+
+def test_a_table_top_over_part_of_a_chair_stays_a_table():
+    """A table top whose legs went unseen, voted "table", off the floor, over part of a chair's
+    footprint (the real office clip's round table beside its chair): only a piece lying wholly within
+    the chair would be part of it; this one stays a table."""
+    layout = room_shell(0.02)
+    objects, object_names = solids(chair(3.0, 3.35) + [("table", (2.9, 3.2, 0.6), (3.5, 3.45, 0.63))], 0.02)
+    keep = (objects[:, 2] > 1e-6) & ~((object_names == "table") & (objects[:, 2] < 0.6 + 1e-6))
+    points = np.concatenate([p for _, p in layout] + [objects[keep]])
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [object_names[keep]])
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    classes[names == "chair"], instances[names == "chair"] = VOCAB.id("chair"), 1
+    classes[names == "table"], instances[names == "table"] = VOCAB.id("table"), 2
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    assert sorted(inst.class_name for inst in out["instances"]) == ["chair", "table"]
