@@ -184,28 +184,39 @@ def test_units_side_by_side_are_split_where_the_top_steps():
     assert split_at_step(points, 0.0) is None
 
 
+def in_room(*parts: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The room shell with objects' (points, names) in it."""
+    layout = room_shell(0.02)
+    points = np.concatenate([p for _, p in layout] + [p for p, _ in parts])
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [n for _, n in parts])
+    return points, names
+
+
+def recognized(points: np.ndarray, names: np.ndarray, masks: list[tuple[np.ndarray, str]]) -> dict:
+    """clusters {keep_instances, recognize} on a map whose frames voted the room's stuff and, as
+    instances 1, 2, ..., each mask with its class."""
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    for iid, (mask, class_name) in enumerate(masks, start=1):
+        classes[mask], instances[mask] = VOCAB.id(class_name), iid
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    return ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+
+
 @pytest.mark.parametrize("front_vote", ["chair", "monitor"])
 def test_a_detector_box_over_two_units_gives_a_counter_and_a_cabinet(front_vote):
     """The frames' detector framed the counter and the tall unit beside it as one "box" (their
     fronts are one plane: no depth edge parts them), and the counter's upper front as a chair or a
     monitor. Recognition splits the row at the step; the piece off the floor within the counter,
     no small thing on a support, joins it."""
-    layout = room_shell(0.02)
-    row, row_names = unit_row(0.02)
-    points = np.concatenate([p for _, p in layout] + [row])
-    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [row_names])
-    classes = np.zeros(len(points), np.int32)
-    instances = np.zeros(len(points), np.int32)
-    for name in ("floor", "wall", "ceiling"):
-        classes[names == name] = VOCAB.id(name)
+    points, names = in_room(unit_row(0.02))
     units = np.isin(names, ["counter", "cabinet"])
-    classes[units], instances[units] = VOCAB.id("box"), 1
     upper_front = (names == "counter") & (points[:, 2] > 0.35) & (points[:, 1] < 2.2)
-    classes[upper_front], instances[upper_front] = VOCAB.id(front_vote), 2
-    data = PipelineData()
-    data.map.geometry = Geometry(points=points, voxel_size=0.02)
-    data.map.semantics = Semantics(classes, instances, VOCAB)
-    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    out = recognized(points, names, [(units & ~upper_front, "box"), (upper_front, front_vote)])
     named = sorted(inst.class_name for inst in out["instances"])
     assert named == ["cabinet", "counter"], named
     sem = out["semantics"]
@@ -218,22 +229,10 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     """A mug the frames voted "table" (off the floor, a floor-standing class) stands on a counter whose
     coffee machine rises above it: it lies within the counter's height and footprint, yet it is a
     thing on a support by its size, not a piece of the counter."""
-    layout = room_shell(0.02)
-    row, row_names = unit_row(0.02, with_tall_unit=False, machine=True)
     mug, mug_names = solids([("mug", (0.3, 1.4, 0.9), (0.38, 1.48, 1.0))], 0.02)
-    points = np.concatenate([p for _, p in layout] + [row, mug[mug[:, 2] > 0.9 + 1e-6]])
-    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [row_names, mug_names[mug[:, 2] > 0.9 + 1e-6]])
-    classes = np.zeros(len(points), np.int32)
-    instances = np.zeros(len(points), np.int32)
-    for name in ("floor", "wall", "ceiling"):
-        classes[names == name] = VOCAB.id(name)
-    unit = np.isin(names, ["counter", "machine"])
-    classes[unit], instances[unit] = VOCAB.id("box"), 1
-    classes[names == "mug"], instances[names == "mug"] = VOCAB.id("table"), 2
-    data = PipelineData()
-    data.map.geometry = Geometry(points=points, voxel_size=0.02)
-    data.map.semantics = Semantics(classes, instances, VOCAB)
-    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    above = mug[:, 2] > 0.9 + 1e-6
+    points, names = in_room(unit_row(0.02, with_tall_unit=False, machine=True), (mug[above], mug_names[above]))
+    out = recognized(points, names, [(np.isin(names, ["counter", "machine"]), "box"), (names == "mug", "table")])
     assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
 
 
@@ -241,19 +240,8 @@ def test_a_table_top_over_part_of_a_chair_stays_a_table():
     """A table top whose legs went unseen, voted "table", off the floor, over part of a chair's
     footprint (the real office clip's round table beside its chair): only a piece lying wholly within
     the chair would be part of it; this one stays a table."""
-    layout = room_shell(0.02)
     objects, object_names = solids(chair(3.0, 3.35) + [("table", (2.9, 3.2, 0.6), (3.5, 3.45, 0.63))], 0.02)
     keep = (objects[:, 2] > 1e-6) & ~((object_names == "table") & (objects[:, 2] < 0.6 + 1e-6))
-    points = np.concatenate([p for _, p in layout] + [objects[keep]])
-    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [object_names[keep]])
-    classes = np.zeros(len(points), np.int32)
-    instances = np.zeros(len(points), np.int32)
-    for name in ("floor", "wall", "ceiling"):
-        classes[names == name] = VOCAB.id(name)
-    classes[names == "chair"], instances[names == "chair"] = VOCAB.id("chair"), 1
-    classes[names == "table"], instances[names == "table"] = VOCAB.id("table"), 2
-    data = PipelineData()
-    data.map.geometry = Geometry(points=points, voxel_size=0.02)
-    data.map.semantics = Semantics(classes, instances, VOCAB)
-    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    points, names = in_room((objects[keep], object_names[keep]))
+    out = recognized(points, names, [(names == "chair", "chair"), (names == "table", "table")])
     assert sorted(inst.class_name for inst in out["instances"]) == ["chair", "table"]
