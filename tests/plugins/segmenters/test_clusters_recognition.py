@@ -10,8 +10,7 @@ import pytest
 from stratamap.core.map.layers import Geometry, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
-from stratamap.plugins.segmenters.clusters import (
-    ClustersSegmenter,
+from stratamap.plugins.segmenters._recognition import (
     Shape,
     describe_shape,
     fits_class,
@@ -19,6 +18,7 @@ from stratamap.plugins.segmenters.clusters import (
     split_at_step,
     typical_rather,
 )
+from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 from tests.plugins.segmenters.test_layout_planes import chair, room_shell, solids, table
 
 VOCAB = Vocabulary.default()

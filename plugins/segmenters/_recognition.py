@@ -1,0 +1,254 @@
+"""Recognition by class size priors and support context, for ``clusters`` (``recognize``,
+``keep_instances``): what an object's points say of its size and where it stands (``Shape``), which
+classes that shape allows (``fits_class``, ``typical_rather``), the class it makes most likely
+(``prior_class``), and where one instance is two units side by side (``split_at_step``). The
+priors themselves are in ``core/map/priors.py``; how the segmenter applies them is in
+``clusters.py`` and docs/algorithms/segmenters-clusters.md."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from stratamap.core.map.vocabulary import Vocabulary
+
+
+class Shape(NamedTuple):
+    """What recognition by priors knows of an object: its size and where it stands."""
+
+    length: float  # longest horizontal side of its gravity-aligned box, m
+    depth: float  # shorter horizontal side, m
+    height: float  # own height, m
+    bottom: float  # foot above the floor (or the map's base), m
+    reach: float  # farthest point from the centroid, m
+    against_wall: bool  # a wall plane within WALL_GAP of it
+    flat_top: bool  # its highest points form a flat top over most of its footprint
+    solid: bool  # its body (middle heights) spans most of its length: a front, not legs
+
+
+#: An object this close (m) to a wall plane stands against it (a unit's back edge, a countertop's).
+WALL_GAP = 0.12
+#: An object whose foot is this close (m) to the floor stands on it.
+FLOOR_GAP = 0.1
+#: A floor-standing object's foot may be this high (m) when its legs or base went unseen.
+STANDING_GAP = 0.3
+#: Thinner than this (m), a geometric object that frames called floor, wall or ceiling is that stuff.
+THIN = 0.15
+#: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
+SIZE_MARGIN = 1.3
+#: The most (m) an object's seen height may exceed its class's plausible heights, for classes whose
+#: objects carry nothing that could join them (a chair, a monitor; not a table or a counter).
+TALLER_BY = 0.15
+#: Things the priors name when they stand on a support surface, by size.
+ON_SUPPORTS = ("cup", "bottle", "box")
+
+
+def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
+    """The size and support context of an object's points (world, z up)."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.plugins.segmenters._layout import footprint_area
+
+    box = gravity_aligned_box(pts)
+    length, depth = float(max(box.size[:2])), float(min(box.size[:2]))
+    z = pts[:, 2]
+    zmin, zmax = float(z.min()), float(z.max())
+    height = zmax - zmin
+    reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
+    near_wall = any((plane.near(pts, WALL_GAP)).any() for plane in walls)
+    # A flat top: a level of its upper third whose points (within 2 cm) cover half its footprint (5 cm
+    # cells), as a table's, a counter's or a cabinet's top do (under a kettle too) and a chair's backrest
+    # does not.
+    cell = 0.05
+    footprint = max(footprint_area(pts[:, :2], cell), cell * cell)
+    flat_top = False
+    for level in np.arange(zmax, zmax - height / 3.0, -0.02):
+        layer = pts[np.abs(z - level) <= 0.02]
+        if len(layer) and footprint_area(layer[:, :2], cell) >= 0.5 * footprint:
+            flat_top = True
+            break
+    # A solid body: the middle heights' points, projected on the box's long axis, cover most of its
+    # length (a unit's front or side) rather than two or four spots (a table's legs).
+    axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
+    if box.size[1] > box.size[0]:
+        axis = np.array([-axis[1], axis[0]])
+    middle = pts[(z >= zmin + 0.25 * height) & (z <= zmin + 0.75 * height)]
+    along = middle[:, :2] @ axis
+    full = pts[:, :2] @ axis
+    bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
+    covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
+    return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, covered / bins >= 0.6)
+
+
+#: Units in a row differ in height by at least this (m) where one ends: a tall unit (a fridge, an oven
+#: column, a cupboard) rises far above a worktop; an appliance standing on it (a coffee machine, a
+#: microwave, 0.3-0.45 m) does not.
+STEP_HEIGHT = 0.5
+#: Each unit of a row is at least this long (m) along the row.
+UNIT_LENGTH = 0.3
+
+
+def split_at_step(pts: np.ndarray, base_z: float) -> np.ndarray | None:
+    """Where a floor-standing solid object is two units side by side (a counter against a tall unit,
+    their fronts in one plane, so that neither the frames' depth edges nor the map's convexity part
+    them): its top, along its long axis, is level on each side of one place and steps there by
+    STEP_HEIGHT or more, each side UNIT_LENGTH long or longer, and the taller side's front lies at the
+    same place across the row above and below the lower top (a unit's front from the floor up, not a
+    coffee machine standing back on a worktop). Returns a boolean mask of the taller unit's points,
+    or None."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
+    box = gravity_aligned_box(pts)
+    axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
+    if box.size[1] > box.size[0]:
+        axis = np.array([-axis[1], axis[0]])
+    length = float(max(box.size[:2]))
+    if length < 2 * UNIT_LENGTH or float(pts[:, 2].min()) - base_z > FLOOR_GAP:
+        return None
+    cell = 0.05
+    along = pts[:, :2] @ axis
+    bins = np.floor((along - along.min()) / cell).astype(np.int64)
+    n_bins = int(bins.max()) + 1
+    top = np.full(n_bins, np.nan)
+    for b in np.unique(bins):
+        z = pts[bins == b, 2]
+        if len(z) >= 5:
+            top[b] = np.percentile(z, 95)
+    # The cut of the best two-level fit of the top profile (least absolute deviation).
+    best: tuple[float, int] | None = None
+    need = int(round(UNIT_LENGTH / cell))
+    for cut in range(need, n_bins - need + 1):
+        left, right = top[:cut], top[cut:]
+        left, right = left[np.isfinite(left)], right[np.isfinite(right)]
+        if len(left) < need or len(right) < need:
+            continue
+        cost = float(np.abs(left - np.median(left)).sum() + np.abs(right - np.median(right)).sum())
+        if best is None or cost < best[0]:
+            best = (cost, cut)
+    if best is None:
+        return None
+    cut = best[1]
+    left, right = top[:cut], top[cut:]
+    left, right = left[np.isfinite(left)], right[np.isfinite(right)]
+    left_top, right_top = float(np.median(left)), float(np.median(right))
+    level = (np.abs(left - left_top) <= 0.1).mean() >= 0.8 and (np.abs(right - right_top) <= 0.1).mean() >= 0.8
+    if abs(right_top - left_top) < STEP_HEIGHT or not level:
+        return None
+    tall = bins >= cut if right_top > left_top else bins < cut
+    lower_top = min(left_top, right_top)
+    across = pts[:, :2] @ np.array([-axis[1], axis[0]])
+    upper = across[tall & (pts[:, 2] > lower_top + 0.05)]
+    below = across[tall & (pts[:, 2] > base_z + 0.2) & (pts[:, 2] < lower_top - 0.1)]
+    if len(upper) < 20 or len(below) < 20:
+        return None
+    # The taller unit's body reaches the floor: its front (the row's side seen most: the back stands
+    # against a wall) lies at the same place across the row above and below the lower top; a coffee
+    # machine's front stands back from the worktop's.
+    back, front = float(across.min()), float(across.max())
+    sign = 1.0 if (across > front - 0.03).sum() >= (across < back + 0.03).sum() else -1.0
+    if abs(np.percentile(sign * upper, 95) - np.percentile(sign * below, 95)) > 0.05:
+        return None
+    return tall
+
+
+def fits_class(name: str, shape: Shape) -> bool:
+    """Whether an object of this shape can be of the class by the class size priors
+    (core/map/priors.py), with SIZE_MARGIN: its reach within the class's extents, its length within the
+    class's longest and shortest sides, its height (standing on the floor: also from below) within the
+    plausible heights. Classes without priors always fit."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, NOT_STACKED, plausible_heights
+
+    size = CLASS_SIZES.get(name)
+    if size is not None:
+        if not size.extent[0] / SIZE_MARGIN <= shape.reach <= size.extent[1] * SIZE_MARGIN:
+            return False
+        if size.max_length is not None and shape.length > size.max_length * SIZE_MARGIN:
+            return False
+        if size.min_length is not None and shape.length < size.min_length / SIZE_MARGIN:
+            return False
+        if size.min_depth is not None and shape.depth < size.min_depth / SIZE_MARGIN:
+            return False
+    heights = plausible_heights(name)
+    # Furniture whose objects stand on the floor, not on one another (a chair, a table, a counter),
+    # seen in the air: the upper part of one whose legs or base went unseen only when it is as large
+    # as a whole one and its top is at the class's height; else a part of something.
+    if name in NOT_STACKED and shape.bottom > STANDING_GAP:
+        if size is not None and shape.reach < size.extent[0]:
+            return False
+        top = shape.bottom + shape.height
+        if heights is not None and not heights[0] / SIZE_MARGIN <= top <= heights[1] * SIZE_MARGIN:
+            return False
+    if heights is not None:
+        # Noise adds centimetres to a height, not a third of it (a 1.7 m "chair" is a tall unit); what
+        # stands on a worktop, a table or a shelf may belong to it (a counter's coffee machine).
+        tallest = heights[1] * SIZE_MARGIN
+        if name not in ANY_LENGTH:
+            tallest = min(tallest, heights[1] + TALLER_BY)
+        if size is not None and size.max_height is not None:
+            tallest = size.max_height
+        if shape.height > tallest:
+            return False
+        # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
+        # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
+        if shape.height < heights[0] / SIZE_MARGIN and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
+            return False
+    return True
+
+
+def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05) -> bool:
+    """Whether the class the shape gives overrules a voted class that fits: the object's height lies
+    in the geometric class's typical range (TYPICAL_HEIGHTS, within ``slack`` m) and outside the
+    voted one's (a 0.9 m solid unit against a wall that a detector without a 'counter' label calls a
+    table: tables are 0.72-0.76 m, counters 0.86-0.92 m). Objects standing on the floor only."""
+    from stratamap.core.map.priors import TYPICAL_HEIGHTS
+
+    if (
+        geometric == voted
+        or shape.bottom > FLOOR_GAP
+        or geometric not in TYPICAL_HEIGHTS
+        or voted not in TYPICAL_HEIGHTS
+    ):
+        return False
+
+    def within(name: str) -> bool:
+        low, high = TYPICAL_HEIGHTS[name]
+        return low - slack <= shape.height <= high + slack
+
+    return within(geometric) and not within(voted)
+
+
+def prior_class(shape: Shape, vocab: Vocabulary) -> tuple[str, str]:
+    """The class an object's shape and support context make most likely (and why), among the
+    vocabulary's thing classes; ``object`` when no rule fits. General rules of indoor objects, each
+    checked against the class size priors (``fits_class``):
+
+    * on a support surface (not the floor): a cup, a bottle or a box by size; on a wall, off the
+      floor: a (wall) cabinet;
+    * on the floor with a flat top and a solid body (a front, not legs): a counter when long, deep and
+      at worktop height, else a cabinet;
+    * on the floor with a flat top on legs: a table;
+    * on the floor against a wall, solid, its top unseen (a tall unit): a cabinet;
+    * on the floor, free-standing, no flat top, of a chair's size: a chair."""
+
+    def ok(name: str) -> bool:
+        return name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape)
+
+    if shape.bottom > FLOOR_GAP:
+        for name in ON_SUPPORTS:
+            if ok(name):
+                return name, "on a support, its size"
+        if shape.against_wall and ok("cabinet"):
+            return "cabinet", "on a wall, off the floor"
+    else:
+        if shape.flat_top and shape.solid:
+            if ok("counter"):
+                return "counter", "flat top at worktop height, solid body, long and deep"
+            if ok("cabinet"):
+                return "cabinet", "flat top, solid body"
+        if shape.flat_top and not shape.solid and ok("table"):
+            return "table", "flat top on legs"
+        if shape.against_wall and shape.solid and ok("cabinet"):
+            return "cabinet", "solid unit against a wall"
+        if not shape.flat_top and not shape.against_wall and ok("chair"):
+            return "chair", "free-standing, no flat top, a chair's size"
+    return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), "no rule fits"
