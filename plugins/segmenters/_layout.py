@@ -161,6 +161,10 @@ def components(n: int, pairs: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
+#: Smallest grid cell (m) on which a floor's size is measured.
+AREA_CELL = 0.05
+
+
 def footprint_area(xy: np.ndarray, cell: float) -> float:
     """Area (m^2) of the grid squares of side ``cell`` that points ``xy`` occupy."""
     if len(xy) == 0:
@@ -280,7 +284,11 @@ def find_layout(
         if (z < height - 2 * tol).mean() > p.outlier_share:
             continue
         rise = float(np.percentile(z, 99)) - height
-        if h_area[level(height)].sum() >= p.floor_min_area or rise >= p.room_min_height:
+        # The floor's size on a grid of at least AREA_CELL: a real scan's far floor is sparser than
+        # the working voxel, and its gaps would hide how large it is.
+        at_level = np.concatenate([h_members[i] for i in level(height)])
+        floor_area = footprint_area(cells[at_level, :2], max(voxel_size, AREA_CELL))
+        if floor_area >= p.floor_min_area or rise >= p.room_min_height:
             floor_height = height
         break
     if floor_height is not None:
