@@ -1051,7 +1051,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             settled = name if name != "object" and fits_class(name, shape) else prior_class(shape, vocab)[0]
             if settled in NOT_STACKED and fits_class(settled, shape):
                 anchor_class[i] = settled
-        anchors = list(anchor_class)
         joined = []
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel = info[iid]
@@ -1064,15 +1063,14 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # object that reaches lower, it is a piece of that, whatever it was voted (a counter's upper
             # front that a detector called a chair or a monitor; a mug voted "table" on the worktop
             # stays a mug).
-            foot = float(points[sel, 2].min())
-            on_support = bool(np.any(np.abs(support_heights - foot) <= 1.5 * voxel))
+            on_support = bool(np.any(np.abs(support_heights - (base_z + shape.bottom)) <= 1.5 * voxel))
             lifted = shape.bottom > FLOOR_GAP and not (alone in ON_SUPPORTS and on_support)
-            if (iid in anchors and not lifted) or (
+            if (iid in anchor_class and not lifted) or (
                 name != "object" and fits_class(name, shape) and not floating and not lifted
             ):
                 continue
             z = points[sel, 2]
-            for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
+            for anchor in sorted(anchor_class, key=lambda i: -len(info[i][2])):
                 a_name, a_sel = anchor_class[anchor], info[anchor][2]
                 if anchor == iid or (not floating and not lifted and alone != "object" and a_name != name):
                     continue
@@ -1091,8 +1089,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     instance_ids[sel] = anchor
                     class_ids[sel] = vocab.id(a_name)
                     joined.append({"instance": iid, "into": anchor, "class": a_name})
-                    if iid in anchors:
-                        anchors.remove(iid)
+                    anchor_class.pop(iid, None)
                     break
         if joined:
             self.note("parts_joined", joined)
