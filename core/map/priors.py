@@ -20,6 +20,9 @@ class ClassSize:
     #: Tallest one object is, where the class comes far taller than its typical height range (a
     #: kitchen's tall unit, a wardrobe); None: the typical range (TYPICAL_HEIGHTS) with its slack.
     max_height: float | None = None
+    #: Lowest one object is, where the class comes far lower than its typical height range (a bedside
+    #: cabinet, a low sideboard); None: the typical range with its slack.
+    min_height: float | None = None
     #: Shallowest one object is front to back (a unit holds things: a panel on a wall is none); None: any.
     min_depth: float | None = None
 
@@ -29,7 +32,7 @@ CLASS_SIZES: dict[str, ClassSize] = {
     "table": ClassSize((0.3, 1.6)),
     "desk": ClassSize((0.4, 1.4)),
     "cabinet": ClassSize(
-        (0.25, 1.3), max_length=1.3, max_height=2.4, min_depth=0.2
+        (0.25, 1.3), max_length=1.3, max_height=2.4, min_height=0.35, min_depth=0.2
     ),  # one unit; wider runs of cabinets are several units
     "shelf": ClassSize((0.3, 1.4), max_height=2.4),
     "counter": ClassSize((0.4, 1.8), min_length=0.9, min_depth=0.45),
@@ -53,6 +56,11 @@ ANY_LENGTH: tuple[str, ...] = ("table", "desk", "shelf", "counter", "sofa", "ben
 #: Classes whose objects do not stand on one another: two of them one above the other are one
 #: object (a swivel chair's base and seat, a table's legs and top).
 NOT_STACKED: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
+
+#: Classes whose objects stand on legs or a pedestal, open below their top (knees go under a table):
+#: a body closed from side to side at mid-height is a unit, not one of these. Desks are not here: a
+#: pedestal desk or one with a modesty panel is closed along its length.
+OPEN_BELOW: tuple[str, ...] = ("table",)
 
 
 #: class -> (low, high) height in metres of the class's objects: what a model of a source without

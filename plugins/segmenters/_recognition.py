@@ -155,8 +155,9 @@ def fits_class(name: str, shape: Shape) -> bool:
     """Whether an object of this shape can be of the class by the class size priors
     (core/map/priors.py), with SIZE_MARGIN: its reach within the class's extents, its length within the
     class's longest and shortest sides, its height (standing on the floor: also from below) within the
-    plausible heights. Classes without priors always fit."""
-    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, NOT_STACKED, plausible_heights
+    plausible heights; a class open below (OPEN_BELOW) standing on the floor with a solid body does
+    not fit. Classes without priors always fit."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, NOT_STACKED, OPEN_BELOW, plausible_heights
 
     size = CLASS_SIZES.get(name)
     if size is not None:
@@ -168,6 +169,10 @@ def fits_class(name: str, shape: Shape) -> bool:
             return False
         if size.min_depth is not None and shape.depth < size.min_depth / SIZE_MARGIN:
             return False
+    # A table standing on the floor is open below its top; one closed along its length at mid-height
+    # is a unit (a bedside cabinet, a sideboard) that a detector without such labels called a table.
+    if name in OPEN_BELOW and shape.solid and shape.bottom <= FLOOR_GAP:
+        return False
     heights = plausible_heights(name)
     # Furniture whose objects stand on the floor, not on one another (a chair, a table, a counter),
     # seen in the air: the upper part of one whose legs or base went unseen only when it is as large
@@ -190,7 +195,10 @@ def fits_class(name: str, shape: Shape) -> bool:
             return False
         # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
         # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
-        if shape.height < heights[0] / SIZE_MARGIN and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
+        lowest = heights[0] / SIZE_MARGIN
+        if size is not None and size.min_height is not None:
+            lowest = size.min_height
+        if shape.height < lowest and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
             return False
     return True
 

@@ -245,3 +245,28 @@ def test_a_table_top_over_part_of_a_chair_stays_a_table():
     points, names = in_room((objects[keep], object_names[keep]))
     out = recognized(points, names, [(names == "chair", "chair"), (names == "table", "table")])
     assert sorted(inst.class_name for inst in out["instances"]) == ["chair", "table"]
+
+
+def test_a_table_is_open_below_its_top():
+    """A detector without cabinet labels calls a bedside cabinet or a sideboard a table: a body closed
+    along its length at mid-height is a unit, not a table on legs or a pedestal; a table top seen in
+    the air (legs unseen) is judged as before."""
+    closed = shape(length=0.35, depth=0.34, height=0.48, reach=0.41, against_wall=True, flat_top=True, solid=True)
+    assert not fits_class("table", closed)
+    assert fits_class("table", closed._replace(solid=False))
+    assert fits_class("table", shape(length=1.2, depth=0.8, height=0.1, bottom=0.65, reach=0.7, flat_top=True, solid=True))
+    assert fits_class("desk", shape(length=1.4, depth=0.7, height=0.74, reach=0.8, flat_top=True, solid=True))
+    # A bedside cabinet is a cabinet, not something no rule names (it was below a cabinet's typical heights).
+    assert prior_class(closed, VOCAB)[0] == "cabinet"
+    assert prior_class(closed._replace(height=0.2, reach=0.3), VOCAB)[0] != "cabinet"  # a crate on the floor
+
+
+def test_a_bedside_cabinet_voted_table_becomes_a_cabinet():
+    """In a room: a 0.48 m closed cube the frames voted "table" is a cabinet; a table on legs voted
+    "table" stays one."""
+    unit, unit_names = solids([("bedside", (0.02, 1.0, 0.0), (0.37, 1.35, 0.48))], 0.02)
+    legs, leg_names = solids(table(2.5, 2.0), 0.02)
+    keep = (unit[:, 2] > 1e-6) & (unit[:, 0] > 0.02 + 1e-6)  # its bottom on the floor and its back on the wall unseen
+    points, names = in_room((unit[keep], unit_names[keep]), (legs, leg_names))
+    out = recognized(points, names, [(names == "bedside", "table"), (names == "table", "table")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["cabinet", "table"]
