@@ -527,6 +527,12 @@ def _hull_equations(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.array([[1.0, 0], [-1, 0], [0, 1], [0, -1]]), np.array([-hi[0], lo[0], -hi[1], lo[1]])
 
 
+def _share_within(xy: np.ndarray, around: np.ndarray, margin: float = 0.05) -> float:
+    """The share of points ``xy`` within ``margin`` (m) of the convex hull of ``around`` (top view)."""
+    a, b = _hull_equations(around)
+    return float(((xy @ a.T + b) <= margin).all(axis=1).mean())
+
+
 def grow_supports(
     cells: np.ndarray,
     supports: Supports,
@@ -1076,12 +1082,32 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     continue
                 # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
                 az = points[a_sel, 2]
-                if z.max() > az.max() + 0.05 or z.max() < az.min() - 0.15:
+                if z.max() < az.min() - 0.15:
                     continue
+                if z.max() > az.max() + 0.05:
+                    # Rising above the anchor's top, it stands on it (a cup on a table), unless it is of a
+                    # class that stands on no other object, its foot at the anchor's top and the anchor
+                    # wholly under it: one object (a chair's back and seat over its seat and legs).
+                    if not (
+                        lifted
+                        and name in NOT_STACKED
+                        and fits_class(name, shape)
+                        and z.min() <= az.max() + FLOOR_GAP
+                        and _share_within(points[a_sel, :2], points[sel, :2]) >= 0.9
+                    ):
+                        continue
+                    merged = np.concatenate([sel, a_sel])
+                    if fits_class(name, describe_shape(points[merged], base_z, walls)):
+                        a_name = name
+                        anchor_class[anchor] = name
+                    instance_ids[sel] = anchor
+                    class_ids[merged] = vocab.id(a_name)
+                    joined.append({"instance": iid, "into": anchor, "class": a_name})
+                    anchor_class.pop(iid, None)
+                    break
                 if lifted and not az.min() < z.min() - FLOOR_GAP:
                     continue
-                a, b = _hull_equations(points[a_sel, :2])
-                inside = ((points[sel, :2] @ a.T + b) <= 0.05).all(axis=1).mean()
+                inside = _share_within(points[sel, :2], points[a_sel, :2])
                 # A lifted piece lies wholly within (a table top beside a chair overlaps its footprint).
                 if lifted and inside < 0.9:
                     continue

@@ -270,3 +270,19 @@ def test_a_bedside_cabinet_voted_table_becomes_a_cabinet():
     points, names = in_room((unit[keep], unit_names[keep]), (legs, leg_names))
     out = recognized(points, names, [(names == "bedside", "table"), (names == "table", "table")])
     assert sorted(inst.class_name for inst in out["instances"]) == ["cabinet", "table"]
+
+
+def test_a_chair_cut_at_its_seat_is_one_chair():
+    """The frames' masks parted a chair at its seat: the seat's underside on its legs (a flat top on
+    legs, voted "table") and, above it, the seat with the backrest (voted "chair", off the floor).
+    Chairs stand on no other object, and the lower piece lies wholly under the upper one: one chair."""
+    x, y, s = 2.5, 2.0, 0.23
+    parts = [("seat", (x - s, y - s, 0.45), (x + s, y + s, 0.5)), ("back", (x - s, y + s - 0.04, 0.5), (x + s, y + s, 1.0))]
+    parts += [("leg", (x + sx * s - 0.02, y + sy * s - 0.02, 0.0), (x + sx * s + 0.02, y + sy * s + 0.02, 0.45))
+              for sx in (-1, 1) for sy in (-1, 1)]
+    chair_points, _ = solids(parts, 0.02)
+    keep = chair_points[:, 2] > 1e-6
+    points, names = in_room((chair_points[keep], np.full(int(keep.sum()), "chair")))
+    upper = (names == "chair") & (points[:, 2] >= 0.49)
+    out = recognized(points, names, [((names == "chair") & ~upper, "table"), (upper, "chair")])
+    assert [inst.class_name for inst in out["instances"]] == ["chair"]
