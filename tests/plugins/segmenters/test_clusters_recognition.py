@@ -254,7 +254,9 @@ def test_a_table_is_open_below_its_top():
     closed = shape(length=0.35, depth=0.34, height=0.48, reach=0.41, against_wall=True, flat_top=True, solid=True)
     assert not fits_class("table", closed)
     assert fits_class("table", closed._replace(solid=False))
-    assert fits_class("table", shape(length=1.2, depth=0.8, height=0.1, bottom=0.65, reach=0.7, flat_top=True, solid=True))
+    assert fits_class(
+        "table", shape(length=1.2, depth=0.8, height=0.1, bottom=0.65, reach=0.7, flat_top=True, solid=True)
+    )
     assert fits_class("desk", shape(length=1.4, depth=0.7, height=0.74, reach=0.8, flat_top=True, solid=True))
     # A bedside cabinet is a cabinet, not something no rule names (it was below a cabinet's typical heights).
     assert prior_class(closed, VOCAB)[0] == "cabinet"
@@ -277,9 +279,15 @@ def test_a_chair_cut_at_its_seat_is_one_chair():
     legs, voted "table") and, above it, the seat with the backrest (voted "chair", off the floor).
     Chairs stand on no other object, and the lower piece lies wholly under the upper one: one chair."""
     x, y, s = 2.5, 2.0, 0.23
-    parts = [("seat", (x - s, y - s, 0.45), (x + s, y + s, 0.5)), ("back", (x - s, y + s - 0.04, 0.5), (x + s, y + s, 1.0))]
-    parts += [("leg", (x + sx * s - 0.02, y + sy * s - 0.02, 0.0), (x + sx * s + 0.02, y + sy * s + 0.02, 0.45))
-              for sx in (-1, 1) for sy in (-1, 1)]
+    parts = [
+        ("seat", (x - s, y - s, 0.45), (x + s, y + s, 0.5)),
+        ("back", (x - s, y + s - 0.04, 0.5), (x + s, y + s, 1.0)),
+    ]
+    parts += [
+        ("leg", (x + sx * s - 0.02, y + sy * s - 0.02, 0.0), (x + sx * s + 0.02, y + sy * s + 0.02, 0.45))
+        for sx in (-1, 1)
+        for sy in (-1, 1)
+    ]
     chair_points, _ = solids(parts, 0.02)
     keep = chair_points[:, 2] > 1e-6
     points, names = in_room((chair_points[keep], np.full(int(keep.sum()), "chair")))
