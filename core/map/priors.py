@@ -24,18 +24,23 @@ class ClassSize:
     #: cabinet, a low sideboard); None: the typical range with its slack.
     min_height: float | None = None
     #: Shallowest one object is front to back (a unit holds things: a panel on a wall is none); None: any.
+    #: A map sees a unit's whole depth wherever it sees its top, so only noise is allowed below it.
     min_depth: float | None = None
 
 
 CLASS_SIZES: dict[str, ClassSize] = {
-    "chair": ClassSize((0.2, 0.9)),
+    # One seat: an armchair is under a metre wide; wider seating is a sofa or a bench.
+    "chair": ClassSize((0.2, 0.9), max_length=1.0),
     "table": ClassSize((0.3, 1.6)),
     "desk": ClassSize((0.4, 1.4)),
     "cabinet": ClassSize(
         (0.25, 1.3), max_length=1.3, max_height=2.4, min_height=0.35, min_depth=0.2
     ),  # one unit; wider runs of cabinets are several units
     "shelf": ClassSize((0.3, 1.4), max_height=2.4),
-    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_depth=0.45),
+    # Worktops stand 0.85-0.95 m high (low ones for children or wheelchair users about 0.75 m) and
+    # reach 0.6 m or more from the wall (base units are 0.56-0.6 m deep): a long low or shallow unit is
+    # a sideboard, a cabinet.
+    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_height=0.75, min_depth=0.55),
     "sofa": ClassSize((0.5, 1.6)),
     "bench": ClassSize((0.3, 1.2)),
     "fridge": ClassSize((0.4, 1.2)),

@@ -1052,9 +1052,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls), sel)
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
-        anchor_class = {}
+        anchor_class, standing_class = {}, {}
         for i, (name, shape, _) in info.items():
             settled = name if name != "object" and fits_class(name, shape) else prior_class(shape, vocab)[0]
+            if settled != "object" and fits_class(settled, shape) and shape.bottom <= FLOOR_GAP:
+                standing_class[i] = settled
             if settled in NOT_STACKED and fits_class(settled, shape):
                 anchor_class[i] = settled
         joined = []
@@ -1076,8 +1078,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             ):
                 continue
             z = points[sel, 2]
-            for anchor in sorted(anchor_class, key=lambda i: -len(info[i][2])):
-                a_name, a_sel = anchor_class[anchor], info[anchor][2]
+            # A piece off the floor lies within any floor-standing object (a sliver of a sideboard's top),
+            # other pieces join only objects that stand on no other one (chairs, tables, counters).
+            anchors = {**standing_class, **anchor_class} if lifted else anchor_class
+            for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
+                a_name, a_sel = anchors[anchor], info[anchor][2]
                 if anchor == iid or (not floating and not lifted and alone != "object" and a_name != name):
                     continue
                 # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
@@ -1090,6 +1095,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     # wholly under it: one object (a chair's back and seat over its seat and legs).
                     if not (
                         lifted
+                        and anchor in anchor_class
                         and name in NOT_STACKED
                         and fits_class(name, shape)
                         and z.min() <= az.max() + FLOOR_GAP
@@ -1104,6 +1110,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     class_ids[merged] = vocab.id(a_name)
                     joined.append({"instance": iid, "into": anchor, "class": a_name})
                     anchor_class.pop(iid, None)
+                    standing_class.pop(iid, None)
                     break
                 if lifted and not az.min() < z.min() - FLOOR_GAP:
                     continue
@@ -1116,6 +1123,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     class_ids[sel] = vocab.id(a_name)
                     joined.append({"instance": iid, "into": anchor, "class": a_name})
                     anchor_class.pop(iid, None)
+                    standing_class.pop(iid, None)
                     break
         if joined:
             self.note("parts_joined", joined)
