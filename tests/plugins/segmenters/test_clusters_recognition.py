@@ -294,3 +294,24 @@ def test_a_chair_cut_at_its_seat_is_one_chair():
     upper = (names == "chair") & (points[:, 2] >= 0.49)
     out = recognized(points, names, [((names == "chair") & ~upper, "table"), (upper, "chair")])
     assert [inst.class_name for inst in out["instances"]] == ["chair"]
+
+
+def test_seating_and_worktops_have_their_sizes():
+    """A 1.6 m "chair" is no chair; a sideboard (low or shallow) is a cabinet, a 0.62 m deep unit at
+    worktop height a counter."""
+    assert not fits_class("chair", shape(length=1.61, depth=0.51, height=0.67, reach=1.0, flat_top=True, solid=True))
+    unit = dict(bottom=0.0, against_wall=True, flat_top=True, solid=True)
+    assert prior_class(shape(length=1.6, depth=0.5, height=0.66, reach=0.9, **unit), VOCAB)[0] == "cabinet"
+    assert prior_class(shape(length=1.4, depth=0.45, height=0.85, reach=0.85, **unit), VOCAB)[0] == "cabinet"
+    assert prior_class(shape(length=1.4, depth=0.62, height=0.9, reach=0.85, **unit), VOCAB)[0] == "counter"
+
+
+def test_a_sliver_within_a_cabinet_joins_it():
+    """The frames' masks took a sliver of a sideboard's top for an object of its own: off the floor and
+    lying within a floor-standing cabinet (not a class that never stands on another), it joins it."""
+    unit, unit_names = solids([("sideboard", (0.02, 1.0, 0.0), (0.47, 2.4, 0.8))], 0.02)
+    keep = (unit[:, 2] > 1e-6) & (unit[:, 0] > 0.02 + 1e-6)
+    points, names = in_room((unit[keep], unit_names[keep]))
+    sliver = (names == "sideboard") & (points[:, 2] > 0.8 - 1e-6) & (points[:, 1] > 1.6) & (points[:, 1] < 1.9)
+    out = recognized(points, names, [((names == "sideboard") & ~sliver, "cabinet"), (sliver, "box")])
+    assert [inst.class_name for inst in out["instances"]] == ["cabinet"]
