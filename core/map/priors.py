@@ -29,8 +29,9 @@ class ClassSize:
 
 
 CLASS_SIZES: dict[str, ClassSize] = {
-    # One seat: an armchair is under a metre wide; wider seating is a sofa or a bench.
-    "chair": ClassSize((0.2, 0.9), max_length=1.0),
+    # One seat: an armchair is under a metre wide (with the map's noise, 1.1 m); wider seating is a sofa
+    # or a bench, and a longer "chair" in a mapper's masks is two (tsdf's size prior splits it).
+    "chair": ClassSize((0.2, 0.9), max_length=1.1),
     "table": ClassSize((0.3, 1.6)),
     "desk": ClassSize((0.4, 1.4)),
     "cabinet": ClassSize(
