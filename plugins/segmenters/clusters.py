@@ -1060,6 +1060,14 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if settled in NOT_STACKED and fits_class(settled, shape):
                 anchor_class[i] = settled
         joined = []
+
+        def join(iid: int, anchor: int, name: str, relabel: np.ndarray) -> None:
+            instance_ids[info[iid][2]] = anchor
+            class_ids[relabel] = vocab.id(name)
+            joined.append({"instance": iid, "into": anchor, "class": name})
+            anchor_class.pop(iid, None)
+            standing_class.pop(iid, None)
+
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel = info[iid]
             # Held up by nothing of its own: neither floor-standing nor hung on a wall, its foot off the
@@ -1106,11 +1114,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     if fits_class(name, describe_shape(points[merged], base_z, walls)):
                         a_name = name
                         anchor_class[anchor] = name
-                    instance_ids[sel] = anchor
-                    class_ids[merged] = vocab.id(a_name)
-                    joined.append({"instance": iid, "into": anchor, "class": a_name})
-                    anchor_class.pop(iid, None)
-                    standing_class.pop(iid, None)
+                    join(iid, anchor, a_name, merged)
                     break
                 if lifted and not az.min() < z.min() - FLOOR_GAP:
                     continue
@@ -1119,11 +1123,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 if lifted and inside < 0.9:
                     continue
                 if inside >= 0.5:
-                    instance_ids[sel] = anchor
-                    class_ids[sel] = vocab.id(a_name)
-                    joined.append({"instance": iid, "into": anchor, "class": a_name})
-                    anchor_class.pop(iid, None)
-                    standing_class.pop(iid, None)
+                    join(iid, anchor, a_name, sel)
                     break
         if joined:
             self.note("parts_joined", joined)

@@ -145,21 +145,20 @@ def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
     return voxels, obs
 
 
+def chair_instances(voxels: np.ndarray, obs: MaskObservations, params: MaskInstanceParams) -> np.ndarray:
+    """The instance per voxel of ``voxels`` fused as one "chair" instance, after ``mask_instances``."""
+    return mask_instances(
+        voxels * VOXEL, np.full(len(voxels), CHAIR), np.ones(len(voxels), int), obs, VOCAB, VOXEL, params
+    )[1]
+
+
 @pytest.mark.parametrize(("gap_voxels", "near_gap", "joined"), [(5, 0.2, True), (50, 0.2, False), (50, 0.0, True)])
 def test_far_pieces_need_near_unanimous_masks(gap_voxels, near_gap, joined):
     """Seven frames in ten covering both: enough 10 cm apart, not 1 m apart (a segmenter's masks
     that often run over two books or two chairs), unless the distance limit is off. The size prior is
     off here (it would cut a 1.4 m "chair" again, below)."""
     voxels, obs = two_chairs(gap_voxels, frames_together=7)
-    cls, inst = mask_instances(
-        voxels * VOXEL,
-        np.full(len(voxels), CHAIR),
-        np.ones(len(voxels), int),
-        obs,
-        VOCAB,
-        VOXEL,
-        MaskInstanceParams(near_gap=near_gap, max_length={}),
-    )
+    inst = chair_instances(voxels, obs, MaskInstanceParams(near_gap=near_gap, max_length={}))
     assert np.all(inst > 0)
     assert (len(np.unique(inst)) == 1) == joined
 
@@ -168,15 +167,7 @@ def test_a_chair_longer_than_any_chair_is_cut_in_two():
     """Two chairs 1 m apart that the distance limit let join (it is off) are 1.4 m long: no chair is,
     and the size prior cuts them where they part."""
     voxels, obs = two_chairs(50, frames_together=7)
-    _, inst = mask_instances(
-        voxels * VOXEL,
-        np.full(len(voxels), CHAIR),
-        np.ones(len(voxels), int),
-        obs,
-        VOCAB,
-        VOXEL,
-        MaskInstanceParams(near_gap=0.0),
-    )
+    inst = chair_instances(voxels, obs, MaskInstanceParams(near_gap=0.0))
     assert len(np.unique(inst[: len(voxels) // 2])) == 1 and len(np.unique(inst)) == 2
 
 
@@ -184,15 +175,7 @@ def test_far_pieces_join_when_every_mask_covers_both():
     """A plant's pot and leaves 1 m apart (the stem lost) that every frame's mask covers as one. (The
     pieces are voted "chair"; the size prior, off here, would cut a 1.4 m chair in two.)"""
     voxels, obs = two_chairs(50, frames_together=10)
-    cls, inst = mask_instances(
-        voxels * VOXEL,
-        np.full(len(voxels), CHAIR),
-        np.ones(len(voxels), int),
-        obs,
-        VOCAB,
-        VOXEL,
-        MaskInstanceParams(max_length={}),
-    )
+    inst = chair_instances(voxels, obs, MaskInstanceParams(max_length={}))
     assert len(np.unique(inst)) == 1 and inst[0] > 0
 
 
