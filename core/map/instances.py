@@ -50,13 +50,20 @@ def instances_from_semantics(
     return out
 
 
-def plausible(class_name: str, points: np.ndarray, margin: float = 1.3) -> bool:
+def plausible(class_name: str, points: np.ndarray, margin: float = 1.3, whole: bool = False) -> bool:
     """Whether an object of these points can be of this class by its size (core/map/priors.py): its
     farthest point from the centroid within ``margin`` times the class's largest extent, and its
     longest horizontal side within ``margin`` times the class's longest. Classes whose objects come in
-    any length (tables, counters, shelves, sofas, benches) and classes without a prior always pass."""
-    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES
+    any length (tables, counters, shelves, sofas, benches) and classes without a prior pass those two.
+    ``whole`` (an object seen whole, as recognition assumes) also asks its height to reach the class's
+    lowest plausible height over ``margin``: a flat sliver is no microwave."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, plausible_heights
 
+    if whole and len(points):
+        heights = plausible_heights(class_name)
+        z = np.asarray(points, np.float64)[:, 2]
+        if heights is not None and float(z.max() - z.min()) < heights[0] / margin:
+            return False
     size = CLASS_SIZES.get(class_name)
     if size is None or class_name in ANY_LENGTH or len(points) == 0:
         return True

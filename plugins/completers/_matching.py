@@ -468,7 +468,7 @@ class MatchingCompleter(Completer[MatcherConfigT]):
         """The class (of ``classes`` the object's size allows) whose best model fits the object best."""
         best = None
         for name in classes:
-            if not plausible(name, inst.points):
+            if not plausible(name, inst.points, whole=True):
                 continue
             match = self.match(dataclasses.replace(inst, class_name=name), base, index, None)
             if match is not None and (best is None or (match.score, name) < (best[1].score, best[0])):

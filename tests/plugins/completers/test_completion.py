@@ -271,3 +271,20 @@ def test_an_object_with_no_class_is_recognized_by_matching():
     assert record["from"] == "object" and record["class"] == "chair" and record["fit_m"] <= 0.03
     assert out[2].class_name == "object" and "class" not in out[2].attributes["recognition"]
     assert data.notes["icp_match"]["recognition"] == {"attempted": 2, "recognized": 1}
+
+
+def test_recognition_takes_no_class_the_shape_is_too_flat_for():
+    """A flat sliver (the top of something, 1 cm high) lies on a table's top, but no table is 1 cm
+    high: recognition by matching does not even try the class (no best class in its record)."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.map.instances import plausible
+
+    table = make_model("round_table", 0, 2)
+    name = register_library("recognition-flat", ModelLibrary([model_to_library(table)]))
+    top = trimesh.sample.sample_surface(table.mesh(), 6000, seed=0)[0]
+    sliver = top[top[:, 2] > top[:, 2].max() - 0.01] + [2.0, 1.0, 0.0]
+    assert plausible("table", sliver) and not plausible("table", sliver, whole=True)
+    data = PipelineData()
+    data.map.instances = ObjectInstances([ObjectInstance(1, "object", sliver, gravity_aligned_box(sliver))])
+    out = ICPMatchCompleter(library=name).run(data)["instances"]
+    assert out[1].class_name == "object" and "best_class" not in out[1].attributes["recognition"]
