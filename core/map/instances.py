@@ -56,13 +56,13 @@ def plausible(class_name: str, points: np.ndarray, margin: float = 1.3, whole: b
     longest horizontal side within ``margin`` times the class's longest. Classes whose objects come in
     any length (tables, counters, shelves, sofas, benches) and classes without a prior pass those two.
     ``whole`` (an object seen whole, as recognition assumes) also asks its height to reach the class's
-    lowest plausible height over ``margin``: a flat sliver is no microwave."""
-    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, plausible_heights
+    lowest (``priors.lowest_height``): a flat sliver is no microwave."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, lowest_height
 
     if whole and len(points):
-        heights = plausible_heights(class_name)
+        lowest = lowest_height(class_name, margin)
         z = np.asarray(points, np.float64)[:, 2]
-        if heights is not None and float(z.max() - z.min()) < heights[0] / margin:
+        if lowest is not None and float(z.max() - z.min()) < lowest:
             return False
     size = CLASS_SIZES.get(class_name)
     if size is None or class_name in ANY_LENGTH or len(points) == 0:

@@ -109,6 +109,16 @@ def plausible_heights(class_name: str) -> tuple[float, float] | None:
     return None if span is None else (span[0] / HEIGHT_SLACK, span[1] * HEIGHT_SLACK)
 
 
+def lowest_height(class_name: str, margin: float) -> float | None:
+    """The lowest (metres) a whole object of the class may be seen: its ``min_height`` where the class
+    has one, else the plausible heights' low end over ``margin``; None for a class without priors."""
+    size = CLASS_SIZES.get(class_name)
+    if size is not None and size.min_height is not None:
+        return size.min_height
+    heights = plausible_heights(class_name)
+    return None if heights is None else heights[0] / margin
+
+
 def class_extents() -> dict[str, tuple[float, float]]:
     """(min, max) extent per class."""
     return {name: size.extent for name, size in CLASS_SIZES.items()}

@@ -159,7 +159,14 @@ def fits_class(name: str, shape: Shape) -> bool:
     class's longest and shortest sides, its height (standing on the floor: also from below) within the
     plausible heights; a class open below (OPEN_BELOW) standing on the floor with a solid body does
     not fit. Classes without priors always fit."""
-    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, NOT_STACKED, OPEN_BELOW, plausible_heights
+    from stratamap.core.map.priors import (
+        ANY_LENGTH,
+        CLASS_SIZES,
+        NOT_STACKED,
+        OPEN_BELOW,
+        lowest_height,
+        plausible_heights,
+    )
 
     size = CLASS_SIZES.get(name)
     if size is not None:
@@ -197,10 +204,7 @@ def fits_class(name: str, shape: Shape) -> bool:
             return False
         # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
         # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
-        lowest = heights[0] / SIZE_MARGIN
-        if size is not None and size.min_height is not None:
-            lowest = size.min_height
-        if shape.height < lowest and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
+        if shape.height < lowest_height(name, SIZE_MARGIN) and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
             return False
     return True
 

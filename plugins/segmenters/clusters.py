@@ -1049,12 +1049,13 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             cls = int(np.bincount(class_ids[sel]).argmax())
             if vocab.is_thing[cls]:
-                info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls), sel)
+                shape = describe_shape(points[sel], base_z, walls)
+                info[iid] = (vocab.name(cls), shape, sel, prior_class(shape, vocab)[0])
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
         anchor_class, standing_class = {}, {}
-        for i, (name, shape, _) in info.items():
-            settled = name if name != "object" and fits_class(name, shape) else prior_class(shape, vocab)[0]
+        for i, (name, shape, _, alone) in info.items():
+            settled = name if name != "object" and fits_class(name, shape) else alone
             if settled != "object" and fits_class(settled, shape) and shape.bottom <= FLOOR_GAP:
                 standing_class[i] = settled
             if settled in NOT_STACKED and fits_class(settled, shape):
@@ -1069,12 +1070,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             standing_class.pop(iid, None)
 
         for iid in sorted(info, key=lambda i: len(info[i][2])):
-            name, shape, sel = info[iid]
+            name, shape, sel, alone = info[iid]
             # Held up by nothing of its own: neither floor-standing nor hung on a wall, its foot off the
             # floor. Within a floor-standing object it is a piece of it, whatever it was voted (a
             # chair's backrest seen as a "monitor"); on it, it rises above its top (a cup on a table).
             floating = name not in NOT_STACKED and not shape.against_wall and shape.bottom > STANDING_GAP
-            alone = prior_class(shape, vocab)[0]
             # Off the floor and not a small thing standing on a support surface: within a floor-standing
             # object that reaches lower, it is a piece of that, whatever it was voted (a counter's upper
             # front that a detector called a chair or a monitor; a mug voted "table" on the worktop
