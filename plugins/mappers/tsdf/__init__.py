@@ -333,6 +333,8 @@ class TSDFMapper(Mapper[TSDFConfig]):
     @staticmethod
     def _flat_indices(vbg: Any, voxels: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray]:
         """Flat indices into the voxel attributes of integer voxel coordinates (and which exist)."""
+        if len(voxels) == 0:  # a frame its segmenter labelled nothing in; Open3D's hash map refuses no keys
+            return np.zeros(0, np.int64), np.zeros(0, bool)
         block = np.floor_divide(voxels, res)
         local = voxels - block * res
         buf, found = vbg.hashmap().find(o3c.Tensor(block.astype(np.int32)))

@@ -309,3 +309,25 @@ def test_panoptic_fusion_keeps_instances_of_different_classes_apart():
     classes, instances = state.label_table()
     assert classes[labels[0]] == chair and classes[labels[35]] == table
     assert instances[labels[0]] == chair_inst and instances[labels[35]] == table_inst != chair_inst
+
+
+@pytest.mark.parametrize("instances", ["labels", "masks"])
+def test_a_frame_its_segmenter_labelled_nothing_is_still_integrated(instances):
+    """A frame with valid depth and no label at all (a detector that found nothing, no plane in view)
+    adds its depth and no votes; it must not stop the mapping."""
+    from stratamap.core.map.sensors import FrameLabels
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.segmenters.oracle import OracleSegmenter
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "office", "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 8}}
+    data = run_stages([SyntheticSource(scene=scene), OracleSegmenter()])
+    points_when_labelled = len(run_stages([TSDFMapper(voxel_size=0.05, instances=instances)], data).map.geometry.points)
+    frames = list(data.frame_labels.frames)
+    frames[3].class_ids[:] = 0
+    frames[3].instance_ids[:] = 0
+    data.frame_labels = FrameLabels(data.frame_labels.segmenter, frames, data.frame_labels.tracked_instances)
+    mapped = run_stages([TSDFMapper(voxel_size=0.05, instances=instances)], data)
+    assert len(mapped.map.geometry.points) == points_when_labelled
+    assert (mapped.map.semantics.class_ids > 0).mean() > 0.9
