@@ -44,6 +44,8 @@ DEPTH_NOISE = 0.03
 TALLER_BY = 0.15
 #: Things the priors name when they stand on a support surface, by size.
 ON_SUPPORTS = ("cup", "bottle", "box")
+#: Things of a hand's size among them (a box may be a microwave's size).
+HAND_HELD = ("cup", "bottle")
 
 
 def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:

@@ -53,6 +53,7 @@ from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
+    HAND_HELD,
     ON_SUPPORTS,
     STANDING_GAP,
     THIN,
@@ -907,13 +908,25 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for k in kept:
             mask = np.flatnonzero(point_obj == k)
             inside = prev_i[mask] > 0
+            carried_by = None  # the class of the instance whose mask took this object along, if any
             if inside.mean() >= cfg.covered_share:
                 owner = np.bincount(prev_i[mask[inside]]).argmax()
-                # A small object standing on a support, inside a larger object's mask (a cup in the
-                # table's box): an object of its own.
+                owner_points = prev_i == owner
+                owner_class = int(np.bincount(prev_c[owner_points]).argmax())
                 foot = float(points[mask, 2].min())
                 on_support = bool(len(supports.height)) and bool(np.any(np.abs(supports.height - foot) <= tol))
-                if not (on_support and len(mask) < 0.15 * inst_size[owner] and top_area[k] == 0):
+                standing = on_support and top_area[k] == 0
+                # A small object standing on a support, inside a larger object's mask (a cup in the
+                # table's box), or of a hand-held thing's size there inside any other thing's mask (a
+                # mug framed with a strip of worktop as a "table"): an object of its own.
+                own = standing and (
+                    len(mask) < 0.15 * inst_size[owner]
+                    or (
+                        vocab.name(owner_class) not in HAND_HELD
+                        and any(fits_class(n, describe_shape(points[mask], base_z, walls)) for n in HAND_HELD)
+                    )
+                )
+                if not own:
                     rest = mask[~inside]
                     if len(rest):
                         near = cKDTree(points[mask[inside]]).query(points[rest])[1]
@@ -921,6 +934,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         out_c[rest] = prev_c[mask[inside][near]]
                     continue
                 rest = mask
+                if not fits_class(vocab.name(owner_class), describe_shape(points[owner_points], base_z, walls)):
+                    carried_by = owner_class
             else:
                 rest = mask[~inside]
                 label = int(np.argmax(on_plane[k]))
@@ -949,6 +964,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             counts = {int(c): int((prev_c[rest] == c).sum()) for c in thing}
             # Leftover votes name it only where they hold most of its points (a vote its size rules
             # out is kept for now: the piece may join an object of that class, else recognition renames it).
+            # A vote for the class of the object it stands on, which that object's own size rules out, came
+            # with that object's mask (a detector without a 'counter' label framed the counter as a "box"
+            # and took the mug along): it names neither.
+            if carried_by is not None:
+                counts.pop(carried_by, None)
             voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= 0.5 * len(rest)]
             name = voted[0] if voted else prior_class(shape, vocab)[0] if cfg.recognize else "object"
             out_i[rest] = next_id
@@ -1071,16 +1091,23 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel, alone = info[iid]
-            # Held up by nothing of its own: neither floor-standing nor hung on a wall, its foot off the
-            # floor. Within a floor-standing object it is a piece of it, whatever it was voted (a
-            # chair's backrest seen as a "monitor"); on it, it rises above its top (a cup on a table).
-            floating = name not in NOT_STACKED and not shape.against_wall and shape.bottom > STANDING_GAP
-            # Off the floor and not a small thing standing on a support surface: within a floor-standing
-            # object that reaches lower, it is a piece of that, whatever it was voted (a counter's upper
-            # front that a detector called a chair or a monitor; a mug voted "table" on the worktop
-            # stays a mug).
+            # A small thing by its size, its foot at the height of a support surface (a mug on a worktop).
             on_support = bool(np.any(np.abs(support_heights - (base_z + shape.bottom)) <= 1.5 * voxel))
-            lifted = shape.bottom > FLOOR_GAP and not (alone in ON_SUPPORTS and on_support)
+            supported = alone in ON_SUPPORTS and on_support
+            # Held up by nothing of its own: neither floor-standing, nor hung on a wall, nor a small thing
+            # named as one on a support, its foot off the floor. Within a floor-standing object it is a
+            # piece of it, whatever it was voted (a chair's backrest seen as a "monitor"); on it, it rises
+            # above its top.
+            floating = (
+                name not in NOT_STACKED
+                and not shape.against_wall
+                and shape.bottom > STANDING_GAP
+                and not (supported and name in ON_SUPPORTS)
+            )
+            # Off the floor and not on a support: within a floor-standing object that reaches lower, it is
+            # a piece of that, whatever it was voted (a counter's upper front that a detector called a
+            # chair or a monitor; a mug voted "table" on the worktop stays a mug).
+            lifted = shape.bottom > FLOOR_GAP and not supported
             if (iid in anchor_class and not lifted) or (
                 name != "object" and fits_class(name, shape) and not floating and not lifted
             ):

@@ -236,6 +236,33 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
 
 
+def test_a_mug_a_counter_detection_took_along_is_a_mug():
+    """A detector without a 'counter' label framed the counter (with its coffee machine) as a "box",
+    and that mask took the mug on the worktop along. A class the counter's own size rules out names
+    neither object: the mug, standing on the worktop within the counter's height, is a cup."""
+    mug, mug_names = solids([("mug", (0.3, 1.4, 0.9), (0.38, 1.48, 1.0))], 0.02)
+    above = mug[:, 2] > 0.9 + 1e-6
+    points, names = in_room(unit_row(0.02, with_tall_unit=False, machine=True), (mug[above], mug_names[above]))
+    out = recognized(points, names, [(np.isin(names, ["counter", "machine", "mug"]), "box")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
+
+
+def test_a_mug_framed_with_a_strip_of_worktop_is_a_mug():
+    """A frame's mask voted "table" holds a mug standing on the worktop and a strip of the counter's
+    front below the worktop's far end (the mask spilled as the camera moved): more of it is the mug
+    than the strip, so the mug is no small part of a larger mask. A thing of a mug's size standing on
+    a support is an object of its own inside any other thing's mask."""
+    mug, mug_names = solids([("mug", (0.3, 1.4, 0.9), (0.38, 1.48, 1.0))], 0.02)
+    above = mug[:, 2] > 0.9 + 1e-6
+    points, names = in_room(unit_row(0.02, with_tall_unit=False), (mug[above], mug_names[above]))
+    strip = (names == "counter") & (points[:, 0] > 0.59) & (points[:, 1] > 2.42) & (points[:, 2] > 0.75)
+    assert strip.sum() < (names == "mug").sum()
+    out = recognized(points, names, [((names == "counter") & ~strip, "box"), ((names == "mug") | strip, "table")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
+    cup = next(inst for inst in out["instances"] if inst.class_name == "cup")
+    assert cup.box.size[2] < 0.15
+
+
 def test_a_table_top_over_part_of_a_chair_stays_a_table():
     """A table top whose legs went unseen, voted "table", off the floor, over part of a chair's
     footprint (the real office clip's round table beside its chair): only a piece lying wholly within
