@@ -237,6 +237,9 @@ def working_voxel(points: np.ndarray, map_voxel: float | None, cfg: ClustersConf
         return cfg.voxel_size
     if map_voxel:
         return float(map_voxel)
+    # Spacing between distinct points: a cloud may hold every point twice (a scan saved with its
+    # copy), and a repeated point's nearest neighbour is itself.
+    points = points[np.sort(np.unique(points, axis=0, return_index=True)[1])]
     if len(points) < 2:
         return 0.01
     sample = points[:: max(1, len(points) // 20000)]

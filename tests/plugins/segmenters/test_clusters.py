@@ -283,6 +283,38 @@ def test_a_real_scan_of_an_office_floor_has_its_floor():
     assert (sem.class_ids[low] == sem.vocabulary.id("floor")).mean() > 0.9
 
 
+def test_a_cloud_holding_every_point_twice_gets_the_grid_of_its_points():
+    """A raw cloud saved with each point twice (PCL's room scans): the spacing is measured between
+    distinct points, so the working grid and the room's instances are those of the cloud once."""
+    from stratamap.plugins.segmenters.clusters import working_voxel
+
+    points, _ = synthetic_room(0.01)
+    twice = np.concatenate([points, points])
+    cfg = ClustersConfig()
+    assert working_voxel(twice, None, cfg) == pytest.approx(working_voxel(points, None, cfg))
+    once, doubled = segment(points, None)["semantics"], segment(twice, None)["semantics"]
+    assert (doubled.class_ids[: len(points)] == once.class_ids).mean() > 0.99
+    assert len(np.unique(doubled.instance_ids)) == len(np.unique(once.instance_ids)) >= 4
+
+
+def test_a_real_360_degree_room_scan_has_its_floor_walls_and_ceiling():
+    """PCL's room scan (a 360-degree scan of one room, every point stored twice, dense near the
+    sensor and sparse far away): floor, walls and ceiling are found and are no things."""
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.points import PointsMapper
+    from stratamap.plugins.sources.pointcloud import PointCloudSource
+
+    path = shared_data("pcl_scenes", "room_scan1.pcd")
+    data = run_stages([PointCloudSource(path=str(path)), PointsMapper(), ClustersSegmenter()])
+    notes = data.notes["clusters"]["segments"]
+    assert notes["floor_height"] is not None and notes["walls"] >= 3, notes
+    sem, z = data.map.semantics, data.map.geometry.points[:, 2]
+    for name, level in (("floor", 1), ("ceiling", 99)):
+        at = np.abs(z - np.percentile(z, level)) < 0.05
+        assert (sem.class_ids[at] == sem.vocabulary.id(name)).mean() > 0.8, name
+        assert (sem.instance_ids[at] > 0).mean() < 0.05, name
+
+
 @pytest.mark.parametrize(
     "points,params,message",
     [
