@@ -507,3 +507,18 @@ def test_infinite_points_are_dropped_and_counted(tmp_path):
     data = PipelineData()
     out = PointCloudSource(path=str(cloud_file(tmp_path, "c.ply", points)), gravity="off").run(data)
     assert len(out["frames"].points) == 390 and data.notes["pointcloud"]["points"]["dropped_invalid"] == 10
+
+
+def test_a_cloud_whose_floor_is_not_up_says_which_settings_fit(tmp_path):
+    """A tabletop seen by a camera (its optical frame: the table's normal along -y) read with the
+    default up axis z: the error names the file and the two settings that fit such clouds."""
+    rng = np.random.default_rng(2)
+    table = np.c_[rng.uniform(-0.5, 0.5, 3000), np.full(3000, 0.8), rng.uniform(0.5, 1.5, 3000)]
+    path = cloud_file(tmp_path, "camera.ply", table)
+    with pytest.raises(
+        DataError, match=r"camera: no floor plane found .* up_axis \(-y for a camera's optical frame"
+    ) as err:
+        PointCloudSource(path=str(path)).run(PipelineData())
+    assert "\n" not in str(err.value)
+    out = PointCloudSource(path=str(path), up_axis="-y").run(PipelineData())
+    assert np.allclose(out["frames"].points[:, 2], 0.0, atol=0.01)
