@@ -123,6 +123,15 @@ class IntegrationConfig(StageConfig):
     extract_mesh: bool = Field(
         default=True, description="Also extract a triangle mesh (marching cubes) into the geometry layer."
     )
+    min_frames: int = Field(
+        default=4,
+        ge=1,
+        description=(
+            "A surface voxel is kept when at least this many frames saw it (Open3D's default weight threshold, "
+            "more than 3: a few frames' outliers are dropped); a sequence of fewer frames keeps what all of them "
+            "saw, so that one frame still makes a map."
+        ),
+    )
 
 
 class TSDFVolume:
@@ -151,6 +160,7 @@ class TSDFVolume:
             device=o3c.Device("CPU:0"),
         )
         self._K = o3c.Tensor(intrinsics.matrix, o3c.float64)
+        self.frames = 0
 
     def valid_depth(self, frame: Any, mapper: str) -> np.ndarray:
         """The frame's depth with non-finite and too-near pixels zeroed (float32)."""
@@ -175,12 +185,15 @@ class TSDFVolume:
         self.grid.integrate(
             coords, depth_img, color_img, self._K, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
         )
+        self.frames += 1
 
     def surface(self) -> Geometry:
         """Surface points (sorted by position, so runs are reproducible) and, if configured, the mesh."""
+        # Each frame adds 1 to the weight of the voxels it sees; Open3D keeps weights above the threshold.
+        weight = max(1, min(self.cfg.min_frames, self.frames)) - 0.5
         # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
         with open3d_threads(1):  # extraction from 16-bit voxels differs with the threads' split of the blocks
-            pcd = self.grid.extract_point_cloud()
+            pcd = self.grid.extract_point_cloud(weight)
         points = pcd.point.positions.numpy().astype(np.float64)
         raw_colors = pcd.point.colors.numpy() if "colors" in pcd.point else None
         order = position_order(points, raw_colors)
@@ -189,7 +202,7 @@ class TSDFVolume:
         mesh = None
         if self.cfg.extract_mesh:
             with open3d_threads(1):
-                tmesh = self.grid.extract_triangle_mesh()
+                tmesh = self.grid.extract_triangle_mesh(weight)
             verts = tmesh.vertex.positions.numpy().astype(np.float64)
             faces = tmesh.triangle.indices.numpy().astype(np.int64)
             vcol = None

@@ -331,3 +331,21 @@ def test_a_frame_its_segmenter_labelled_nothing_is_still_integrated(instances):
     mapped = run_stages([TSDFMapper(voxel_size=0.05, instances=instances)], data)
     assert len(mapped.map.geometry.points) == points_when_labelled
     assert (mapped.map.semantics.class_ids > 0).mean() > 0.9
+
+
+@pytest.mark.parametrize("frames", [1, 2, 3])
+def test_a_sequence_of_fewer_frames_than_min_frames_still_makes_a_map(frames):
+    """Open3D keeps voxels whose weight exceeds its threshold (3 by default: seen by 4 frames or more),
+    which left a single RGB-D frame, or a clip of three, with an empty map. Fewer frames than
+    ``min_frames`` keep what all of them saw."""
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "office", "camera": {"width": 160, "height": 120}, "trajectory": {"frames": frames}}
+    data = run_stages([SyntheticSource(scene=scene), TSDFMapper(voxel_size=0.05)])
+    geometry = data.map.geometry
+    # The walk moves: what all three frames saw is less than one frame's view.
+    assert len(geometry.points) > 300 and len(geometry.mesh.faces) > 300
+    floor = np.abs(geometry.points[:, 2]) < 0.06
+    assert floor.mean() > 0.1
