@@ -693,6 +693,8 @@ def join_supports(
             below = np.flatnonzero((top <= supports.height[main] + stand_tol) & ~stands & (count > 0))
             links += [(int(seg), n_seg + main) for seg in below]
     n = n_seg + n_sup
+    if n == 0:  # all stuff (a scan of a bare floor)
+        return np.full(len(cells), -1, np.int64)
     pairs_ = np.array(links, np.int64).reshape(-1, 2)
     graph = coo_matrix((np.ones(len(pairs_)), (pairs_[:, 0], pairs_[:, 1])), shape=(n, n))
     obj = connected_components(graph, directed=False)[1].astype(np.int64)

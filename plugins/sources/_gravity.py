@@ -145,7 +145,10 @@ def find_floor(
 
 
 def estimate_alignment(
-    stream: SensorStream, up_hint: np.ndarray | None = None, max_angle_deg: float = 35.0
+    stream: SensorStream,
+    up_hint: np.ndarray | None = None,
+    max_angle_deg: float = 35.0,
+    advice: str = "if the input is already z-up set `gravity: off`",
 ) -> GravityAlignment:
     pts = sample_points(stream)
     if len(pts) < 100:
@@ -157,8 +160,7 @@ def estimate_alignment(
     if floor is None:
         raise DataError(
             f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "
-            f"{np.round(hint, 2).tolist()}); "
-            "if the input is already z-up set `gravity: off`"
+            f"{np.round(hint, 2).tolist()}); {advice}"
         )
     normal, d, inliers = floor
     rot = rotation_between(normal, np.array([0.0, 0.0, 1.0]))

@@ -127,15 +127,16 @@ class PointCloudSource(Source[PointCloudConfig]):
         if labels is not None and cfg.label_scheme != "none":
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)
         if cfg.gravity == "auto":
-            try:
-                alignment = estimate_alignment(
-                    stream, up_hint=np.array(UP_AXES[cfg.up_axis]), max_angle_deg=cfg.up_tolerance_deg
-                )
-            except DataError as err:
-                raise DataError(
-                    f"{err}; else give its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a "
-                    "larger up_tolerance_deg (a steep view of a tabletop needs about 60)"
-                ) from None
+            alignment = estimate_alignment(
+                stream,
+                up_hint=np.array(UP_AXES[cfg.up_axis]),
+                max_angle_deg=cfg.up_tolerance_deg,
+                advice=(
+                    "if the input is already z-up set `gravity: off`, else give its up_axis (-y for a camera's "
+                    "optical frame, as Kinect and stereo scans) or a larger up_tolerance_deg (a steep view of a "
+                    "tabletop needs about 60)"
+                ),
+            )
             self.note("gravity_alignment", alignment.report())
             if alignment.realigned:
                 transform_stream(stream, alignment.transform)

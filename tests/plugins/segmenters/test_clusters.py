@@ -297,6 +297,14 @@ def test_a_cloud_holding_every_point_twice_gets_the_grid_of_its_points():
     assert len(np.unique(doubled.instance_ids)) == len(np.unique(once.instance_ids)) >= 4
 
 
+def test_a_bare_floor_is_floor_and_no_instance():
+    """Nothing but stuff (a scan of an empty floor): no segment, no support, no instance, no error."""
+    points = np.c_[np.random.default_rng(0).uniform(0, 3, (5000, 2)), np.zeros(5000)]
+    out = segment(points, None)
+    assert len(out["instances"]) == 0
+    assert (out["semantics"].class_ids == VOCAB.id("floor")).all()
+
+
 def test_a_real_360_degree_room_scan_has_its_floor_walls_and_ceiling():
     """PCL's room scan (a 360-degree scan of one room, every point stored twice, dense near the
     sensor and sparse far away): floor, walls and ceiling are found and are no things."""
