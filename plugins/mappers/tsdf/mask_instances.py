@@ -170,6 +170,8 @@ def point_class_votes(
     np.add.at(votes, (inv, np.concatenate(obs.classes).astype(np.int64)), 1)
     base = np.round(points / voxel_size).astype(np.int64)
     out = np.zeros((len(points), classes), np.int32)
+    if len(uniq) == 0:  # no frame labelled anything: no votes
+        return out
     todo = np.ones(len(points), bool)
     for off in VOXEL_NEIGHBOURS:
         idx = np.flatnonzero(todo)

@@ -349,3 +349,25 @@ def test_a_sequence_of_fewer_frames_than_min_frames_still_makes_a_map(frames):
     assert len(geometry.points) > 300 and len(geometry.mesh.faces) > 300
     floor = np.abs(geometry.points[:, 2]) < 0.06
     assert floor.mean() > 0.1
+
+
+@pytest.mark.parametrize("instances", ["labels", "masks"])
+def test_a_clip_its_segmenter_labelled_nothing_in_maps_its_geometry(instances):
+    """No frame has a label (a detector that found nothing in a tiny image, no plane in view): the map
+    has its surfaces and no instance, and mapping does not stop."""
+    from stratamap.core.map.sensors import FrameLabels
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.segmenters.oracle import OracleSegmenter
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "office", "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 6}}
+    data = run_stages([SyntheticSource(scene=scene), OracleSegmenter()])
+    frames = list(data.frame_labels.frames)
+    for frame in frames:
+        frame.class_ids[:] = 0
+        frame.instance_ids[:] = 0
+    data.frame_labels = FrameLabels(data.frame_labels.segmenter, frames, data.frame_labels.tracked_instances)
+    mapped = run_stages([TSDFMapper(voxel_size=0.05, instances=instances)], data)
+    assert len(mapped.map.geometry.points) > 500
+    assert len(mapped.map.instances) == 0
