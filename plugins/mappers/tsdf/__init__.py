@@ -277,6 +277,11 @@ class TSDFMapper(Mapper[TSDFConfig]):
             raise DataError(f"tsdf: no frame of {stream.name!r} had valid depth and a pose")
 
         geometry = volume.surface()
+        if len(geometry.points) == 0:
+            raise DataError(
+                f"tsdf: no surface of {stream.name!r} was seen by {min(cfg.min_frames, integrated)} of its "
+                f"{integrated} frames (min_frames); lower min_frames, or give more or larger frames"
+            )
         points, colors = geometry.points, geometry.colors
         self.note("frames_integrated", integrated)
         out: dict[str, Any] = {"geometry": geometry}

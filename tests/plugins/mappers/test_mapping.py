@@ -371,3 +371,19 @@ def test_a_clip_its_segmenter_labelled_nothing_in_maps_its_geometry(instances):
     mapped = run_stages([TSDFMapper(voxel_size=0.05, instances=instances)], data)
     assert len(mapped.map.geometry.points) > 500
     assert len(mapped.map.instances) == 0
+
+
+def test_a_clip_whose_surfaces_no_min_frames_frames_saw_is_a_one_line_error():
+    """Four tiny frames of a moving camera see no voxel four times: the map would be empty, and every
+    stage after it would fail on that; tsdf says why instead, naming the setting."""
+    from stratamap.core.errors import DataError
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "meeting_room", "camera": {"width": 48, "height": 36}, "trajectory": {"frames": 4}}
+    data = run_stages([SyntheticSource(scene=scene)])
+    with pytest.raises(DataError, match=r"tsdf: no surface of .* was seen by 4 of its 4 frames \(min_frames\)") as err:
+        run_stages([TSDFMapper(voxel_size=0.02)], data)
+    assert "\n" not in str(err.value)
+    assert len(run_stages([TSDFMapper(voxel_size=0.02, min_frames=1)], data).map.geometry.points) > 0
