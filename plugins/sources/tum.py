@@ -96,6 +96,13 @@ class TUMSource(SequenceSource[TUMConfig]):
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
         root = self.sequence_folder()
+        if not (root / "rgb.txt").is_file() and (root / "color").is_dir() and (root / "depth").is_dir():
+            other = "scannet" if (root / "pose").is_dir() else "redwood"
+            raise DataError(
+                f"{root / 'rgb.txt'}: file missing; the folder holds color/ and depth/ as a "
+                f"{'ScanNet' if other == 'scannet' else 'Redwood/Open3D'} sequence does: read it with "
+                f"source.plugin={other}"
+            )
         intr, scale = self._intrinsics(root)
         rgb_rows = read_timestamped_list(root / "rgb.txt", 1, "an image file name")
         depth_rows = read_timestamped_list(root / "depth.txt", 1, "an image file name")

@@ -277,6 +277,17 @@ def test_bad_redwood_folder(case, tmp_path):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("layout", ["redwood", "scannet"])
+def test_a_sequence_of_another_layout_read_as_tum_names_its_source(layout, tmp_path):
+    """A Redwood/Open3D or ScanNet folder given to the tum source: the error names the source that reads it."""
+    root = (write_redwood if layout == "redwood" else write_scannet)(tiny_stream(), tmp_path / "seq")
+    with pytest.raises(
+        DataError, match=rf"seq/rgb\.txt: file missing; .* read it with source\.plugin={layout}$"
+    ) as err:
+        read_all(TUMSource(path=str(root), **QUIET))
+    assert "\n" not in str(err.value)
+
+
 SCANNET_CASES: dict[str, tuple[Callable[[Path], object], str]] = {
     "pose-not-4x4": (lambda r: (r / "pose" / "1.txt").write_text("1 0 0\n0 1 0\n"), r"pose/1\.txt: expected a 4x4"),
     "pose-not-rigid": (
