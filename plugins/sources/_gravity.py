@@ -152,7 +152,7 @@ def estimate_alignment(
 ) -> GravityAlignment:
     pts = sample_points(stream)
     if len(pts) < 100:
-        raise DataError(f"{stream.name}: too few valid depth points to find the floor ({len(pts)})")
+        raise DataError(f"{stream.name}: too few valid points to find the floor ({len(pts)})")
     hint = up_hint if up_hint is not None else camera_up_hint(stream)
     if hint is None:
         hint = np.array([0.0, 0.0, 1.0])
