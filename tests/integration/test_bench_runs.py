@@ -96,3 +96,28 @@ def test_ray_executor_gives_the_local_records(local_run, tmp_path):
     a = json.loads((out / "results.json").read_text())["records"]
     b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
     assert records_equal(a, b)
+
+
+def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_path):
+    """scripts/tune_walks.py caches a variant's early stages per walk and runs only the rest: its
+    figures are the benchmark's own for the same walk and variant."""
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
+    config, out, _ = local_run
+    cache = ["--variant", "none", "--stages", "2", "--cache", str(tmp_path / "cache")]
+
+    def tune(command: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, str(script), command, str(config), *cache], capture_output=True, text=True
+        )
+
+    missing = tune("score")
+    assert missing.returncode == 2 and "run `prefix` first" in missing.stderr
+    assert tune("prefix").returncode == 0
+    scored = tune("score")
+    assert scored.returncode == 0, scored.stderr
+    line = next(row for row in scored.stdout.splitlines() if row.startswith("office-s3"))
+    record = json.loads((out / "records" / "office-s3" / "none.json").read_text())["metrics"]
+    expected = [record["detection"]["f1_iou25"], record["detection"]["f1_iou25_agnostic"], record["panoptic"]["pq"]]
+    assert [float(x) for x in line.split()[1:]] == pytest.approx(expected, abs=5e-4)

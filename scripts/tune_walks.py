@@ -1,0 +1,190 @@
+"""Score the late stages of a benchmark variant on many walks in seconds: the early stages' result
+(source, segmenter, TSDF) is computed once per walk and cached; every later run loads it and runs only
+the rest (for issue 28: `clusters` recognition and `icp_match` after the detector and `tsdf`).
+
+    python scripts/export_training_library.py           # the tuning kitchen's library, once
+    python scripts/tune_walks.py prefix configs/bench/generalization_tuning.yaml --workers 2
+    python scripts/tune_walks.py score configs/bench/generalization_tuning.yaml --workers 2
+    python scripts/tune_walks.py score configs/bench/generalization_tuning.yaml --scenes office_tune-s2 --objects
+
+`score` prints, per walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and map
+PQ, then the means of the tuning walks (seeds below --first-validation-seed) and of the validation
+walks (the rest) apart; `--objects` adds each instance with the ground-truth object its box overlaps
+most. The cache holds the prefix as it was computed: after a change to a prefix stage's code, run
+`prefix --rebuild`. A development tool: reported figures come from `stratamap bench`, which runs
+every stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import pickle
+import re
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stratamap.core.errors import StratamapError
+from stratamap.core.evaluation import bench
+
+
+def load(bench_file: Path, variant: str) -> tuple[bench.BenchSpec, list[dict[str, Any]], bench.Variant]:
+    spec, path = bench.load_bench(bench_file)
+    scenes, skipped = bench.expand_scenes(spec, path)
+    for note in skipped:
+        print(f"note: {note}", file=sys.stderr)
+    chosen = next((v for v in spec.variants if v.name == variant), None)
+    if chosen is None:
+        raise StratamapError(f"{bench_file}: no variant {variant!r} (variants: {[v.name for v in spec.variants]})")
+    return spec, scenes, chosen
+
+
+def pipeline(spec: bench.BenchSpec, variant: bench.Variant, scene: dict[str, Any]) -> Any:
+    from stratamap.core.config import validate
+    from stratamap.core.pipeline import Pipeline
+
+    pipe = Pipeline(validate(bench.variant_document(spec, variant, scene["source"]), origin="tune_walks"))
+    pipe.records = []
+    return pipe
+
+
+def cache_file(cache: Path, scene: dict[str, Any], spec: bench.BenchSpec, variant: bench.Variant, stages: int) -> Path:
+    """The walk's cache file, named by the walk and a digest of its source and prefix stages' settings."""
+    doc = bench.variant_document(spec, variant, scene["source"])
+    key = json.dumps([doc["source"], doc["stages"][:stages]], sort_keys=True, default=str)
+    return cache / f"{bench.safe(scene['name'])}-{hashlib.sha256(key.encode()).hexdigest()[:10]}.pkl"
+
+
+def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
+    from stratamap.core.stages import PipelineData
+
+    bench_file, variant_name, scene, stages, cache, rebuild = job
+    spec, _, variant = load(bench_file, variant_name)
+    target = cache_file(cache, scene, spec, variant, stages)
+    if target.exists() and not rebuild:
+        return f"{scene['name']}: cached"
+    pipe = pipeline(spec, variant, scene)
+    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
+    data = PipelineData()
+    pipe._run_stage(pipe.validated.source, -1, data)
+    for i in range(stages):
+        pipe._run_stage(pipe.validated.stages[i], i, data)
+    data.stream = None  # the frames are the bulk of it; the late stages read the map
+    tmp = target.with_suffix(".tmp")
+    with open(tmp, "wb") as fh:
+        pickle.dump(data, fh)
+    tmp.replace(target)
+    return f"{scene['name']}: {sum(r.seconds for r in pipe.records):.0f} s"
+
+
+def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
+    from stratamap.core.geometry.boxes import box_iou_3d
+    from stratamap.core.pipeline import evaluate
+
+    bench_file, variant_name, scene, stages, cache, objects = job
+    spec, _, variant = load(bench_file, variant_name)
+    source = cache_file(cache, scene, spec, variant, stages)
+    if not source.exists():
+        return {"scene": scene["name"], "missing": str(source)}
+    with open(source, "rb") as fh:
+        data = pickle.load(fh)
+    pipe = pipeline(spec, variant, scene)
+    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
+    for i in range(stages, len(pipe.validated.stages)):
+        pipe._run_stage(pipe.validated.stages[i], i, data)
+    data.map.vocabulary = data.ground_truth.vocabulary
+    metrics = evaluate(pipe.hook, data)
+    f1 = bench.detection_by_iou(data.map.instances, data.ground_truth.objects)
+    row: dict[str, Any] = {
+        "scene": scene["name"],
+        "aware": f1["f1_iou25"],
+        "agnostic": f1["f1_iou25_agnostic"],
+        "pq": metrics.get("panoptic", {}).get("pq", float("nan")),
+    }
+    if objects:
+        truth = list(data.ground_truth.objects)
+        lines = []
+        for inst in data.map.instances:
+            overlap = max(((box_iou_3d(inst.box, o.box()), k) for k, o in enumerate(truth)), default=(0.0, -1))
+            size = np.round(np.asarray(inst.box.size), 2).tolist()
+            foot = float(inst.points[:, 2].min())
+            matched = f"#{overlap[1]} {truth[overlap[1]].class_name}" if overlap[1] >= 0 else "-"
+            seen = f"foot {foot:.2f} {len(inst.points)} pts"
+            lines.append(f"  {inst.class_name:10s} {size} {seen} -> {matched} IoU {overlap[0]:.2f}")
+        lines += [
+            f"  truth #{k} {o.class_name:10s} {np.round(np.asarray(o.box().size), 2).tolist()}"
+            for k, o in enumerate(truth)
+        ]
+        row["objects"] = lines
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "command", choices=["prefix", "score"], help="prefix: cache the early stages; score: run the rest."
+    )
+    parser.add_argument("bench", type=Path, help="Benchmark file (configs/bench/*.yaml).")
+    parser.add_argument("--variant", default="detector", help="The variant whose stages run (default: detector).")
+    parser.add_argument("--stages", type=int, default=2, help="How many leading stages the cache holds (default 2).")
+    parser.add_argument("--cache", type=Path, default=Path("out/tune_walks"), help="Cache folder.")
+    parser.add_argument("--scenes", nargs="*", default=None, help="Only these walks (names as `bench` prints them).")
+    parser.add_argument("--workers", type=int, default=1, help="Walks run side by side.")
+    parser.add_argument("--rebuild", action="store_true", help="prefix: recompute cached walks too.")
+    parser.add_argument("--objects", action="store_true", help="score: print each instance and its ground truth.")
+    parser.add_argument(
+        "--first-validation-seed", type=int, default=4, help="Walks of this seed and up are validation walks."
+    )
+    args = parser.parse_args(argv)
+    try:
+        spec, scenes, variant = load(args.bench, args.variant)
+        if not 0 < args.stages < len(bench.variant_document(spec, variant, {})["stages"]):
+            raise StratamapError(f"--stages {args.stages}: the variant {args.variant!r} needs a stage after the cache")
+    except StratamapError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    if args.scenes:
+        unknown = sorted(set(args.scenes) - {s["name"] for s in scenes})
+        if unknown:
+            print(f"error: --scenes {unknown}: not walks of {args.bench}", file=sys.stderr)
+            return 2
+        scenes = [s for s in scenes if s["name"] in args.scenes]
+    args.cache.mkdir(parents=True, exist_ok=True)
+    flag = args.rebuild if args.command == "prefix" else args.objects
+    jobs = [(args.bench, args.variant, s, args.stages, args.cache, flag) for s in scenes]
+    work = run_prefix if args.command == "prefix" else run_rest
+    if args.workers <= 1:
+        results = [work(job) for job in jobs]
+    else:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            results = list(pool.map(work, jobs))
+    if args.command == "prefix":
+        print("\n".join(results))
+        return 0
+    missing = [r["scene"] for r in results if "missing" in r]
+    if missing:
+        print(f"error: no cached prefix for {missing}: run `prefix` first", file=sys.stderr)
+        return 2
+    groups: dict[str, list[dict[str, Any]]] = {"tuning": [], "validation": []}
+    for row in results:
+        print(f"{row['scene']:32s} {row['aware']:.3f} {row['agnostic']:.3f} {row['pq']:.3f}")
+        for line in row.get("objects", []):
+            print(line)
+        seed = re.search(r"-s(\d+)$", row["scene"])
+        validation = seed is not None and int(seed.group(1)) >= args.first_validation_seed
+        groups["validation" if validation else "tuning"].append(row)
+    for name, rows in groups.items():
+        if rows:
+            a = np.array([[r["aware"], r["agnostic"], r["pq"]] for r in rows])
+            label = f"{name} mean of {len(rows)}"
+            print(f"{label:32s} {a[:, 0].mean():.3f} {a[:, 1].mean():.3f} {np.nanmean(a[:, 2]):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
