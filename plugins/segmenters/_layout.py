@@ -225,6 +225,48 @@ def _wall_directions(normal: np.ndarray, vertical: np.ndarray, spread_deg: float
     return out
 
 
+def through_openings(
+    beyond: np.ndarray,
+    views: np.ndarray,
+    normal: np.ndarray,
+    offset: float,
+    tangent: np.ndarray,
+    wall: np.ndarray,
+    cell: float,
+) -> np.ndarray:
+    """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
+    saw through an opening of it: the sight line crosses the plane within the wall's width, where the
+    wall has no point (``cell``-sized squares along ``tangent`` and up) but has some higher up in that
+    column (a door's or a window's lintel). A sensor also sees over a cabinet's front or a partition,
+    but nothing of them lies above that crossing, so what lies behind those still counts."""
+    along = np.floor(wall @ tangent / cell).astype(np.int64)
+    up = np.floor(wall[:, 2] / cell).astype(np.int64)
+    low = int(up.min()) - 1
+    width = int(up.max()) - low + 2
+    occupied = np.unique((along - along.min()) * width + (up - low))
+    columns, column = np.unique(along, return_inverse=True)
+    top = np.full(len(columns), low, np.int64)
+    np.maximum.at(top, column, up)
+    seen = np.zeros(len(beyond), bool)
+    far = beyond @ normal - offset
+    for view in views:
+        near = float(view @ normal - offset)
+        crossing = near * far < 0
+        if not crossing.any():
+            continue
+        share = near / (near - far[crossing])
+        x = view + share[:, None] * (beyond[crossing] - view)
+        a = np.floor(x @ tangent / cell).astype(np.int64)
+        z = np.floor(x[:, 2] / cell).astype(np.int64)
+        k = np.clip(np.searchsorted(columns, a), 0, len(columns) - 1)
+        lintel = (columns[k] == a) & (top[k] > z)
+        key = (a - along.min()) * width + (z - low)
+        pos = np.clip(np.searchsorted(occupied, key), 0, len(occupied) - 1)
+        empty = (occupied[pos] != key) | (z < low) | (z >= low + width)
+        seen[np.flatnonzero(crossing)[lintel & empty]] = True
+    return seen
+
+
 def find_layout(
     points: np.ndarray,
     voxel_size: float,
@@ -346,9 +388,14 @@ def find_layout(
             wide = (along >= t.min() - p.wall_margin) & (along <= t.max() + p.wall_margin)
             front, back = (wide & (offset > 2 * tol)).sum(), (wide & (offset < -2 * tol)).sum()
             if views is not None:
-                # The room is on the side the sensor saw the wall from; nothing may lie beyond it.
+                # The room is on the side the sensor saw the wall from; nothing may lie beyond it but
+                # what a sensor saw through the wall's doors and windows.
                 facing = 1.0 if np.median(views @ n - d) >= 0 else -1.0
-                beyond = back if facing > 0 else front
+                outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
+                if len(outside) > p.outlier_share * wide.sum():
+                    seen = through_openings(cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size)
+                    outside = outside[~seen]
+                beyond = len(outside)
             else:  # the room is on the side with more of the map
                 facing = 1.0 if front >= back else -1.0
                 beyond = min(front, back)

@@ -147,3 +147,56 @@ def test_given_normals_replace_the_estimate():
     b = find_layout(points, 0.04)
     assert (a.labels == b.labels).mean() > 0.99 and abs(a.floor_height - b.floor_height) < 1e-9
     assert LayoutParams().support_heights[0] < 0.75 < LayoutParams().support_heights[1]
+
+
+def _seen_through(points: np.ndarray, view: np.ndarray, y: float, holes: list[tuple[float, float, float, float]]):
+    """Which points beyond the plane y = ``y`` the ``view`` sees through one of the ``holes``
+    (x0, x1, z0, z1) in it."""
+    share = (view[1] - y) / (view[1] - points[:, 1])
+    x = view + share[:, None] * (points - view)
+    return np.any([(x[:, 0] > a) & (x[:, 0] < b) & (x[:, 2] > c) & (x[:, 2] < d) for a, b, c, d in holes], axis=0)
+
+
+def test_a_wall_with_a_door_and_a_window_is_a_wall_though_the_sensor_saw_beyond_it():
+    """A room scanned from one place (a 360-degree scan): its y = 0 wall has a door and a window,
+    through which the scanner saw the corridor's floor and far wall. What lies beyond the wall was
+    seen through its openings, under their lintels: it is still the room's wall."""
+    spacing = 0.03
+    view = np.array([3.0, 2.5, 1.2])
+    holes = [(2.5, 3.5, 0.0, 2.0), (4.5, 5.5, 1.0, 2.0)]
+    shell = dict(room_shell(spacing)[:2])
+    walls = [p for name, p in room_shell(spacing)[2:]]
+    door_wall = walls[2]
+    opening = np.any(
+        [
+            (door_wall[:, 0] > a) & (door_wall[:, 0] < b) & (door_wall[:, 2] > c) & (door_wall[:, 2] < d)
+            for a, b, c, d in holes
+        ],
+        axis=0,
+    )
+    walls[2] = door_wall[~opening]
+    corridor = np.concatenate(
+        [
+            box_surface((0, -2.0, 0), (ROOM[0], -0.05, 0), spacing, "z"),
+            box_surface((0, -2.0, 0), (ROOM[0], -2.0, ROOM[2]), spacing, "y"),
+        ]
+    )
+    corridor = corridor[_seen_through(corridor, view, 0.0, holes)]
+    assert len(corridor) > 200
+    points = np.concatenate([shell["floor"], shell["ceiling"], *walls, corridor])
+    layout = find_layout(points, spacing, viewpoints=view[None])
+    start = len(shell["floor"]) + len(shell["ceiling"]) + sum(len(w) for w in walls[:2])
+    assert (layout.labels[start : start + len(walls[2])] == WALL).mean() > 0.9  # its edges: floor, ceiling
+    assert layout.walls >= 4
+
+
+def test_a_partition_the_sensor_sees_over_is_no_wall():
+    """A 1.4 m partition inside the room, the room's wall behind it seen over its top: no opening
+    under a lintel lets the sensor see beyond the partition, so the partition is no wall."""
+    spacing = 0.03
+    view = np.array([3.0, 3.5, 1.6])
+    partition = box_surface((1.5, 1.5, 0.0), (4.5, 1.5, 1.4), spacing, "Y")
+    points = np.concatenate([p for _, p in room_shell(spacing)] + [partition])
+    layout = find_layout(points, spacing, viewpoints=view[None])
+    assert (layout.labels[-len(partition) :] == WALL).mean() < 0.05
+    assert layout.walls == 4
