@@ -26,6 +26,12 @@ def _subsample(n: int) -> np.ndarray:
     return np.arange(n) if n <= MAX_POINTS else np.linspace(0, n - 1, MAX_POINTS).astype(np.int64)
 
 
+def _palette(plt: Any) -> np.ndarray:
+    """40 distinct RGBA colours (tab20, then tab20b): the default vocabulary's 22 classes each get
+    their own, so `object` (21) is not coloured as `floor` (1)."""
+    return np.array([(*rgb, 1.0) for name in ("tab20", "tab20b") for rgb in plt.get_cmap(name).colors])
+
+
 def _supporters(data: Any) -> dict[Any, Any]:
     graph = data.map.contact_graph
     if graph is None:
@@ -45,9 +51,13 @@ def top_down(data: Any, by: str) -> str | None:
 
     pts = geometry.points
     keep = _subsample(len(pts))
+    if semantics is not None and len(semantics) == len(pts) and "ceiling" in semantics.vocabulary:
+        # Seen from above, a room's ceiling would hide everything under it.
+        keep = keep[np.asarray(semantics.class_ids)[keep] != semantics.vocabulary.id("ceiling")]
     if semantics is not None and len(semantics) == len(pts):
         ids = semantics.class_ids if by == "class" else semantics.instance_ids
-        color = plt.get_cmap("tab20")(np.asarray(ids)[keep] % 20)
+        palette = _palette(plt)
+        color = palette[np.asarray(ids)[keep] % len(palette)]
         color[np.asarray(ids)[keep] == 0] = (0.75, 0.75, 0.75, 1.0)
     elif geometry.colors is not None:
         color = geometry.colors[keep]
@@ -75,13 +85,14 @@ def top_down(data: Any, by: str) -> str | None:
         from matplotlib.patches import Patch
 
         present = [int(c) for c in np.unique(semantics.class_ids) if c > 0]
-        handles = [Patch(color=plt.get_cmap("tab20")(c % 20), label=semantics.vocabulary.name(c)) for c in present]
+        palette = _palette(plt)
+        handles = [Patch(color=palette[c % len(palette)], label=semantics.vocabulary.name(c)) for c in present]
         ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     title = "classes" if by == "class" else "instances"
-    ax.set_title(f"top-down, coloured by {title}; red arrows: supporter -> supported")
+    ax.set_title(f"top-down, coloured by {title} (ceiling left out); red arrows: supporter -> supported")
     return png_data_uri(fig)
 
 

@@ -174,3 +174,19 @@ def test_report_html_is_self_contained_and_lists_every_object(demo_run):
     assert {r[header.index("supporter")] for r in rows} >= {"floor"}
     stage_rows = parser.tables["stages"][1:]
     assert [r[1] for r in stage_rows] == [s["plugin"] for s in report["stages"]]
+
+
+def test_report_colours_every_default_class_apart():
+    """The report's top-down map by class: each class of the default vocabulary has its own colour
+    (with 20 colours, `object` was drawn in `floor`'s)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stratamap.core.evaluation.html_report import _palette
+    from stratamap.core.map.vocabulary import Vocabulary
+
+    palette = _palette(plt)
+    ids = np.arange(len(Vocabulary.default().names))
+    assert len({tuple(c) for c in palette[ids % len(palette)]}) == len(ids)
