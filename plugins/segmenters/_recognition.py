@@ -233,13 +233,19 @@ def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05
     return within(geometric) and not within(voted)
 
 
-def prior_class(shape: Shape, vocab: Vocabulary) -> tuple[str, str]:
+def on_a_support(shape: Shape, base_z: float, support_heights: np.ndarray, tolerance: float) -> bool:
+    """Whether the object's foot lies at the height of a support surface (within ``tolerance``, m)."""
+    return bool(len(support_heights)) and bool(np.any(np.abs(support_heights - (base_z + shape.bottom)) <= tolerance))
+
+
+def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tuple[str, str]:
     """The class an object's shape and support context make most likely (and why), among the
     vocabulary's thing classes; ``object`` when no rule fits. General rules of indoor objects, each
     checked against the class size priors (``fits_class``):
 
-    * on a support surface (not the floor): a cup, a bottle or a box by size; on a wall, off the
-      floor: a (wall) cabinet;
+    * on a support surface (not the floor; ``on_support``: its foot at a support's height): a cup, a
+      bottle or a box by size (a small piece resting on no support, such as a fragment of a chair,
+      is none of these); on a wall, off the floor: a (wall) cabinet;
     * on the floor with a flat top and a solid body (a front, not legs): a counter when long, deep and
       at worktop height, else a cabinet;
     * on the floor with a flat top on legs: a table;
@@ -250,7 +256,7 @@ def prior_class(shape: Shape, vocab: Vocabulary) -> tuple[str, str]:
         return name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape)
 
     if shape.bottom > FLOOR_GAP:
-        for name in ON_SUPPORTS:
+        for name in ON_SUPPORTS if on_support else ():
             if ok(name):
                 return name, "on a support, its size"
         if shape.against_wall and ok("cabinet"):

@@ -59,6 +59,7 @@ from stratamap.plugins.segmenters._recognition import (
     THIN,
     describe_shape,
     fits_class,
+    on_a_support,
     prior_class,
     split_at_step,
     typical_rather,
@@ -819,6 +820,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         )
         on_plane = self._on_layout_planes(cells, obj, layout, n_obj, cfg.layout_voxels * voxel)
         next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
+        support_tol = 2.0 * cfg.layout.plane_voxels * voxel  # a foot this close to a support's height stands on it
         walls = [plane for plane in layout.planes if plane.label == WALL]
         if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():
             class_ids, instance_ids, added = self._complete_instances(
@@ -848,7 +850,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if vote_table is not None and vote_table[k].sum() > 0:
                 name = vocab.name(int(np.argmax(vote_table[k])))
             if name is None and cfg.recognize:
-                name = prior_class(describe_shape(points[mask], base_z, walls), vocab)[0]
+                shape = describe_shape(points[mask], base_z, walls)
+                name = prior_class(shape, vocab, on_a_support(shape, base_z, supports.height, support_tol))[0]
             if name is None:
                 name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
             class_ids[mask] = vocab.id(name)
@@ -975,7 +978,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if carried_by is not None:
                 counts.pop(carried_by, None)
             voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= 0.5 * len(rest)]
-            name = voted[0] if voted else prior_class(shape, vocab)[0] if cfg.recognize else "object"
+            alone = prior_class(shape, vocab, on_a_support(shape, base_z, supports.height, tol))[0]
+            name = voted[0] if voted else alone if cfg.recognize else "object"
             out_i[rest] = next_id
             out_c[rest] = vocab.id(name) if name in vocab else 0
             next_id += 1
@@ -1004,6 +1008,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
+        support_tol = 2.0 * self.config.layout.plane_voxels * voxel
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
         changes = []
@@ -1013,7 +1018,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if len(sel) < 4 or not vocab.is_thing[cls]:
                 continue
             shape = describe_shape(points[sel], base_z, walls)
-            new, why = prior_class(shape, vocab)
+            new, why = prior_class(shape, vocab, on_a_support(shape, base_z, support_heights, support_tol))
             if name != "object" and fits_class(name, shape) and not typical_rather(new, name, shape):
                 continue
             if new != name:
@@ -1068,6 +1073,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         members = instance_members(instance_ids)
         if len(members) < 2:
             return
+        support_tol = 2.0 * self.config.layout.plane_voxels * voxel
         info = {}
         for iid, sel in members.items():
             if len(sel) < 4:
@@ -1075,7 +1081,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             cls = int(np.bincount(class_ids[sel]).argmax())
             if vocab.is_thing[cls]:
                 shape = describe_shape(points[sel], base_z, walls)
-                info[iid] = (vocab.name(cls), shape, sel, prior_class(shape, vocab)[0])
+                alone = prior_class(shape, vocab, on_a_support(shape, base_z, support_heights, support_tol))[0]
+                info[iid] = (vocab.name(cls), shape, sel, alone)
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
         anchor_class, standing_class = {}, {}

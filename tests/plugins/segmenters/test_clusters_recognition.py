@@ -14,6 +14,7 @@ from stratamap.plugins.segmenters._recognition import (
     Shape,
     describe_shape,
     fits_class,
+    on_a_support,
     prior_class,
     split_at_step,
     typical_rather,
@@ -62,6 +63,17 @@ def test_support_context_names_units_tables_and_cups():
     counter = shape(length=2.4, depth=0.7, height=0.9, reach=1.3, **unit)
     assert typical_rather("counter", "table", counter) and not typical_rather("table", "table", counter)
     assert not typical_rather("counter", "table", shape(length=1.6, depth=0.8, height=0.74, reach=0.9, **unit))
+
+
+def test_a_small_piece_on_no_support_is_no_cup():
+    """A cup, a bottle or a box stands on a support surface: a small piece off the floor resting on
+    none (a fragment of a chair's base in a real floor scan) is named by no rule."""
+    small = shape(length=0.1, depth=0.08, height=0.1, bottom=0.2, reach=0.07)
+    assert prior_class(small, VOCAB)[0] == "cup"
+    assert prior_class(small, VOCAB, on_support=False)[0] == "object"
+    supports = np.array([0.75])
+    assert on_a_support(shape(bottom=0.76), 0.0, supports, 0.03) and not on_a_support(small, 0.0, supports, 0.03)
+    assert not on_a_support(small, 0.0, np.array([]), 0.03)
 
 
 def test_shape_tells_a_solid_unit_from_a_table_on_legs():
