@@ -84,7 +84,6 @@ def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
 
 def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
     from stratamap.core.geometry.boxes import box_iou_3d
-    from stratamap.core.pipeline import evaluate
 
     bench_file, variant_name, scene, stages, cache, objects = job
     spec, _, variant = load(bench_file, variant_name)
@@ -98,12 +97,11 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
     for i in range(stages, len(pipe.validated.stages)):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.map.vocabulary = data.ground_truth.vocabulary
-    metrics = evaluate(pipe.hook, data)
-    f1 = bench.detection_by_iou(data.map.instances, data.ground_truth.objects)
+    metrics, _ = bench.measure(pipe.hook, data, spec, pipe.out_dir)  # as `stratamap bench` measures a run
     row: dict[str, Any] = {
         "scene": scene["name"],
-        "aware": f1["f1_iou25"],
-        "agnostic": f1["f1_iou25_agnostic"],
+        "aware": metrics["detection"]["f1_iou25"],
+        "agnostic": metrics["detection"]["f1_iou25_agnostic"],
         "pq": metrics.get("panoptic", {}).get("pq", float("nan")),
     }
     if objects:

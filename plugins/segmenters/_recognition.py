@@ -233,9 +233,9 @@ def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05
     return within(geometric) and not within(voted)
 
 
-def on_a_support(shape: Shape, base_z: float, support_heights: np.ndarray, tolerance: float) -> bool:
-    """Whether the object's foot lies at the height of a support surface (within ``tolerance``, m)."""
-    return bool(len(support_heights)) and bool(np.any(np.abs(support_heights - (base_z + shape.bottom)) <= tolerance))
+def on_a_support(foot: float, support_heights: np.ndarray, tolerance: float) -> bool:
+    """Whether a foot at height ``foot`` (m) lies at a support surface's height, within ``tolerance``."""
+    return bool(np.any(np.abs(np.asarray(support_heights) - foot) <= tolerance))
 
 
 def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tuple[str, str]:

@@ -57,6 +57,7 @@ from stratamap.plugins.segmenters._recognition import (
     ON_SUPPORTS,
     STANDING_GAP,
     THIN,
+    Shape,
     describe_shape,
     fits_class,
     on_a_support,
@@ -702,6 +703,11 @@ def join_supports(
     return np.where(node >= 0, obj[np.maximum(node, 0)], -1)
 
 
+def _hand_held(shape: Shape) -> bool:
+    """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
+    return any(fits_class(name, shape) for name in HAND_HELD)
+
+
 class ClustersSegmenter(Segmenter[ClustersConfig]):
     """Model-free instances: gravity-aligned layout as stuff, convexity-aware clustering around support surfaces."""
 
@@ -820,7 +826,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         )
         on_plane = self._on_layout_planes(cells, obj, layout, n_obj, cfg.layout_voxels * voxel)
         next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
-        support_tol = 2.0 * cfg.layout.plane_voxels * voxel  # a foot this close to a support's height stands on it
         walls = [plane for plane in layout.planes if plane.label == WALL]
         if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():
             class_ids, instance_ids, added = self._complete_instances(
@@ -851,7 +856,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 name = vocab.name(int(np.argmax(vote_table[k])))
             if name is None and cfg.recognize:
                 shape = describe_shape(points[mask], base_z, walls)
-                name = prior_class(shape, vocab, on_a_support(shape, base_z, supports.height, support_tol))[0]
+                name = self._prior(shape, vocab, base_z, supports.height, voxel)[0]
             if name is None:
                 name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
             class_ids[mask] = vocab.id(name)
@@ -911,7 +916,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         out_c[relabel] = layout_class[relabel]
         stuff_ids = [vocab.id(n) for n in LAYOUT_NAMES[1:] if n in vocab]
         inst_size = np.bincount(prev_i[prev_i > 0], minlength=int(prev_i.max()) + 1)
-        tol = 2.0 * cfg.layout.plane_voxels * voxel
+        tol = self._standing_tolerance(voxel)
+        # Each mask instance's class (its points' most frequent one).
+        votes_by_instance = np.zeros((int(prev_i.max()) + 1, len(vocab)), np.int64)
+        np.add.at(votes_by_instance, (prev_i, prev_c), 1)
+        inst_class = votes_by_instance.argmax(axis=1)
         next_id, added = int(prev_i.max()) + 1, 0
         for k in kept:
             mask = np.flatnonzero(point_obj == k)
@@ -919,11 +928,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             carried_by = None  # the class of the instance whose mask took this object along, if any
             if inside.mean() >= cfg.covered_share:
                 owner = np.bincount(prev_i[mask[inside]]).argmax()
-                owner_points = prev_i == owner
-                owner_class = int(np.bincount(prev_c[owner_points]).argmax())
-                foot = float(points[mask, 2].min())
-                on_support = bool(len(supports.height)) and bool(np.any(np.abs(supports.height - foot) <= tol))
-                standing = on_support and top_area[k] == 0
+                owner_class = int(inst_class[owner])
+                standing = on_a_support(float(points[mask, 2].min()), supports.height, tol) and top_area[k] == 0
                 # A small object standing on a support, inside a larger object's mask (a cup in the
                 # table's box), or of a hand-held thing's size there inside any other thing's mask (a
                 # mug framed with a strip of worktop as a "table"): an object of its own.
@@ -931,7 +937,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     len(mask) < 0.15 * inst_size[owner]
                     or (
                         vocab.name(owner_class) not in HAND_HELD
-                        and any(fits_class(n, describe_shape(points[mask], base_z, walls)) for n in HAND_HELD)
+                        and _hand_held(describe_shape(points[mask], base_z, walls))
                     )
                 )
                 if not own:
@@ -942,7 +948,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         out_c[rest] = prev_c[mask[inside][near]]
                     continue
                 rest = mask
-                if not fits_class(vocab.name(owner_class), describe_shape(points[owner_points], base_z, walls)):
+                if not fits_class(vocab.name(owner_class), describe_shape(points[prev_i == owner], base_z, walls)):
                     carried_by = owner_class
             else:
                 rest = mask[~inside]
@@ -964,8 +970,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 members = np.flatnonzero(prev_i == piece)
                 if (point_obj[members] == k).mean() < 0.8:
                     continue
-                piece_cls = int(np.bincount(prev_c[members]).argmax())
-                if not fits_class(vocab.name(piece_cls), describe_shape(points[members], base_z, walls)):
+                if not fits_class(vocab.name(int(inst_class[piece])), describe_shape(points[members], base_z, walls)):
                     rest = np.union1d(rest, members)
             thing = [c for c in np.unique(prev_c[rest]) if c > 0 and vocab.is_thing[c]]
             shape = describe_shape(points[rest], base_z, walls)
@@ -978,8 +983,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if carried_by is not None:
                 counts.pop(carried_by, None)
             voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= 0.5 * len(rest)]
-            alone = prior_class(shape, vocab, on_a_support(shape, base_z, supports.height, tol))[0]
-            name = voted[0] if voted else alone if cfg.recognize else "object"
+            prior = self._prior(shape, vocab, base_z, supports.height, voxel)[0] if cfg.recognize else "object"
+            name = voted[0] if voted else prior
             out_i[rest] = next_id
             out_c[rest] = vocab.id(name) if name in vocab else 0
             next_id += 1
@@ -989,6 +994,17 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         scrap = (out_i > 0) & (sizes[out_i] < max(cfg.min_cells, 30))
         out_c[scrap], out_i[scrap] = 0, 0
         return out_c, out_i, added
+
+    def _standing_tolerance(self, voxel: float) -> float:
+        """How close (m) an object's foot lies to a support surface's height when it stands on it."""
+        return 2.0 * self.config.layout.plane_voxels * voxel
+
+    def _prior(
+        self, shape: Shape, vocab: Vocabulary, base_z: float, support_heights: np.ndarray, voxel: float
+    ) -> tuple[str, str]:
+        """``prior_class`` with the object's support context: whether its foot is at a support's height."""
+        on_support = on_a_support(base_z + shape.bottom, support_heights, self._standing_tolerance(voxel))
+        return prior_class(shape, vocab, on_support)
 
     def _recognize(
         self,
@@ -1008,7 +1024,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
-        support_tol = 2.0 * self.config.layout.plane_voxels * voxel
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
         changes = []
@@ -1018,7 +1033,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if len(sel) < 4 or not vocab.is_thing[cls]:
                 continue
             shape = describe_shape(points[sel], base_z, walls)
-            new, why = prior_class(shape, vocab, on_a_support(shape, base_z, support_heights, support_tol))
+            new, why = self._prior(shape, vocab, base_z, support_heights, voxel)
             if name != "object" and fits_class(name, shape) and not typical_rather(new, name, shape):
                 continue
             if new != name:
@@ -1073,7 +1088,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         members = instance_members(instance_ids)
         if len(members) < 2:
             return
-        support_tol = 2.0 * self.config.layout.plane_voxels * voxel
         info = {}
         for iid, sel in members.items():
             if len(sel) < 4:
@@ -1081,8 +1095,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             cls = int(np.bincount(class_ids[sel]).argmax())
             if vocab.is_thing[cls]:
                 shape = describe_shape(points[sel], base_z, walls)
-                alone = prior_class(shape, vocab, on_a_support(shape, base_z, support_heights, support_tol))[0]
-                info[iid] = (vocab.name(cls), shape, sel, alone)
+                info[iid] = (vocab.name(cls), shape, sel, self._prior(shape, vocab, base_z, support_heights, voxel)[0])
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
         anchor_class, standing_class = {}, {}
@@ -1104,8 +1117,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for iid in sorted(info, key=lambda i: len(info[i][2])):
             name, shape, sel, alone = info[iid]
             # A small thing by its size, its foot at the height of a support surface (a mug on a worktop).
-            on_support = bool(np.any(np.abs(support_heights - (base_z + shape.bottom)) <= 1.5 * voxel))
-            supported = alone in ON_SUPPORTS and on_support
+            supported = alone in ON_SUPPORTS and on_a_support(base_z + shape.bottom, support_heights, 1.5 * voxel)
             # Held up by nothing of its own: neither floor-standing, nor hung on a wall, nor a small thing
             # named as one on a support, its foot off the floor. Within a floor-standing object it is a
             # piece of it, whatever it was voted (a chair's backrest seen as a "monitor"); on it, it rises

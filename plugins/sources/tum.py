@@ -97,11 +97,10 @@ class TUMSource(SequenceSource[TUMConfig]):
         cfg = self.config
         root = self.sequence_folder()
         if not (root / "rgb.txt").is_file() and (root / "color").is_dir() and (root / "depth").is_dir():
-            other = "scannet" if (root / "pose").is_dir() else "redwood"
+            plugin, layout = ("scannet", "ScanNet") if (root / "pose").is_dir() else ("redwood", "Redwood/Open3D")
             raise DataError(
-                f"{root / 'rgb.txt'}: file missing; the folder holds color/ and depth/ as a "
-                f"{'ScanNet' if other == 'scannet' else 'Redwood/Open3D'} sequence does: read it with "
-                f"source.plugin={other}"
+                f"{root / 'rgb.txt'}: file missing; the folder holds color/ and depth/ as a {layout} sequence "
+                f"does: read it with source.plugin={plugin}"
             )
         intr, scale = self._intrinsics(root)
         rgb_rows = read_timestamped_list(root / "rgb.txt", 1, "an image file name")

@@ -72,8 +72,8 @@ def test_a_small_piece_on_no_support_is_no_cup():
     assert prior_class(small, VOCAB)[0] == "cup"
     assert prior_class(small, VOCAB, on_support=False)[0] == "object"
     supports = np.array([0.75])
-    assert on_a_support(shape(bottom=0.76), 0.0, supports, 0.03) and not on_a_support(small, 0.0, supports, 0.03)
-    assert not on_a_support(small, 0.0, np.array([]), 0.03)
+    assert on_a_support(0.76, supports, 0.03) and not on_a_support(small.bottom, supports, 0.03)
+    assert not on_a_support(0.76, np.array([]), 0.03)
 
 
 def test_shape_tells_a_solid_unit_from_a_table_on_legs():
