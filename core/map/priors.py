@@ -26,12 +26,15 @@ class ClassSize:
     #: Shallowest one object is front to back (a unit holds things: a panel on a wall is none); None: any.
     #: A map sees a unit's whole depth wherever it sees its top, so only noise is allowed below it.
     min_depth: float | None = None
+    #: Largest level surface (m^2) one object holds, where the class has a small one (a chair's seat,
+    #: about 0.5 x 0.5 m, an armchair's up to 0.7 x 0.7 m): a desk top in a "chair" is a desk's; None: any.
+    max_top_area: float | None = None
 
 
 CLASS_SIZES: dict[str, ClassSize] = {
     # One seat: an armchair is under a metre wide (with the map's noise, 1.1 m); wider seating is a sofa
     # or a bench, and a longer "chair" in a mapper's masks is two (tsdf's size prior splits it).
-    "chair": ClassSize((0.2, 0.9), max_length=1.1),
+    "chair": ClassSize((0.2, 0.9), max_length=1.1, max_top_area=0.5),
     "table": ClassSize((0.3, 1.6)),
     "desk": ClassSize((0.4, 1.4)),
     "cabinet": ClassSize(

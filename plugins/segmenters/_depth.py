@@ -281,28 +281,35 @@ class Region:
     extent: float = 1.0  # metres: the farthest an object of this class reaches from its main segment
 
 
-def suppress_duplicates(regions: list[Region], iou: float = 0.75, contained: float = 0.8) -> list[Region]:
+def suppress_duplicates(
+    regions: list[Region], iou: float = 0.75, contained: float = 0.8, grouped: float = 0.5
+) -> list[Region]:
     """Drop boxes that describe an object a more confident box already describes: any class with a
     box overlap of ``iou`` or more (a table also called a desk), or the same class lying ``contained``
-    inside it (a second chair box around the chair's back). Masks are kept as they are."""
+    inside it (a second chair box around the chair's back). Drop as well a box around a group: one
+    holding more than ``grouped`` of each of two or more more confident boxes of its class (a weak
+    "chair" spanning two chairs, which would take what lies between them: their bases, the floor's
+    clutter). Masks are kept as they are."""
     kept: list[Region] = []
     for region in sorted(regions, key=lambda r: -r.score):
         if region.box is not None:
             x1, y1, x2, y2 = region.box
             area = max(x2 - x1, 0) * max(y2 - y1, 0)
             duplicate = False
+            members = 0
             for other in kept:
                 if other.box is None:
                     continue
                 ox1, oy1, ox2, oy2 = other.box
+                other_area = max(ox2 - ox1, 0) * max(oy2 - oy1, 0)
                 inter = max(min(x2, ox2) - max(x1, ox1), 0) * max(min(y2, oy2) - max(y1, oy1), 0)
-                union = area + max(ox2 - ox1, 0) * max(oy2 - oy1, 0) - inter
-                if inter >= iou * max(union, 1e-9) or (
-                    other.class_id == region.class_id and inter >= contained * max(area, 1e-9)
-                ):
+                union = area + other_area - inter
+                same = other.class_id == region.class_id
+                if inter >= iou * max(union, 1e-9) or (same and inter >= contained * max(area, 1e-9)):
                     duplicate = True
                     break
-            if duplicate:
+                members += int(same and inter > grouped * max(other_area, 1e-9))
+            if duplicate or members >= 2:
                 continue
         kept.append(region)
     return kept

@@ -868,7 +868,16 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 turned_stuff += 1
         if cfg.recognize:
             class_ids, instance_ids = self._recognize(
-                points, class_ids, instance_ids, vocab, base_z, walls, supports.height, voxel
+                points,
+                class_ids,
+                instance_ids,
+                vocab,
+                base_z,
+                walls,
+                supports.height,
+                voxel,
+                supports.of_cell[cell_of_point],
+                supports.area,
             )
         self.note(
             "segments",
@@ -1016,16 +1025,34 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         walls: list[Any],
         support_heights: np.ndarray,
         voxel: float,
+        support_of_point: np.ndarray | None = None,
+        support_areas: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Instances named ``object`` or by a class their size rules out take the class the priors
         and their support context give (``prior_class``), after pieces joined the object they belong
-        to (``_join_parts``); each change is noted. Returns the point classes and instances."""
+        to (``_join_parts``); each change is noted. An instance of a class that stands on no other
+        object (NOT_STACKED: a chair, a table) whose foot rests on another object's support surface
+        (``support_of_point``: the support index of each point, -1 none) is none of that class: a
+        unit on a desk that a weak "chair" box framed. Nor is one holding a level surface larger than
+        its class's ``max_top_area`` (``support_areas``: each support's area; a desk top in a "chair").
+        Returns the point classes and instances."""
+        from scipy.spatial import cKDTree
+
         from stratamap.core.map.instances import instance_members
+        from stratamap.core.map.priors import CLASS_SIZES, NOT_STACKED
 
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
+        # What an object may stand on: support surfaces and other instances, each by its own key.
+        n_supports = len(support_areas) if support_areas is not None else 0
+        holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
+        if support_of_point is not None:
+            holder = np.where(support_of_point >= 0, support_of_point, holder)
+        tops = np.flatnonzero(holder >= 0)
+        top_tree = cKDTree(points[tops]) if len(tops) else None
+        reach = 2.5 * voxel
         changes = []
         for iid, sel in instance_members(instance_ids).items():
             cls = int(np.bincount(class_ids[sel]).argmax())
@@ -1034,8 +1061,42 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             shape = describe_shape(points[sel], base_z, walls)
             new, why = self._prior(shape, vocab, base_z, support_heights, voxel)
-            if name != "object" and fits_class(name, shape) and not typical_rather(new, name, shape):
+            carried = False
+            if top_tree is not None and name in NOT_STACKED and shape.bottom > FLOOR_GAP:
+                # Its foot (its lowest 3 cm) touching a support surface or another instance below it...
+                foot = points[sel][points[sel, 2] <= points[sel, 2].min() + 0.03]
+                hits = top_tree.query_ball_point(foot, reach)
+                near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits])) if len(hits) else []
+                near = tops[near] if len(near) else np.zeros(0, np.int64)
+                near = near[(instance_ids[near] != iid) & (points[near, 2] <= foot[:, 2].max())]
+                # ... and lying over it, well inside its edges: a chair's back seen over a desk's far
+                # edge, or at the edge of a table it is pushed under, its legs hidden, touches the top
+                # there too.
+                carried = any(
+                    _share_within(foot[:, :2], points[holder == k, :2], margin=-0.05) >= 0.9
+                    for k in np.unique(holder[near])
+                )
+            largest_top = CLASS_SIZES[name].max_top_area if name in CLASS_SIZES else None
+            holds = support_of_point[sel] if support_of_point is not None else np.zeros(0, np.int64)
+            holds = holds[holds >= 0]
+            too_large_top = bool(
+                largest_top is not None
+                and support_areas is not None
+                and len(holds)
+                and float(support_areas[holds].max()) > largest_top
+            )
+            if (
+                name != "object"
+                and fits_class(name, shape)
+                and not carried
+                and not too_large_top
+                and not typical_rather(new, name, shape)
+            ):
                 continue
+            if carried:
+                why = f"stands on another object's top, which a {name} does not; {why}"
+            elif too_large_top:
+                why = f"holds a level surface larger than a {name}'s; {why}"
             if new != name:
                 class_ids[sel] = vocab.id(new)
                 changes.append({"instance": iid, "from": name, "to": new, "why": why})
@@ -1168,12 +1229,29 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     join(iid, anchor, a_name, merged)
                     break
                 if lifted and not az.min() < z.min() - FLOOR_GAP:
+                    # Under a lifted anchor of a class that stands on no other object, its foot on this
+                    # piece's top and its footprint over it: one object (a swivel chair's seat under its
+                    # back, their post unseen).
+                    if (
+                        alone == "object"
+                        and anchor in anchor_class
+                        and a_name in NOT_STACKED
+                        and z.max() - 0.05 <= az.min() <= z.max() + FLOOR_GAP
+                        and _share_within(points[a_sel, :2], points[sel, :2]) >= 0.5
+                        and fits_class(a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls))
+                    ):
+                        join(iid, anchor, a_name, sel)
+                        break
                     continue
                 inside = _share_within(points[sel, :2], points[a_sel, :2])
                 # A lifted piece lies wholly within (a table top beside a chair overlaps its footprint).
                 if lifted and inside < 0.9:
                     continue
-                if inside >= 0.5:
+                # Never into an object its class's size then rules out (a strip of floor clutter under a
+                # chair's base would make a 1.4 m "chair").
+                if inside >= 0.5 and fits_class(
+                    a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls)
+                ):
                     join(iid, anchor, a_name, sel)
                     break
         if joined:

@@ -77,6 +77,15 @@ def sample_points(stream: SensorStream, max_frames: int = 8, stride: int = 4) ->
     return np.vstack(pts) if pts else np.zeros((0, 3))
 
 
+def sensor_positions(stream: SensorStream) -> np.ndarray:
+    """Where the sensor stood: the cameras of posed frames, else the origin of a static cloud (a
+    scanner's or camera's own frame; a map frame's origin usually lies on its floor)."""
+    posed = [f.pose[:3, 3] for f in _some_frames(stream) if f.pose is not None]
+    if posed:
+        return np.asarray(posed)
+    return np.zeros((1, 3))
+
+
 def camera_up_hint(stream: SensorStream) -> np.ndarray | None:
     ups = [-f.pose[:3, 1] for f in _some_frames(stream) if f.pose is not None]
     if not ups:
@@ -92,6 +101,14 @@ def _some_frames(stream: SensorStream, n: int = 16):
     return [stream.frames[int(k)] for k in picks]
 
 
+#: Planes within this angle (degrees) are parallel (a floor and a table top); walls are this close to
+#: perpendicular to up.
+PARALLEL_DEG = 10.0
+#: A plane the sensor was more than this (m) under is no floor (a map whose origin lies on its floor
+#: is within it).
+SENSOR_BELOW = 0.1
+
+
 def find_floor(
     points: np.ndarray,
     up_hint: np.ndarray,
@@ -101,39 +118,63 @@ def find_floor(
     max_angle_deg: float = 35.0,
     min_share: float = 0.03,
     seed: int = 0,
+    viewpoints: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, int] | None:
-    """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None."""
+    """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None.
+
+    Planes are found one after another (RANSAC); those within ``max_angle_deg`` of ``up_hint`` are
+    candidates, less those the sensor (``viewpoints``: where it stood) was under: a floor or a table
+    is seen from above, and a wall the hint's tolerance admits (a steep view of a tabletop) is not.
+    Up is the normal that the most candidate points agree on (a floor, a table top and a seat are
+    parallel; a slanted patch is not), and the floor is the lowest candidate parallel to it with
+    (almost) nothing below it but the walls (a wall reaches below a table top whose floor the scan
+    never saw: a tabletop scan's floor is its table)."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     sampled = np.asarray(pcd.voxel_down_sample(voxel).points)
     sampled = sampled[np.lexsort(sampled.T[::-1])]  # a fixed order, whatever the downsampler's
     total = len(sampled)
     if total < 100:
         return None
-    rest = sampled
-    candidates = []
+    rest = np.arange(total)  # indices of the points no plane has taken yet
+    planes = []
     for k in range(max_planes):
         if len(rest) < max(50, min_share * total):
             break
-        n, d, inliers = ransac_plane(rest, distance, iterations=400, seed=seed + k)
+        n, d, inliers = ransac_plane(sampled[rest], distance, iterations=400, seed=seed + k)
         if np.dot(n, up_hint) < 0:
             n, d = -n, -d
-        inlier_pts = rest[inliers]
-        rest = np.delete(rest, inliers, axis=0)
-        angle = np.degrees(np.arccos(np.clip(np.dot(n, up_hint), -1, 1)))
-        if len(inliers) >= min_share * total and angle <= max_angle_deg:
-            candidates.append((n, d, inlier_pts))
+        planes.append((n, d, rest[inliers]))
+        rest = np.delete(rest, inliers)
+    max_cos = np.cos(np.radians(max_angle_deg))
+    candidates = [
+        (n, d, idx) for n, d, idx in planes if len(idx) >= min_share * total and np.dot(n, up_hint) >= max_cos
+    ]
+    if viewpoints is not None and len(viewpoints):
+        seen_from_above = [
+            c for c in candidates if float(np.mean(np.asarray(viewpoints) @ c[0] + c[1])) > -SENSOR_BELOW
+        ]
+        candidates = seen_from_above or candidates  # a cloud whose origin is no sensor position: no say
     if not candidates:
         return None
-    all_pts = sampled
-    # The floor is the lowest candidate along the up direction with (almost) everything above it.
+    parallel = np.cos(np.radians(PARALLEL_DEG))
+    # Up: the candidate normal with the most candidate points parallel to it.
+    agreement = [sum(len(idx) for m, _, idx in candidates if np.dot(n, m) >= parallel) for n, _, _ in candidates]
+    up = candidates[int(np.argmax(agreement))][0]
+    on_wall = np.zeros(total, bool)
+    for n, _, idx in planes:
+        if abs(np.dot(n, up)) <= np.sin(np.radians(PARALLEL_DEG)):
+            on_wall[idx] = True
+    others = sampled[~on_wall]
     best = None
-    for n, d, pts in candidates:
+    for n, d, idx in candidates:
+        if np.dot(n, up) < parallel:
+            continue
         height = float(-d)
-        below = float(np.mean(all_pts @ n + d < -0.05))
+        below = float(np.sum(others @ n + d < -0.05)) / total
         if below > 0.1:
             continue
         if best is None or height < best[0]:
-            best = (height, n, pts)
+            best = (height, n, sampled[idx])
     if best is None:
         return None
     _, n, pts = best
@@ -156,7 +197,7 @@ def estimate_alignment(
     hint = up_hint if up_hint is not None else camera_up_hint(stream)
     if hint is None:
         hint = np.array([0.0, 0.0, 1.0])
-    floor = find_floor(pts, hint, max_angle_deg=max_angle_deg)
+    floor = find_floor(pts, hint, max_angle_deg=max_angle_deg, viewpoints=sensor_positions(stream))
     if floor is None:
         raise DataError(
             f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "

@@ -165,3 +165,18 @@ def test_a_learned_mask_that_spills_is_refined_to_its_object(view):
         assert (ref_cls[spilt] == vocab.id("box")).mean() < 0.05, name  # the spill is gone...
         # ...and mostly named by the planes (the cut bands along the crate's edges stay unknown)
         assert (ref_cls[spilt] == vocab.id(name)).mean() > 0.6, name
+
+
+def test_a_box_around_two_more_confident_boxes_of_its_class_is_dropped():
+    """Real frames (TUM's two chairs at a desk): a weak "chair" box spans both chairs, each boxed more
+    confidently. It frames a group, not a chair (it would take what lies between them: their bases);
+    a weak box around one chair's back, mostly inside its box, is a duplicate; a box of another class
+    around both, and a weak chair box holding one chair's box and empty floor, stay."""
+    left = _depth.Region(class_id=5, score=0.69, box=(10, 250, 255, 480))
+    right = _depth.Region(class_id=5, score=0.5, box=(376, 208, 528, 430))
+    group = _depth.Region(class_id=5, score=0.44, box=(28, 215, 501, 474))
+    back = _depth.Region(class_id=5, score=0.35, box=(20, 255, 200, 400))
+    table = _depth.Region(class_id=16, score=0.4, box=(0, 200, 560, 470))
+    wide = _depth.Region(class_id=5, score=0.3, box=(300, 200, 639, 479))
+    kept = _depth.suppress_duplicates([group, back, right, left, table, wide])
+    assert [r.score for r in kept] == [0.69, 0.5, 0.4, 0.3]
