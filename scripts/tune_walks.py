@@ -8,8 +8,8 @@ the rest (for issue 28: `clusters` recognition and `icp_match` after the detecto
     python scripts/tune_walks.py score configs/bench/generalization_tuning.yaml --scenes office_tune-s2 --objects
 
 `score` prints, per walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and map
-PQ, then the means of the tuning walks (seeds below --first-validation-seed) and of the validation
-walks (the rest) apart; `--objects` adds each instance with the ground-truth object its box overlaps
+PQ, then the means of the tuning walks and of the validation walks (seeds --validation-seeds, 4-7 by
+default) apart; `--objects` adds each instance with the ground-truth object its box overlaps
 most. The cache holds the prefix as it was computed: after a change to a prefix stage's code, run
 `prefix --rebuild`. A development tool: reported figures come from `stratamap bench`, which runs
 every stage.
@@ -136,7 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rebuild", action="store_true", help="prefix: recompute cached walks too.")
     parser.add_argument("--objects", action="store_true", help="score: print each instance and its ground truth.")
     parser.add_argument(
-        "--first-validation-seed", type=int, default=4, help="Walks of this seed and up are validation walks."
+        "--validation-seeds",
+        type=int,
+        nargs="*",
+        default=[4, 5, 6, 7],
+        help="Walks of these seeds are validation walks (default 4-7); the rest are tuning walks.",
     )
     args = parser.parse_args(argv)
     try:
@@ -174,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         for line in row.get("objects", []):
             print(line)
         seed = re.search(r"-s(\d+)$", row["scene"])
-        validation = seed is not None and int(seed.group(1)) >= args.first_validation_seed
+        validation = seed is not None and int(seed.group(1)) in args.validation_seeds
         groups["validation" if validation else "tuning"].append(row)
     for name, rows in groups.items():
         if rows:

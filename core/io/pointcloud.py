@@ -78,6 +78,9 @@ class CloudData:
     points: np.ndarray  # (N, 3) float64; NaN/inf kept as read
     colors: np.ndarray | None = None  # (N, 3) float64, nominally in [0, 1]
     fields: dict[str, np.ndarray] = field(default_factory=dict)  # (N,) or (N, k) per name, e.g. "label"
+    #: (width, height) of an organized cloud (a PCD whose HEIGHT is over 1: one point per pixel of a
+    #: camera's image, so in that camera's frame); None for an unorganized one.
+    image_size: tuple[int, int] | None = None
 
 
 # --------------------------------------------------------------------------------------------- headers
@@ -759,6 +762,8 @@ def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
         else:
             header, columns = read_pcd(data, path)
             cloud = _read_compressed_pcd(path, header) if columns is None else _from_columns(columns, path)
+            if header.height > 1:
+                cloud.image_size = (header.width, header.height)
     if len(cloud.points) == 0:
         raise DataError(f"{path}: the header declares no points")
     return cloud

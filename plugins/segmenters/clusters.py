@@ -66,6 +66,10 @@ from stratamap.plugins.segmenters._recognition import (
     typical_rather,
 )
 
+#: Pieces of one chair lie one over another at most this far apart (m): the part of a swivel chair's
+#: post, or of its legs under the seat, that the map lost.
+STACK_GAP = 0.12
+
 
 class ClassRule(BaseModel):
     """Name a cluster by its size: the first rule that fits wins (used when the map has no class votes)."""
@@ -1045,6 +1049,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         instance_ids = instance_ids.copy()
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
+        self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls)
         # What an object may stand on: support surfaces and other instances, each by its own key.
         n_supports = len(support_areas) if support_areas is not None else 0
         holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
@@ -1125,6 +1130,84 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             next_id += 1
         if splits:
             self.note("units_split", splits)
+
+    def _assemble_chairs(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+    ) -> None:
+        """A chair seen in pieces stacked one over another (a swivel chair's base under its seat and
+        back, the post between them too thin for the map): instances each resting on another's top
+        within one footprint, whose union stands on the floor, is of a chair's size and has no flat top
+        (a back rises over one side of the seat), become one chair. What a class of things that stand
+        on others fits (a cup, a monitor, a box on a cabinet) is never a piece, and nothing is
+        assembled onto a whole object standing on the floor (a lamp on a cabinet). In place; each
+        assembly is noted."""
+        from stratamap.core.map.instances import instance_members
+
+        if "chair" not in vocab:
+            return
+        stands_on_others = [name for name in (*ON_SUPPORTS, "monitor", "laptop", "book", "microwave") if name in vocab]
+        pieces = {}
+        for iid, sel in instance_members(instance_ids).items():
+            cls = int(np.bincount(class_ids[sel]).argmax())
+            if len(sel) < 4 or not vocab.is_thing[cls]:
+                continue
+            name = vocab.name(cls)
+            shape = describe_shape(points[sel], base_z, walls)
+            if name in stands_on_others and fits_class(name, shape):
+                continue
+            z = points[sel, 2]
+            # On the floor and a whole object of its class by itself (a cabinet, a table): what rests on
+            # it stands on it.
+            whole = name != "object" and shape.bottom <= FLOOR_GAP and fits_class(name, shape)
+            xy = points[sel[:: max(1, len(sel) // 2000)], :2]  # top views, thinned for the hulls
+            if len(np.unique(xy, axis=0)) >= 3:
+                pieces[iid] = (sel, float(z.min()), float(z.max()), whole, xy, xy.min(axis=0), xy.max(axis=0))
+        ids = sorted(pieces)
+        parent = {i: i for i in ids}
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        for a in ids:
+            for b in ids:
+                upper, lower = pieces[a], pieces[b]
+                # ``a`` rests on ``b``'s top (a gap of a thin post at most) within its footprint, or over it.
+                if a == b or not -0.05 <= upper[1] - lower[2] <= STACK_GAP:
+                    continue
+                if np.any(upper[5] > lower[6]) or np.any(lower[5] > upper[6]):  # apart in the top view
+                    continue
+                if max(_share_within(upper[4], lower[4]), _share_within(lower[4], upper[4])) >= 0.5:
+                    parent[root(a)] = root(b)
+        groups: dict[int, list[int]] = {}
+        for i in ids:
+            groups.setdefault(root(i), []).append(i)
+        assembled = []
+        for group in groups.values():
+            if len(group) < 2:
+                continue
+            if any(pieces[i][3] for i in group):
+                continue
+            sel = np.concatenate([pieces[i][0] for i in group])
+            shape = describe_shape(points[sel], base_z, walls)
+            # Standing on the floor, of a chair's size, its top no flat surface over its footprint (a
+            # back rises over one side of the seat). Against a wall or not: chairs stand there too.
+            if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class("chair", shape):
+                continue
+            keep = max(group, key=lambda i: (len(pieces[i][0]), -i))
+            instance_ids[sel] = keep
+            class_ids[sel] = vocab.id("chair")
+            assembled.append({"instance": keep, "pieces": sorted(group)})
+        if assembled:
+            self.note("chairs_assembled", assembled)
 
     def _join_parts(
         self,

@@ -35,9 +35,13 @@ class PointCloudConfig(StageConfig):
     label_scheme: Literal["none", "raw", "mosd"] = Field(
         default="raw", description="How labels map to classes and instances (see module doc)."
     )
-    up_axis: Literal["z", "-y", "y", "-z"] = Field(
-        default="z",
-        description="Up direction of the input (-y for clouds in a camera's optical frame, e.g. Kinect scans).",
+    up_axis: Literal["auto", "z", "-y", "y", "-z"] = Field(
+        default="auto",
+        description=(
+            "Up direction of the input: -y for a cloud in a camera's optical frame (Kinect and stereo scans), z for "
+            "a scan or map in a z-up frame; auto: -y for an organized cloud (a PCD with one point per pixel of an "
+            "image, so in its camera's frame), else z."
+        ),
     )
     gravity: Literal["auto", "off"] = Field(
         default="auto",
@@ -46,11 +50,14 @@ class PointCloudConfig(StageConfig):
             "and make it z = 0."
         ),
     )
-    up_tolerance_deg: float = Field(
-        default=35.0,
+    up_tolerance_deg: float | None = Field(
+        default=None,
         gt=0,
         le=89,
-        description="Max angle between up_axis and the support plane's normal (steep tabletop views need ~60).",
+        description=(
+            "Max angle between up_axis and the support plane's normal; default: 60 for a camera's frame (-y or y: "
+            "a camera looks down steeply at a tabletop), 35 for a z-up input."
+        ),
     )
     scale: float = Field(default=1.0, gt=0, description="Multiply coordinates by this (e.g. 0.001 for millimetres).")
 
@@ -59,12 +66,24 @@ def read_cloud(path: Path, label_field: str) -> tuple[np.ndarray, np.ndarray | N
     """(points, colors in [0, 1] or None, labels or None) from a supported file, verified against its header
     (see :mod:`stratamap.core.io.pointcloud`): a cut or malformed file is a ``DataError``, never zeros."""
     cloud = read_point_cloud(path, label_field)
+    return cloud.points, cloud.colors, _labels(cloud, path, label_field)
+
+
+def _labels(cloud: Any, path: Path, label_field: str) -> np.ndarray | None:
     labels = cloud.fields.get(label_field)
     if labels is not None:
         labels = np.asarray(labels)
         if labels.ndim != 1:
             raise DataError(f"{path}: label field {label_field!r} has {labels.shape[1]} values per point, expected 1")
-    return cloud.points, cloud.colors, labels
+    return labels
+
+
+def up_settings(up_axis: str, tolerance: float | None, organized: bool) -> tuple[str, float]:
+    """The up axis and tolerance (degrees) to look for the floor with: ``auto`` is -y for an organized
+    cloud (a camera's frame) and z otherwise; the tolerance defaults to 60 for a camera's frame (-y or
+    y) and to 35 for a z-up input."""
+    axis = ("-y" if organized else "z") if up_axis == "auto" else up_axis
+    return axis, tolerance if tolerance is not None else (60.0 if axis in ("-y", "y") else 35.0)
 
 
 def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labels: np.ndarray | None) -> None:
@@ -108,7 +127,9 @@ class PointCloudSource(Source[PointCloudConfig]):
     def read(self) -> dict[str, Any]:
         cfg = self.config
         path = Path(cfg.path).expanduser()
-        pts, colors, labels = read_cloud(path, cfg.label_field)
+        cloud = read_point_cloud(path, cfg.label_field)
+        pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
+        up_axis, up_tolerance = up_settings(cfg.up_axis, cfg.up_tolerance_deg, cloud.image_size is not None)
         valid = np.all(np.isfinite(pts), axis=1)
         dropped = int((~valid).sum())
         if not valid.any():
@@ -129,15 +150,15 @@ class PointCloudSource(Source[PointCloudConfig]):
         if cfg.gravity == "auto":
             alignment = estimate_alignment(
                 stream,
-                up_hint=np.array(UP_AXES[cfg.up_axis]),
-                max_angle_deg=cfg.up_tolerance_deg,
+                up_hint=np.array(UP_AXES[up_axis]),
+                max_angle_deg=up_tolerance,
                 advice=(
-                    "if the input is already z-up set `gravity: off`, else give its up_axis (-y for a camera's "
-                    "optical frame, as Kinect and stereo scans) or a larger up_tolerance_deg (a steep view of a "
-                    "tabletop needs about 60)"
+                    f"looked along up_axis {up_axis}: if the input is already z-up set `gravity: off`, else give "
+                    "its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a larger "
+                    "up_tolerance_deg (a steep view of a tabletop needs about 60)"
                 ),
             )
-            self.note("gravity_alignment", alignment.report())
+            self.note("gravity_alignment", {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()})
             if alignment.realigned:
                 transform_stream(stream, alignment.transform)
                 self.warn(

@@ -244,6 +244,31 @@ def test_the_real_stereo_tabletop_scan_is_levelled_on_its_table():
     assert camera[2] > 0.3  # the camera looked down on the table
 
 
+def test_an_organized_cloud_is_read_in_its_cameras_frame_by_default(tmp_path):
+    """With the defaults (``up_axis: auto``), an organized PCD (one point per pixel: a camera's frame, y
+    down) is levelled on its floor seen steeply from above, and an unorganized cloud of the same points
+    is taken as z-up (the floor is then not found, and the error says which axis was looked along)."""
+    from stratamap.core.io.pointcloud import write_pcd
+
+    rng = np.random.default_rng(3)
+    floor = _plane_points((-1.0, 0.5, 0.0), (1, 0, 0), (0, 1, 0), 2.0, 2.0, 0.02, rng)[: 100 * 100]
+    pitch = np.radians(50.0)  # the camera 1.2 m up, looking 50 deg down
+    cam_z = np.array([0.0, np.cos(pitch), -np.sin(pitch)])
+    cam_x = np.array([1.0, 0.0, 0.0])
+    optical = (floor - [0.0, 0.0, 1.2]) @ np.stack([cam_x, np.cross(cam_z, cam_x), cam_z], 1)
+    organized = write_pcd(tmp_path / "kinect.pcd", optical, organized=(100, 100))
+    data = PipelineData()
+    out = PointCloudSource(path=str(organized)).run(data)
+    assert data.notes["pointcloud"]["gravity_alignment"]["up_axis"] == "-y"
+    assert np.abs(out["frames"].points[:, 2]).max() < 0.02
+    flat = write_pcd(tmp_path / "flat.pcd", optical)
+    with pytest.raises(DataError, match="looked along up_axis z"):
+        PointCloudSource(path=str(flat)).run(PipelineData())
+    assert (
+        np.abs(PointCloudSource(path=str(flat), up_axis="-y").run(PipelineData())["frames"].points[:, 2]).max() < 0.02
+    )
+
+
 def test_pointcloud_formats_and_errors(tmp_path):
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
