@@ -40,7 +40,7 @@ class PointCloudConfig(StageConfig):
         description=(
             "Up direction of the input: -y for a cloud in a camera's optical frame (Kinect and stereo scans), z for "
             "a scan or map in a z-up frame; auto: -y for an organized cloud (a PCD with one point per pixel of an "
-            "image, so in its camera's frame), else z."
+            "image, so in its camera's frame), else z, then -y if no floor is found along z."
         ),
     )
     gravity: Literal["auto", "off"] = Field(
@@ -78,12 +78,12 @@ def _labels(cloud: Any, path: Path, label_field: str) -> np.ndarray | None:
     return labels
 
 
-def up_settings(up_axis: str, tolerance: float | None, organized: bool) -> tuple[str, float]:
-    """The up axis and tolerance (degrees) to look for the floor with: ``auto`` is -y for an organized
-    cloud (a camera's frame) and z otherwise; the tolerance defaults to 60 for a camera's frame (-y or
-    y) and to 35 for a z-up input."""
-    axis = ("-y" if organized else "z") if up_axis == "auto" else up_axis
-    return axis, tolerance if tolerance is not None else (60.0 if axis in ("-y", "y") else 35.0)
+def up_settings(up_axis: str, tolerance: float | None, organized: bool) -> list[tuple[str, float]]:
+    """The (up axis, tolerance in degrees) to look for the floor with, in order: ``auto`` is -y for an
+    organized cloud (a camera's frame), else z and then -y (a camera's cloud stored unorganized); the
+    tolerance defaults to 60 in a camera's frame (-y or y) and to 35 for a z-up input."""
+    axes = [up_axis] if up_axis != "auto" else ["-y"] if organized else ["z", "-y"]
+    return [(axis, tolerance if tolerance is not None else (60.0 if axis in ("-y", "y") else 35.0)) for axis in axes]
 
 
 def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labels: np.ndarray | None) -> None:
@@ -129,7 +129,7 @@ class PointCloudSource(Source[PointCloudConfig]):
         path = Path(cfg.path).expanduser()
         cloud = read_point_cloud(path, cfg.label_field)
         pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
-        up_axis, up_tolerance = up_settings(cfg.up_axis, cfg.up_tolerance_deg, cloud.image_size is not None)
+        tries = up_settings(cfg.up_axis, cfg.up_tolerance_deg, cloud.image_size is not None)
         valid = np.all(np.isfinite(pts), axis=1)
         dropped = int((~valid).sum())
         if not valid.any():
@@ -148,16 +148,23 @@ class PointCloudSource(Source[PointCloudConfig]):
         if labels is not None and cfg.label_scheme != "none":
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)
         if cfg.gravity == "auto":
-            alignment = estimate_alignment(
-                stream,
-                up_hint=np.array(UP_AXES[up_axis]),
-                max_angle_deg=up_tolerance,
-                advice=(
-                    f"looked along up_axis {up_axis}: if the input is already z-up set `gravity: off`, else give "
-                    "its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a larger "
-                    "up_tolerance_deg (a steep view of a tabletop needs about 60)"
-                ),
-            )
+            looked = " then ".join(axis for axis, _ in tries)
+            for k, (up_axis, up_tolerance) in enumerate(tries):
+                try:
+                    alignment = estimate_alignment(
+                        stream,
+                        up_hint=np.array(UP_AXES[up_axis]),
+                        max_angle_deg=up_tolerance,
+                        advice=(
+                            f"looked along up_axis {looked}: if the input is already z-up set `gravity: off`, else "
+                            "give its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a "
+                            "larger up_tolerance_deg (a steep view of a tabletop needs about 60)"
+                        ),
+                    )
+                    break
+                except DataError:
+                    if k == len(tries) - 1:
+                        raise
             self.note("gravity_alignment", {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()})
             if alignment.realigned:
                 transform_stream(stream, alignment.transform)

@@ -521,15 +521,26 @@ def test_infinite_points_are_dropped_and_counted(tmp_path):
 
 
 def test_a_cloud_whose_floor_is_not_up_says_which_settings_fit(tmp_path):
-    """A tabletop seen by a camera (its optical frame: the table's normal along -y) read with the
-    default up axis z: the error names the file and the two settings that fit such clouds."""
+    """A tabletop seen by a camera (its optical frame: the table's normal along -y) read as z-up: the
+    error names the file and the two settings that fit such clouds."""
     rng = np.random.default_rng(2)
     table = np.c_[rng.uniform(-0.5, 0.5, 3000), np.full(3000, 0.8), rng.uniform(0.5, 1.5, 3000)]
     path = cloud_file(tmp_path, "camera.ply", table)
     with pytest.raises(
         DataError, match=r"camera: no floor plane found .* up_axis \(-y for a camera's optical frame"
     ) as err:
-        PointCloudSource(path=str(path)).run(PipelineData())
+        PointCloudSource(path=str(path), up_axis="z").run(PipelineData())
     assert "\n" not in str(err.value)
     out = PointCloudSource(path=str(path), up_axis="-y").run(PipelineData())
     assert np.allclose(out["frames"].points[:, 2], 0.0, atol=0.01)
+
+
+def test_a_cloud_with_no_floor_either_way_names_both_axes_looked_along(tmp_path):
+    """With the default ``up_axis: auto``, an unorganized cloud is looked at as z-up, then as a camera's
+    (-y); a cloud with a floor neither way (one wall, its normal along x) is a one-line error saying so."""
+    rng = np.random.default_rng(4)
+    wall = np.c_[np.full(3000, 2.0), rng.uniform(-1, 1, 3000), rng.uniform(0, 2, 3000)]
+    path = cloud_file(tmp_path, "wall.ply", wall)
+    with pytest.raises(DataError, match=r"wall: no floor plane found .*looked along up_axis z then -y") as err:
+        PointCloudSource(path=str(path)).run(PipelineData())
+    assert "\n" not in str(err.value)
