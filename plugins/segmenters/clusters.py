@@ -71,6 +71,18 @@ from stratamap.plugins.segmenters._recognition import (
 STACK_GAP = 0.12
 
 
+class _Piece(NamedTuple):
+    """An instance as a possible piece of a chair seen in stacked pieces."""
+
+    points: np.ndarray  # indices of its points
+    bottom: float  # m
+    top: float  # m
+    whole: bool  # on the floor and a whole object of its class by itself
+    xy: np.ndarray  # its top view, thinned
+    lo: np.ndarray  # the top view's corners
+    hi: np.ndarray
+
+
 class ClassRule(BaseModel):
     """Name a cluster by its size: the first rule that fits wins (used when the map has no class votes)."""
 
@@ -1147,6 +1159,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         on others fits (a cup, a monitor, a box on a cabinet) is never a piece, and nothing is
         assembled onto a whole object standing on the floor (a lamp on a cabinet). In place; each
         assembly is noted."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
         from stratamap.core.map.instances import instance_members
 
         if "chair" not in vocab:
@@ -1167,42 +1182,40 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             whole = name != "object" and shape.bottom <= FLOOR_GAP and fits_class(name, shape)
             xy = points[sel[:: max(1, len(sel) // 2000)], :2]  # top views, thinned for the hulls
             if len(np.unique(xy, axis=0)) >= 3:
-                pieces[iid] = (sel, float(z.min()), float(z.max()), whole, xy, xy.min(axis=0), xy.max(axis=0))
+                pieces[iid] = _Piece(sel, float(z.min()), float(z.max()), whole, xy, xy.min(axis=0), xy.max(axis=0))
         ids = sorted(pieces)
-        parent = {i: i for i in ids}
-
-        def root(i: int) -> int:
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
-
-        for a in ids:
-            for b in ids:
-                upper, lower = pieces[a], pieces[b]
-                # ``a`` rests on ``b``'s top (a gap of a thin post at most) within its footprint, or over it.
-                if a == b or not -0.05 <= upper[1] - lower[2] <= STACK_GAP:
+        edges = []
+        for a, upper_id in enumerate(ids):
+            for b, lower_id in enumerate(ids):
+                upper, lower = pieces[upper_id], pieces[lower_id]
+                # ``upper`` rests on ``lower``'s top (a gap of a thin post at most) within its footprint, or over it.
+                if a == b or not -0.05 <= upper.bottom - lower.top <= STACK_GAP:
                     continue
-                if np.any(upper[5] > lower[6]) or np.any(lower[5] > upper[6]):  # apart in the top view
+                if np.any(upper.lo > lower.hi) or np.any(lower.lo > upper.hi):  # apart in the top view
                     continue
-                if max(_share_within(upper[4], lower[4]), _share_within(lower[4], upper[4])) >= 0.5:
-                    parent[root(a)] = root(b)
+                if max(_share_within(upper.xy, lower.xy), _share_within(lower.xy, upper.xy)) >= 0.5:
+                    edges.append((a, b))
+        if not edges:
+            return
+        pairs = np.array(edges)
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(ids), len(ids)))
+        _, component = connected_components(graph, directed=False)
         groups: dict[int, list[int]] = {}
-        for i in ids:
-            groups.setdefault(root(i), []).append(i)
+        for k, iid in enumerate(ids):
+            groups.setdefault(int(component[k]), []).append(iid)
         assembled = []
         for group in groups.values():
             if len(group) < 2:
                 continue
-            if any(pieces[i][3] for i in group):
+            if any(pieces[i].whole for i in group):
                 continue
-            sel = np.concatenate([pieces[i][0] for i in group])
+            sel = np.concatenate([pieces[i].points for i in group])
             shape = describe_shape(points[sel], base_z, walls)
             # Standing on the floor, of a chair's size, its top no flat surface over its footprint (a
             # back rises over one side of the seat). Against a wall or not: chairs stand there too.
             if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class("chair", shape):
                 continue
-            keep = max(group, key=lambda i: (len(pieces[i][0]), -i))
+            keep = max(group, key=lambda i: (len(pieces[i].points), -i))
             instance_ids[sel] = keep
             class_ids[sel] = vocab.id("chair")
             assembled.append({"instance": keep, "pieces": sorted(group)})
