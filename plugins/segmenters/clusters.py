@@ -1046,12 +1046,13 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
     ) -> tuple[np.ndarray, np.ndarray]:
         """Instances named ``object`` or by a class their size rules out take the class the priors
         and their support context give (``prior_class``), after pieces joined the object they belong
-        to (``_join_parts``); each change is noted. An instance of a class that stands on no other
-        object (NOT_STACKED: a chair, a table) whose foot rests on another object's support surface
-        (``support_of_point``: the support index of each point, -1 none) is none of that class: a
-        unit on a desk that a weak "chair" box framed. Nor is one holding a level surface larger than
-        its class's ``max_top_area`` (``support_areas``: each support's area; a desk top in a "chair").
-        Returns the point classes and instances."""
+        to (``_join_parts``) and chairs seen in stacked pieces were assembled (``_assemble_chairs``);
+        each change is noted. An instance of a class that stands on no other object (NOT_STACKED: a
+        chair, a table) whose foot rests well inside the top of another instance or of a support
+        surface (``support_of_point``: the support index of each point, -1 none) is none of that
+        class: a unit on a desk that a weak "chair" box framed. Nor is one holding a level surface
+        larger than its class's ``max_top_area`` (``support_areas``: each support's area; a desk top
+        in a "chair"). Returns the point classes and instances."""
         from scipy.spatial import cKDTree
 
         from stratamap.core.map.instances import instance_members
