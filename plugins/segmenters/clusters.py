@@ -719,6 +719,38 @@ def join_supports(
     return np.where(node >= 0, obj[np.maximum(node, 0)], -1)
 
 
+def _rests_on_another(
+    points: np.ndarray,
+    sel: np.ndarray,
+    iid: int,
+    instance_ids: np.ndarray,
+    holder: np.ndarray,
+    tops: np.ndarray,
+    top_tree: Any,
+    reach: float,
+) -> bool:
+    """Whether instance ``iid`` (its points ``sel``) rests on another object: its foot (its lowest
+    3 cm) within ``reach`` of the points ``tops`` (a k-d tree over them: support surfaces and other
+    instances, keyed by ``holder``) lying no higher, and 90 % of it at least 5 cm inside the outline of
+    what it touches there. A chair's back seen over a desk's far edge, or at the edge of a table it is
+    pushed under, its legs hidden, touches the top too, but not well inside it."""
+    z = points[sel, 2]
+    foot = points[sel][z <= z.min() + 0.03]
+    hits = top_tree.query_ball_point(foot, reach)
+    near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits]))
+    near = tops[near]
+    near = near[(instance_ids[near] != iid) & (points[near, 2] <= foot[:, 2].max())]
+    return any(
+        _share_within(foot[:, :2], points[holder == k, :2], margin=-0.05) >= 0.9 for k in np.unique(holder[near])
+    )
+
+
+def _largest_top(support_of_point: np.ndarray, support_areas: np.ndarray) -> float:
+    """The area (m^2) of the largest support surface among the points' (``support_of_point``: -1 none)."""
+    held = support_of_point[support_of_point >= 0]
+    return float(support_areas[held].max()) if len(held) else 0.0
+
+
 def _hand_held(shape: Shape) -> bool:
     """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
     return any(fits_class(name, shape) for name in HAND_HELD)
@@ -1070,7 +1102,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             holder = np.where(support_of_point >= 0, support_of_point, holder)
         tops = np.flatnonzero(holder >= 0)
         top_tree = cKDTree(points[tops]) if len(tops) else None
-        reach = 2.5 * voxel
         changes = []
         for iid, sel in instance_members(instance_ids).items():
             cls = int(np.bincount(class_ids[sel]).argmax())
@@ -1079,29 +1110,18 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             shape = describe_shape(points[sel], base_z, walls)
             new, why = self._prior(shape, vocab, base_z, support_heights, voxel)
-            carried = False
-            if top_tree is not None and name in NOT_STACKED and shape.bottom > FLOOR_GAP:
-                # Its foot (its lowest 3 cm) touching a support surface or another instance below it...
-                foot = points[sel][points[sel, 2] <= points[sel, 2].min() + 0.03]
-                hits = top_tree.query_ball_point(foot, reach)
-                near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits])) if len(hits) else []
-                near = tops[near] if len(near) else np.zeros(0, np.int64)
-                near = near[(instance_ids[near] != iid) & (points[near, 2] <= foot[:, 2].max())]
-                # ... and lying over it, well inside its edges: a chair's back seen over a desk's far
-                # edge, or at the edge of a table it is pushed under, its legs hidden, touches the top
-                # there too.
-                carried = any(
-                    _share_within(foot[:, :2], points[holder == k, :2], margin=-0.05) >= 0.9
-                    for k in np.unique(holder[near])
-                )
+            carried = (
+                top_tree is not None
+                and name in NOT_STACKED
+                and shape.bottom > FLOOR_GAP
+                and _rests_on_another(points, sel, iid, instance_ids, holder, tops, top_tree, 2.5 * voxel)
+            )
             largest_top = CLASS_SIZES[name].max_top_area if name in CLASS_SIZES else None
-            holds = support_of_point[sel] if support_of_point is not None else np.zeros(0, np.int64)
-            holds = holds[holds >= 0]
-            too_large_top = bool(
+            too_large_top = (
                 largest_top is not None
+                and support_of_point is not None
                 and support_areas is not None
-                and len(holds)
-                and float(support_areas[holds].max()) > largest_top
+                and _largest_top(support_of_point[sel], support_areas) > largest_top
             )
             if (
                 name != "object"
