@@ -274,14 +274,18 @@ def find_layout(
     gravity: bool = True,
     params: LayoutParams | None = None,
     viewpoints: np.ndarray | None = None,
+    floor_hint: float | None = None,
 ) -> Layout:
     """Floor, walls, ceiling (per-point labels) and support surfaces of world points (z up).
 
     ``voxel_size`` is the working grid (a TSDF map's voxel, or a few times a raw cloud's point
     spacing); ``normals`` (per point, any orientation) skip the normal estimate; ``viewpoints``
     (sensor positions, (k, 3)) tell a wall's inside: without them it is the side with more of the
-    map, which a partial map (a lone cabinet before a lone wall) can get wrong. Partial maps are
-    fine: a tabletop scan gives one support surface and no floor, a lone wall a wall."""
+    map, which a partial map (a lone cabinet before a lone wall) can get wrong. ``floor_hint`` is the
+    height where the source found the floor (its gravity alignment): a level there is tried first and
+    may have more than ``outlier_share`` below it (one frame's floor bends down by centimetres at
+    range), though it must still be a room's floor by area or rise. Partial maps are fine: a tabletop
+    scan gives one support surface and no floor, a lone wall a wall."""
     p = params or LayoutParams()
     points = np.asarray(points, dtype=np.float64)
     labels = np.zeros(len(points), np.int8)
@@ -321,9 +325,17 @@ def find_layout(
     planes: list[LayoutPlane] = []
     candidates = np.flatnonzero(h_area >= p.level_min_area)
     # The floor: the lowest level with almost nothing below it, when the map is a room on it.
-    for k in candidates[np.argsort(h_height[candidates], kind="stable")]:
+    order = candidates[np.argsort(h_height[candidates], kind="stable")]
+    hinted = np.zeros(len(order), bool)
+    if floor_hint is not None:
+        off = np.abs(h_height[order] - floor_hint)
+        hinted = off <= 2 * tol
+        # The level nearest the source's floor first.
+        order = np.concatenate([order[hinted][np.argsort(off[hinted], kind="stable")], order[~hinted]])
+        hinted = np.sort(hinted)[::-1]
+    for k, at_hint in zip(order, hinted, strict=True):
         height = float(h_height[k])
-        if (z < height - 2 * tol).mean() > p.outlier_share:
+        if (z < height - 2 * tol).mean() > p.outlier_share and not at_hint:
             continue
         rise = float(np.percentile(z, 99)) - height
         # The floor's size on a grid of at least AREA_CELL: a real scan's far floor is sparser than

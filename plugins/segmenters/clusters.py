@@ -283,6 +283,13 @@ def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
     return (cells.mean(axis=0) + [0.0, 0.0, 2.0])[None]
 
 
+def source_floor(data: PipelineData) -> float | None:
+    """The floor's height where an RGB-D source's gravity alignment found it (z = 0), else None."""
+    stream = data.stream
+    alignment = stream.metadata.get("gravity_alignment") if stream is not None else None
+    return 0.0 if alignment and alignment.get("floor_inliers", 0) > 0 else None
+
+
 def estimate_normals(points: np.ndarray, radius: float, views: np.ndarray) -> np.ndarray:
     """PCA normals within ``radius`` (Open3D), each turned to face the nearest of ``views``."""
     import open3d as o3d
@@ -751,6 +758,13 @@ def _largest_top(support_of_point: np.ndarray, support_areas: np.ndarray) -> flo
     return float(support_areas[held].max()) if len(held) else 0.0
 
 
+def _thin(pts: np.ndarray, base_z: float, walls: list[Any]) -> bool:
+    """Thinner than THIN across: in height (2-98 % of its points: a single frame's floor bends by
+    centimetres at range) or in depth (a poster on a wall)."""
+    low, high = np.percentile(pts[:, 2], [2.0, 98.0])
+    return min(float(high - low), describe_shape(pts, base_z, walls).depth) < THIN
+
+
 def _hand_held(shape: Shape) -> bool:
     """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
     return any(fits_class(name, shape) for name in HAND_HELD)
@@ -799,7 +813,13 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         # 1. Layout: floor, walls, ceiling (stuff) and support surfaces (objects' tops).
         layout = find_layout(
-            cells, voxel, normals=normals, gravity=cfg.gravity == "z", params=cfg.layout, viewpoints=views
+            cells,
+            voxel,
+            normals=normals,
+            gravity=cfg.gravity == "z",
+            params=cfg.layout,
+            viewpoints=views,
+            floor_hint=source_floor(data),
         )
         supports = Supports(
             np.full(len(cells), -1, np.int64),
@@ -900,8 +920,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 class_ids[mask] = stuff_ids[label]
                 on_layout += 1
                 continue
-            if vote_table is not None and vote_table[k].sum() > 0:
-                name = vocab.name(int(np.argmax(vote_table[k])))
+            if vote_table is not None:
+                name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls)
             if name is None and cfg.recognize:
                 shape = describe_shape(points[mask], base_z, walls)
                 name = self._prior(shape, vocab, base_z, supports.height, voxel)[0]
@@ -1017,10 +1037,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # Mostly voted floor, wall or ceiling and thin: that stuff where the map's layout missed it (a
             # floor patch, a poster). Thicker, the votes say nothing: a tall unit's front the frames took
             # for a wall.
-            if np.isin(prev_c[rest], stuff_ids).mean() > 0.5:
-                extent = points[rest].max(axis=0) - points[rest].min(axis=0)
-                if min(extent[2], describe_shape(points[rest], base_z, walls).depth) < THIN:
-                    continue
+            if np.isin(prev_c[rest], stuff_ids).mean() > 0.5 and _thin(points[rest], base_z, walls):
+                continue
             # Instances lying within this object whose own class their shape rules out (a detector box
             # that framed one side of a unit) are pieces of it.
             for piece in np.unique(prev_i[mask[inside]]):
@@ -1383,6 +1401,23 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             near = member & plane.near(cells, distance)
             table[:, plane.label] += np.bincount(obj[near], minlength=n_obj)
         return table
+
+    @staticmethod
+    def _voted_name(
+        votes: np.ndarray, pts: np.ndarray, stuff_ids: np.ndarray, vocab: Vocabulary, base_z: float, walls: list[Any]
+    ) -> str | None:
+        """The class an object's fused votes give it, if any. Thing votes name it. Floor, wall or ceiling
+        votes make it that stuff only where they hold most of its points and it is thin (a floor patch the
+        layout missed); a thick object whose only votes are the floor its foot stands on (a wardrobe in a
+        frame where the detector boxed nothing) is no floor."""
+        stuff = np.zeros(len(votes), bool)
+        stuff[stuff_ids[stuff_ids > 0]] = True
+        things = np.where(stuff, 0, votes)
+        if things.sum() > 0:
+            return vocab.name(int(np.argmax(things)))
+        if votes[stuff].sum() > 0.5 * len(pts) and _thin(pts, base_z, walls):
+            return vocab.name(int(np.argmax(np.where(stuff, votes, 0))))
+        return None
 
     @staticmethod
     def _vote_table(point_obj: np.ndarray, votes: Semantics, n_obj: int, n_classes: int) -> np.ndarray:

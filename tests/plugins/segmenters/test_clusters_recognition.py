@@ -129,6 +129,52 @@ def test_keep_instances_adds_what_no_mask_covered_and_names_it():
     assert (sem.instance_ids[stuff] > 0).sum() <= 3 * len(out["instances"])
 
 
+def test_a_frame_with_no_box_leaves_objects_things_though_their_feet_were_voted_floor():
+    """A detector that boxed nothing: the frames voted only floor, wall and ceiling, and the floor's
+    votes spilled onto the bottom 4 cm of the counter and the chair's legs. Those objects stay things
+    (named by their shape), while a thin bump of floor the layout left out, voted floor, is floor."""
+    points, names = kitchen_room(0.02)
+    mat = (points[:, 0] > 4.5) & (points[:, 0] < 5.5) & (points[:, 1] > 0.5) & (points[:, 1] < 1.5)
+    mat &= names == "floor"
+    points = points.copy()
+    points[mat, 2] += 0.06 * (points[mat, 0] - 4.5)  # a ramp rising 6 cm, 3.4 deg: off the floor's level
+    classes = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    spilled = np.isin(names, ["counter", "chair"]) & (points[:, 2] < 0.04)
+    classes[spilled] = VOCAB.id("floor")
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, np.zeros(len(points), np.int32), VOCAB)
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    sem = out["semantics"]
+    for name in ("counter", "chair", "table"):
+        on = names == name
+        assert (sem.instance_ids[on] > 0).mean() > 0.9, name
+        assert (sem.class_ids[on] == VOCAB.id("floor")).mean() < 0.1, name
+    assert (sem.class_ids[mat] == VOCAB.id("floor")).mean() > 0.9
+    assert (sem.instance_ids[mat] > 0).mean() < 0.1
+
+
+def test_clusters_takes_the_floor_where_the_rgbd_source_found_it():
+    """A sequence source's gravity alignment put the floor at z = 0; the single frame's floor bends
+    down at range. clusters labels the near floor floor, and the table stays a table on it."""
+    from stratamap.core.map.sensors import SensorStream
+    from tests.plugins.segmenters.test_layout_planes import bent_floor_room
+
+    points, names = bent_floor_room(0.02)
+    classes = {}
+    for hint in (False, True):
+        data = PipelineData()
+        data.map.geometry = Geometry(points=points, voxel_size=0.02)
+        data.stream = SensorStream("frame", metadata={"gravity_alignment": {"floor_inliers": 5000}} if hint else {})
+        sem = ClustersSegmenter(recognize=True).run(data)["semantics"]
+        classes[hint] = sem.class_ids
+    near = (names == "floor") & (points[:, 1] < 3.0)
+    assert (classes[True][near] == VOCAB.id("floor")).mean() > 0.95
+    assert (classes[False][near] == VOCAB.id("floor")).mean() < 0.5
+
+
 def test_without_keep_instances_nothing_changes_by_default():
     """Both options are off by default: clusters alone, as configs/bench/completion.yaml runs it."""
     points, names = kitchen_room(0.03)

@@ -117,6 +117,39 @@ def test_tabletop_scan_has_no_floor_and_one_support():
     assert (points[main.indices, 2] < 0.02).all()
 
 
+def bent_floor_room(spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The synthetic room seen as one real frame sees it: its floor bends down beyond y = 3 m, by 8 cm
+    at the far wall (a single Kinect frame's depth at range)."""
+    points, names = synthetic_room(spacing)
+    points = points.copy()
+    far = (names == "floor") & (points[:, 1] > 3.0)
+    points[far, 2] -= 0.04 * (points[far, 1] - 3.0)
+    return points, names
+
+
+def test_a_floor_bent_at_range_is_the_floor_where_the_source_found_it():
+    points, names = bent_floor_room(0.02)
+    # Alone, the layout takes the bent far part, lowest, for the floor, and the near floor for none.
+    alone = find_layout(points, 0.02)
+    assert alone.floor_height < -0.05
+    layout = find_layout(points, 0.02, floor_hint=0.0)
+    assert abs(layout.floor_height) < 0.02 and layout.walls == 4
+    near = (names == "floor") & (points[:, 1] < 3.0)
+    assert (layout.labels[near] == FLOOR).mean() > 0.95
+    # The support surfaces are the table's, measured from that floor.
+    assert any(0.71 <= s.height <= 0.76 for s in layout.supports)
+
+
+def test_a_floor_hint_makes_no_floor_of_a_tabletop():
+    """The hint relaxes what may lie below a floor, not what makes one: a tabletop scan the source
+    levelled with its table at z = 0 has no floor."""
+    spacing = 0.005
+    top = box_surface((-0.6, -0.4, 0.0), (0.6, 0.4, 0.0), spacing, "z")
+    boxes, _ = solids([("box", (-0.3, -0.1, 0.0), (-0.1, 0.1, 0.15))], spacing)
+    layout = find_layout(np.concatenate([top, boxes[boxes[:, 2] > 0.001]]), 0.015, floor_hint=0.0)
+    assert layout.floor_height is None and (layout.labels == NONE).all()
+
+
 def test_a_lone_wall_with_a_cabinet_in_front_and_no_floor():
     """A partial map: one wall and a tall cabinet standing before it; only the wall is layout (the
     sensor's side tells the room's: the cabinet's front has the wall beyond it)."""
