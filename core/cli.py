@@ -177,7 +177,7 @@ def _print_report(report: dict, out: Path) -> None:
         flat = {k: v for k, v in values.items() if isinstance(v, (int, float))}
         out_console.print(f"[bold]{family}[/]: " + ", ".join(f"{k}={v:.3g}" for k, v in flat.items()))
     for w in report.get("warnings", []):
-        out_console.print(f"[yellow]warning:[/] {w}", highlight=False)
+        out_console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
     written = sorted(p for p in out.iterdir() if not p.name.startswith(".")) if out.is_dir() else []
     exported = [o for st in report["stages"] if st["kind"] == "exporters" for o in st["outputs"]]
     out_console.print(f"[green]wrote[/] {out}/: " + ", ".join(p.name + ("/" if p.is_dir() else "") for p in written))

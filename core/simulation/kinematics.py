@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stratamap.core.geometry.hulls import convex_hull
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
@@ -116,21 +117,26 @@ def link_name(inst: ObjectInstance) -> str:
 
 def inertial_of(mesh: trimesh.Trimesh, density: float) -> Inertial:
     """Mass from volume x density and the inertia tensor of the solid (convex hull if not watertight)."""
-    solid = mesh if mesh.is_volume else mesh.convex_hull
-    volume = max(float(solid.volume), 1e-9)
+    # A flat mesh has no volume, and trimesh divides by it: the flat case is handled below.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        solid = mesh if mesh.is_volume else mesh.convex_hull
+        raw_volume = float(solid.volume)
+        moment = np.asarray(solid.moment_inertia, dtype=float)
+        center_mass = np.asarray(solid.center_mass, dtype=float)
+    volume = max(raw_volume, 1e-9)
     mass = max(volume * density, 1e-3)
-    if float(solid.volume) <= 1e-9:  # flat: the box guard below gives it an inertia
+    if raw_volume <= 1e-9:  # flat: the box guard below gives it an inertia
         inertia = np.zeros((3, 3))
         center = np.asarray(mesh.bounds.mean(axis=0), dtype=float)
         ext = np.maximum(np.asarray(mesh.extents, dtype=float), 1e-3)
         return Inertial(mass, center, np.diag(mass / 12.0 * (ext[[1, 0, 0]] ** 2 + ext[[2, 2, 1]] ** 2)))
-    inertia = np.asarray(solid.moment_inertia, dtype=float) / max(float(solid.volume), 1e-12) * volume * density
+    inertia = moment / max(raw_volume, 1e-12) * volume * density
     # Guard against degenerate hulls: keep the tensor positive definite and physically valid.
     evals = np.linalg.eigvalsh(inertia)
     if not np.all(np.isfinite(inertia)) or evals.min() <= 1e-9:
         ext = np.maximum(solid.extents, 1e-3)
         inertia = np.diag(mass / 12.0 * (ext[[1, 0, 0]] ** 2 + ext[[2, 2, 1]] ** 2))
-    return Inertial(mass, np.asarray(solid.center_mass, dtype=float), inertia)
+    return Inertial(mass, center_mass, inertia)
 
 
 def helper_inertial() -> Inertial:
@@ -215,7 +221,7 @@ def _observed_parts(points: np.ndarray, band: float, voxel: float) -> list:
             if len(piece) < 4:
                 continue
             try:
-                hull = trimesh.convex.convex_hull(piece)
+                hull = convex_hull(piece)
                 if hull.volume > 1e-7:
                     parts.append(hull)
             except Exception:  # a flat or tiny piece: left out (its neighbours cover it)
@@ -237,7 +243,7 @@ def object_mesh(inst: ObjectInstance) -> tuple[trimesh.Trimesh, np.ndarray]:
     local = (inst.points - pose[:3, 3]) @ pose[:3, :3]
     try:
         parts = observed_parts(local) if len(local) >= 8 else []
-        mesh = trimesh.util.concatenate(parts) if parts else trimesh.convex.convex_hull(local)
+        mesh = trimesh.util.concatenate(parts) if parts else convex_hull(local)
         if mesh.volume <= 1e-9:
             raise ValueError("flat hull")
     except Exception:

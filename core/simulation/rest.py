@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stratamap.core.geometry.hulls import convex_hull
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstances
 from stratamap.core.simulation.physics import (
@@ -231,12 +232,12 @@ def _carved_parts(inst, mine: list[Shell], others: list[tuple[np.ndarray, bool]]
             if not cut_now:
                 break
         if not cut_any:
-            hulls.append(trimesh.convex.convex_hull(shell.vertices))
+            hulls.append(convex_hull(shell.vertices))
             continue
         changed = True
         for piece in pieces:
             try:
-                hulls.append(trimesh.convex.convex_hull(piece))
+                hulls.append(convex_hull(piece))
             except Exception:  # a flat or tiny piece: its neighbours cover it
                 continue
     return collision_parts(trimesh.util.concatenate(hulls)) if changed and hulls else None
@@ -261,7 +262,7 @@ def _based_parts(mine: list[Shell], below: list[Shell]) -> list:
             floor = vertices.copy()
             floor[:, 2] = base
             vertices = np.concatenate([np.c_[vertices[:, :2], np.maximum(vertices[:, 2], base)], floor])
-        hulls.append(trimesh.convex.convex_hull(vertices))
+        hulls.append(convex_hull(vertices))
     return collision_parts(trimesh.util.concatenate(hulls))
 
 

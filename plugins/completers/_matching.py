@@ -363,19 +363,24 @@ class MatchingCompleter(Completer[MatcherConfigT]):
         for problem in index.problems:
             self.warn(f"library: {problem}")
         todo = []
+        # One warning per reason and class, naming the objects: a map of many unnamed objects would
+        # otherwise print a line for each.
+        no_models: dict[str, list[int]] = {}
+        too_few: dict[str, list[int]] = {}
         for inst in insts:
             if cfg.classes is not None and inst.class_name not in cfg.classes:
                 continue
             if not index.candidates(inst.class_name):
-                self.warn(f"object {inst.id}: no {inst.class_name!r} models in the library; left uncompleted")
+                no_models.setdefault(inst.class_name, []).append(inst.id)
                 continue
             if len(inst.points) < cfg.min_points:
-                self.warn(
-                    f"object {inst.id} ({inst.class_name}) has {len(inst.points)} points (< {cfg.min_points}); left "
-                    "uncompleted"
-                )
+                too_few.setdefault(inst.class_name, []).append(inst.id)
                 continue
             todo.append(inst)
+        for name, ids in no_models.items():
+            self.warn(f"{_objects(ids)}: no {name!r} models in the library; left uncompleted")
+        for name, ids in too_few.items():
+            self.warn(f"{_objects(ids)} ({name}): fewer than {cfg.min_points} points; left uncompleted")
         return todo
 
     def map_objects(
@@ -517,3 +522,8 @@ class MatchingCompleter(Completer[MatcherConfigT]):
         inst.completion = None
         inst.attributes["completion_rejected"] = reason
         self.warn(f"object {inst.id} ({inst.class_name}): completion rejected, kept as observed: {reason}")
+
+
+def _objects(ids: list[int]) -> str:
+    """``object 3`` or ``objects 1, 2, 5``."""
+    return f"object {ids[0]}" if len(ids) == 1 else "objects " + ", ".join(map(str, ids))

@@ -46,7 +46,8 @@ def rgbd_frame_to_model(
     pose = np.eye(4)
     poses = []
     scale = 1000.0
-    with open3d_threads(1):  # deterministic: see the module's docstring
+    # Open3D's SLAM model warns that the first raycast frame has no colour yet: nothing the user can act on.
+    with open3d_threads(1), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         for i, frame in enumerate(frames):
             depth = np.clip(np.round(np.nan_to_num(frame.depth) * scale), 0, 65535).astype(np.uint16)
             if not np.any(depth):

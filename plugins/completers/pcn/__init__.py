@@ -25,6 +25,7 @@ from pydantic import Field
 
 from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import ConfigError, DataError
+from stratamap.core.geometry.hulls import convex_hull
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.augmented import augmented_scene
@@ -172,7 +173,7 @@ def mesh_points(points: np.ndarray, mesher: str, poisson_depth: int) -> trimesh.
         mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pcd, radii)
     out = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles), process=True)
     if len(out.faces) < 20:
-        out = trimesh.convex.convex_hull(points)
+        out = convex_hull(points)
     return out
 
 
