@@ -69,9 +69,47 @@ def read_rgb(path: Path, shape: tuple[int, int] | None = None, resample: bool = 
     return img
 
 
-def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Metric float32 depth from a 16-bit PNG (units per metre = ``depth_scale``) or a float image
-    already in metres; NaN, inf and negative values become 0 (no measurement)."""
+#: How a 16-bit depth image stores depth: ``linear`` (units per metre: TUM, Redwood, ScanNet),
+#: ``kinect_disparity`` (a Kinect v1's raw 11-bit disparity, as NYU Depth V2's raw dumps hold it) or
+#: ``sun_rgbd`` (millimetres rotated by 3 bits, as SUN RGB-D stores them).
+DEPTH_ENCODINGS = ("linear", "kinect_disparity", "sun_rgbd")
+
+#: No measurement in a Kinect v1's 11-bit disparity.
+KINECT_NO_DISPARITY = 2047
+
+
+def kinect_disparity_to_metres(raw: np.ndarray) -> np.ndarray:
+    """Metres from a Kinect v1's raw disparity, by the NYU Depth V2 toolbox's fit 351.3 / (1092.5 - d).
+    The raw dumps store the samples little-endian though PGM is big-endian: a value over 2047, which
+    11 bits cannot hold, means the bytes are swapped."""
+    raw = np.asarray(raw).astype(np.uint16)
+    if raw.size and int(raw.max()) > KINECT_NO_DISPARITY:
+        raw = raw.byteswap()
+        if int(raw.max()) > KINECT_NO_DISPARITY:
+            raise ValueError(f"values over {KINECT_NO_DISPARITY} in either byte order: not 11-bit disparity")
+    d = raw.astype(np.float64)
+    with np.errstate(divide="ignore"):
+        depth = 351.3 / (1092.5 - d)
+    depth[(raw >= KINECT_NO_DISPARITY) | (depth <= 0) | (depth > 10.0)] = 0.0
+    return depth.astype(np.float32)
+
+
+def sun_rgbd_to_metres(raw: np.ndarray) -> np.ndarray:
+    """Metres from SUN RGB-D's depth PNGs: millimetres whose 16 bits are rotated left by 3 (its
+    toolbox's ``bitor(bitshift(d, -3), bitshift(d, 13))``)."""
+    raw = np.asarray(raw).astype(np.uint16)
+    mm = (raw >> np.uint16(3)) | (raw << np.uint16(13))
+    return mm.astype(np.float32) / np.float32(1000.0)
+
+
+def read_depth(
+    path: Path, depth_scale: float, shape: tuple[int, int] | None = None, encoding: str = "linear"
+) -> np.ndarray:
+    """Metric float32 depth from a 16-bit image (``encoding``: see DEPTH_ENCODINGS; ``linear``: units per
+    metre = ``depth_scale``) or a float image already in metres; NaN, inf and negative values become 0
+    (no measurement)."""
+    if encoding not in DEPTH_ENCODINGS:
+        raise DataError(f"{path}: unknown depth encoding {encoding!r}; expected one of {', '.join(DEPTH_ENCODINGS)}")
     img = read_image(path)
     if img.ndim != 2:
         raise DataError(f"{path}: depth must be single-channel, got shape {img.shape} (is this a color image?)")
@@ -79,7 +117,15 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
         raise DataError(f"{path}: depth is 8-bit; expected 16-bit integers ({depth_scale:g} per metre) or float metres")
     if img.dtype.kind not in "iuf":
         raise DataError(f"{path}: depth of type {img.dtype}; expected 16-bit integers or float metres")
-    if np.issubdtype(img.dtype, np.integer):
+    if encoding != "linear":
+        if not np.issubdtype(img.dtype, np.integer) or img.min() < 0 or img.max() > 65535:
+            raise DataError(f"{path}: depth encoding {encoding!r} needs a 16-bit integer image, got {img.dtype}")
+        convert = kinect_disparity_to_metres if encoding == "kinect_disparity" else sun_rgbd_to_metres
+        try:
+            depth = convert(img)
+        except ValueError as exc:
+            raise DataError(f"{path}: depth encoding {encoding!r} does not fit this image ({exc})") from None
+    elif np.issubdtype(img.dtype, np.integer):
         depth = img.astype(np.float32) / np.float32(depth_scale)
     else:
         depth = img.astype(np.float32)
@@ -98,12 +144,20 @@ def read_depth(path: Path, depth_scale: float, shape: tuple[int, int] | None = N
     return depth
 
 
-def check_depth_scale(depth: np.ndarray, path: Path, depth_scale: float, max_plausible: float = 20.0) -> None:
-    """Catch a wrong depth scale early: indoor depth in metres has a median between ~0.2 and 20 m."""
+def check_depth_scale(
+    depth: np.ndarray, path: Path, depth_scale: float, max_plausible: float = 20.0, encoding: str = "linear"
+) -> None:
+    """Catch a wrong depth scale (or encoding) early: indoor depth in metres has a median between ~0.2
+    and 20 m."""
     valid = depth[depth > 0]
     if valid.size == 0:
         return
     med = float(np.median(valid))
+    if encoding != "linear" and (med > max_plausible or med < 0.05):
+        raise DataError(
+            f"{path}: median depth is {med:.3g} m with depth_encoding {encoding}; this looks like the wrong encoding "
+            f"(one of {', '.join(DEPTH_ENCODINGS)})"
+        )
     if med > max_plausible or med < 0.05:
         raise DataError(
             f"{path}: median depth is {med:.3g} m with depth_scale {depth_scale:g}; this looks like the wrong depth "

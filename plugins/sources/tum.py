@@ -10,6 +10,7 @@ A ``gt/`` folder written by ``stratamap synth`` is loaded as ground truth (label
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -39,6 +40,14 @@ TUM_DEFAULT = {"width": 640, "height": 480, "fx": 517.3, "fy": 516.5, "cx": 318.
 class TUMConfig(SequenceConfig):
     depth_scale: float | None = Field(
         default=None, gt=0, description="Depth units per metre; default: camera.json, else 5000 (TUM)."
+    )
+    depth_encoding: Literal["linear", "kinect_disparity", "sun_rgbd"] = Field(
+        default="linear",
+        description=(
+            "How the depth images store depth: linear (depth_scale units per metre), kinect_disparity (a Kinect v1's "
+            "raw disparity, as NYU Depth V2's raw dumps), sun_rgbd (SUN RGB-D's bit-rotated millimetres); the last "
+            "two ignore depth_scale."
+        ),
     )
     intrinsics: dict[str, float] | None = Field(
         default=None, description="width, height, fx, fy, cx, cy when there is no camera.json."
@@ -127,11 +136,12 @@ class TUMSource(SequenceSource[TUMConfig]):
         shape = (intr.height, intr.width)
 
         def read(k: int):
-            depth = read_depth(depth_files[k], scale, shape)
+            depth = read_depth(depth_files[k], scale, shape, cfg.depth_encoding)
             rgb = read_rgb(rgb_files[k], shape)
             return rgb, depth
 
-        check_depth_scale(read_depth(depth_files[0], scale, shape), depth_files[0], scale)
+        first = read_depth(depth_files[0], scale, shape, cfg.depth_encoding)
+        check_depth_scale(first, depth_files[0], scale, encoding=cfg.depth_encoding)
         poses: list = [None] * len(times)
         gt_file = root / "groundtruth.txt"
         if gt_file.is_file():
@@ -145,7 +155,12 @@ class TUMSource(SequenceSource[TUMConfig]):
             name=root.name,
             intrinsics=intr,
             frames=frames,
-            metadata={"path": str(root), "depth_scale": scale, "format": "tum"},
+            metadata={
+                "path": str(root),
+                "depth_scale": scale,
+                "depth_encoding": cfg.depth_encoding,
+                "format": "tum",
+            },
         )
         if (root / "laser.txt").is_file():
             stream.laser_scans = read_laser_file(root / "laser.txt")

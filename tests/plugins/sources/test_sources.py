@@ -128,6 +128,30 @@ def test_nan_and_zero_depth_become_no_measurement(tmp_path):
     np.testing.assert_array_equal(depth, [[0, 0], [0, 1.5]])
 
 
+def test_kinect_disparity_and_sun_rgbd_depth_decode_to_metres(tmp_path):
+    from stratamap.core.io.rgbd import read_depth
+
+    metres = np.array([[0.0, 0.8, 1.5], [2.5, 4.0, 0.0]])
+    # A Kinect v1's raw disparity by the NYU fit (351.3 / (1092.5 - d)), 2047 where nothing was measured.
+    disparity = np.where(metres > 0, np.round(1092.5 - 351.3 / np.maximum(metres, 1e-9)), 2047).astype(np.uint16)
+    expected = np.where(metres > 0, 351.3 / (1092.5 - disparity.astype(float)), 0.0)
+    for order, raw in (("native", disparity), ("swapped", disparity.byteswap())):
+        Image.fromarray(raw).save(tmp_path / f"{order}.png")
+        depth = read_depth(tmp_path / f"{order}.png", 5000, encoding="kinect_disparity")
+        np.testing.assert_allclose(depth, expected, atol=1e-4, err_msg=order)
+        assert np.abs(depth - metres).max() < 0.02  # the disparity's quantisation at 4 m
+    # SUN RGB-D: millimetres rotated left by 3 bits.
+    mm = np.round(metres * 1000).astype(np.uint16)
+    Image.fromarray(((mm << 3) | (mm >> 13)).astype(np.uint16)).save(tmp_path / "sun.png")
+    np.testing.assert_allclose(read_depth(tmp_path / "sun.png", 5000, encoding="sun_rgbd"), mm / 1000.0, atol=1e-6)
+    # A linear image is no disparity in either byte order: a one-line error naming the file.
+    Image.fromarray((metres * 5000).astype(np.uint16)).save(tmp_path / "linear.png")
+    with pytest.raises(DataError, match="linear.png: depth encoding 'kinect_disparity' does not fit"):
+        read_depth(tmp_path / "linear.png", 5000, encoding="kinect_disparity")
+    with pytest.raises(DataError, match="unknown depth encoding"):
+        read_depth(tmp_path / "sun.png", 5000, encoding="mm")
+
+
 @pytest.mark.parametrize("ros_version", [1, 2])
 def test_rosbag_rgbd_round_trip(world, tmp_path, ros_version):
     bag = write_rgbd_bag(
