@@ -752,9 +752,16 @@ def _rests_on_another(
     )
 
 
-def _largest_top(support_of_point: np.ndarray, support_areas: np.ndarray) -> float:
-    """The area (m^2) of the largest support surface among the points' (``support_of_point``: -1 none)."""
+def _largest_top(
+    support_of_point: np.ndarray, support_areas: np.ndarray, support_heights: np.ndarray, foot: float, top: float
+) -> float:
+    """The area (m^2) of the largest support surface among an object's points (``support_of_point``: -1
+    none) that the object holds: not one at its ``foot`` that it rises above by more than THIN, which
+    it stands on (a chair's mask takes the floor between its runners along). A surface at its foot
+    that is also its top (a desk top seen without its legs) it holds."""
     held = support_of_point[support_of_point >= 0]
+    height = support_heights[held]
+    held = held[(height > foot) | (top - height <= THIN)]
     return float(support_areas[held].max()) if len(held) else 0.0
 
 
@@ -1139,7 +1146,14 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 largest_top is not None
                 and support_of_point is not None
                 and support_areas is not None
-                and _largest_top(support_of_point[sel], support_areas) > largest_top
+                and _largest_top(
+                    support_of_point[sel],
+                    support_areas,
+                    support_heights,
+                    float(points[sel, 2].min()) + self._standing_tolerance(voxel),
+                    float(points[sel, 2].max()),
+                )
+                > largest_top
             )
             if (
                 name != "object"

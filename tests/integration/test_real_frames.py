@@ -79,3 +79,20 @@ def test_the_floor_is_floor_and_the_furniture_things(frame_map):
         assert wall.sum() > 0.2 * len(points)
         cabinet = [i for i in data.get("instances") if i.class_name == "cabinet"]
         assert len(cabinet) == 1 and cabinet[0].box.size[2] > 1.4  # the tall filing cabinet
+
+
+def test_the_armchair_of_open3ds_rendered_living_room_is_a_chair():
+    """Open3D's five Redwood-layout frames of a rendered living room (a third-party scene, not a real
+    sensor): a cantilever armchair by a window. The detector boxes it "Chair" (0.64-0.69); its mask
+    also took the floor between the runners, which the layout, seeing 1.2 m^2 of floor, left a support
+    surface. A chair stands on such a surface rather than holding it: it stays a chair."""
+    variant = load_pipeline(
+        REPO / "configs" / "rgbd.yaml",
+        ["source.plugin=redwood", f"source.params.path={shared_data('open3d_rgbd')}"],
+    )
+    stages = [variant.source.instantiate()] + [stage.instantiate() for stage in variant.stages[:3]]
+    data = run_stages(stages)
+    chairs = [inst for inst in data.get("instances") if inst.class_name == "chair"]
+    assert len(chairs) == 1
+    size = chairs[0].box.size
+    assert 0.7 < size[2] < 1.0 and max(size[:2]) < 1.1  # the armchair, 0.87 m high

@@ -452,6 +452,24 @@ def test_a_chair_holding_a_desk_top_is_no_chair():
     assert len(chairs) == 1 and chairs[0].box.center[0] > 3.2
 
 
+def test_a_chair_whose_mask_took_the_floor_below_it_stays_a_chair():
+    """A corner seen in a few frames: 1.2 m^2 of floor and a wall, too little for the layout to call
+    it a floor, so the floor is a support surface. The chair's mask took the floor between its legs
+    (a cantilever chair's runners frame a metre of it). What its foot stands on is no level surface the
+    chair holds: it stays a chair."""
+    from tests.plugins.segmenters.test_layout_planes import box_surface
+
+    floor = box_surface((0.0, 0.0, 0.0), (1.2, 1.0, 0.0), 0.02, "z")
+    wall = box_surface((0.0, 0.0, 0.0), (0.0, 1.0, 1.3), 0.02, "x")
+    objects, names = solids(chair(0.7, 0.5), 0.02)
+    objects, names = objects[objects[:, 2] > 1e-6], names[objects[:, 2] > 1e-6]
+    points = np.concatenate([floor, wall, objects])
+    names = np.concatenate([np.full(len(floor), "floor"), np.full(len(wall), "wall"), names])
+    under = (names == "floor") & (np.abs(points[:, 0] - 0.7) < 0.45) & (np.abs(points[:, 1] - 0.5) < 0.45)
+    out = recognized(points, names, [((names == "chair") | under, "chair")])
+    assert [inst.class_name for inst in out["instances"]] == ["chair"], out["instances"]
+
+
 def test_a_swivel_chairs_seat_joins_the_back_above_it():
     """A swivel chair whose post went unseen, as its seat and backrest apart: the seat (no class of
     its own) under the backrest (voted "chair", off the floor). A chair stands on no other object, so
