@@ -152,7 +152,8 @@ def _thick_box(part: trimesh.Trimesh) -> trimesh.Trimesh:
     """The piece's oriented bounding box, every side at least MIN_PART_THICKNESS."""
     vertices = np.asarray(part.vertices, dtype=float)
     try:
-        transform, extents = trimesh.bounds.oriented_bounds(vertices)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a flat piece's hull has no volume
+            transform, extents = trimesh.bounds.oriented_bounds(vertices)
         frame = np.linalg.inv(transform)
     except Exception:  # a single point or a line: axis-aligned box
         frame = np.eye(4)
