@@ -1420,18 +1420,16 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
     def _voted_name(
         votes: np.ndarray, pts: np.ndarray, stuff_ids: np.ndarray, vocab: Vocabulary, base_z: float, walls: list[Any]
     ) -> str | None:
-        """The class an object's fused votes give it, if any. Thing votes name it. Floor, wall or ceiling
-        votes make it that stuff only where they hold most of its points and it is thin (a floor patch the
-        layout missed); a thick object whose only votes are the floor its foot stands on (a wardrobe in a
-        frame where the detector boxed nothing) is no floor."""
+        """The class an object's fused votes give it, if any. Floor, wall or ceiling votes make it that
+        stuff where they hold most of its points and it is thin (a floor patch the layout missed); else
+        thing votes name it. A thick object whose only votes are the floor its foot stands on (a wardrobe
+        in a frame where the detector boxed nothing) is no floor."""
         stuff = np.zeros(len(votes), bool)
         stuff[stuff_ids[stuff_ids > 0]] = True
-        things = np.where(stuff, 0, votes)
-        if things.sum() > 0:
-            return vocab.name(int(np.argmax(things)))
         if votes[stuff].sum() > 0.5 * len(pts) and _thin(pts, base_z, walls):
             return vocab.name(int(np.argmax(np.where(stuff, votes, 0))))
-        return None
+        things = np.where(stuff, 0, votes)
+        return vocab.name(int(np.argmax(things))) if things.sum() > 0 else None
 
     @staticmethod
     def _vote_table(point_obj: np.ndarray, votes: Semantics, n_obj: int, n_classes: int) -> np.ndarray:
