@@ -137,15 +137,24 @@ def test_robustness_warns_and_leaves_objects_uncompleted(tmp_path):
             ObjectInstance(1, "cabinet", rng.uniform([0.75, 0.75, 0], [1.25, 1.25, 0.8], (400, 3)), box),
             ObjectInstance(2, "cabinet", rng.uniform(0, 1, (5, 3)), box),  # too few points
             ObjectInstance(3, "sofa", rng.uniform(0, 1, (400, 3)), box),  # no sofa in the library
+            ObjectInstance(4, "sofa", rng.uniform(0, 1, (400, 3)), box),
+            ObjectInstance(5, "object", rng.uniform(0, 1, (400, 3)), box),  # no class: no models by design
+            ObjectInstance(6, "object", rng.uniform(0, 1, (400, 3)), box),
         ]
     )
     data = PipelineData()
     data.map.instances = insts
-    out = ICPMatchCompleter(library=str(tmp_path), reject_distance=None).run(data)
+    out = ICPMatchCompleter(library=str(tmp_path), reject_distance=None, recognize=[]).run(data)
     assert out["instances"][1].completion is not None
-    assert out["instances"][2].completion is None and out["instances"][3].completion is None
+    assert all(out["instances"][i].completion is None for i in (2, 3, 4, 5, 6))
     text = "\n".join(data.warnings)
-    assert "broken.obj" in text and "object 2" in text and "'sofa'" in text
+    assert "broken.obj" in text and "object 2" in text
+    # One warning per class, naming its objects; the unnamed ones are a note, not a warning.
+    assert [w for w in data.warnings if "'sofa'" in w] == [
+        "completers.icp_match: objects 3, 4: no 'sofa' models in the library; left uncompleted"
+    ]
+    assert "'object'" not in text
+    assert data.notes["icp_match"]["unnamed_left_uncompleted"] == [5, 6]
 
 
 def test_index_cache_round_trip(tmp_path):
