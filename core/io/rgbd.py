@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
@@ -72,7 +72,8 @@ def read_rgb(path: Path, shape: tuple[int, int] | None = None, resample: bool = 
 #: How a 16-bit depth image stores depth: ``linear`` (units per metre: TUM, Redwood, ScanNet),
 #: ``kinect_disparity`` (a Kinect v1's raw 11-bit disparity, as NYU Depth V2's raw dumps hold it) or
 #: ``sun_rgbd`` (millimetres rotated by 3 bits, as SUN RGB-D stores them).
-DEPTH_ENCODINGS = ("linear", "kinect_disparity", "sun_rgbd")
+DepthEncoding = Literal["linear", "kinect_disparity", "sun_rgbd"]
+DEPTH_ENCODINGS: tuple[str, ...] = get_args(DepthEncoding)
 
 #: No measurement in a Kinect v1's 11-bit disparity.
 KINECT_NO_DISPARITY = 2047
@@ -153,12 +154,12 @@ def check_depth_scale(
     if valid.size == 0:
         return
     med = float(np.median(valid))
-    if encoding != "linear" and (med > max_plausible or med < 0.05):
-        raise DataError(
-            f"{path}: median depth is {med:.3g} m with depth_encoding {encoding}; this looks like the wrong encoding "
-            f"(one of {', '.join(DEPTH_ENCODINGS)})"
-        )
-    if med > max_plausible or med < 0.05:
+    if not 0.05 <= med <= max_plausible:
+        if encoding != "linear":
+            raise DataError(
+                f"{path}: median depth is {med:.3g} m with depth_encoding {encoding}; this looks like the wrong "
+                f"encoding (one of {', '.join(DEPTH_ENCODINGS)})"
+            )
         raise DataError(
             f"{path}: median depth is {med:.3g} m with depth_scale {depth_scale:g}; this looks like the wrong depth "
             "scale "

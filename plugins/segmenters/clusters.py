@@ -1150,8 +1150,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     support_of_point[sel],
                     support_areas,
                     support_heights,
-                    float(points[sel, 2].min()) + self._standing_tolerance(voxel),
-                    float(points[sel, 2].max()),
+                    base_z + shape.bottom + self._standing_tolerance(voxel),
+                    base_z + shape.bottom + shape.height,
                 )
                 > largest_top
             )

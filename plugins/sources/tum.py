@@ -10,7 +10,6 @@ A ``gt/`` folder written by ``stratamap synth`` is loaded as ground truth (label
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -19,6 +18,7 @@ from stratamap.core import hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.io.groundtruth import load_ground_truth
 from stratamap.core.io.rgbd import (
+    DepthEncoding,
     associate,
     check_depth_scale,
     interpolate_poses,
@@ -41,7 +41,7 @@ class TUMConfig(SequenceConfig):
     depth_scale: float | None = Field(
         default=None, gt=0, description="Depth units per metre; default: camera.json, else 5000 (TUM)."
     )
-    depth_encoding: Literal["linear", "kinect_disparity", "sun_rgbd"] = Field(
+    depth_encoding: DepthEncoding = Field(
         default="linear",
         description=(
             "How the depth images store depth: linear (depth_scale units per metre), kinect_disparity (a Kinect v1's "
