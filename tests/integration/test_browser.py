@@ -178,19 +178,22 @@ def _pixels(png: bytes) -> np.ndarray:
     return pixels[int(0.25 * height) : int(0.95 * height), int(0.25 * width) : int(0.72 * width)]
 
 
-def _settled(page, timeout: float = 30.0, since: np.ndarray | None = None) -> np.ndarray:
-    """The canvas once two screenshots half a second apart agree (the scene has arrived and been drawn);
-    with ``since``, once it has first changed from that picture (a slider's update goes to the viewer's
-    server and back, later on a busy machine; until then the old picture is steady too)."""
+def _settled(page, timeout: float = 30.0, since: np.ndarray | None = None, steady: int = 2) -> np.ndarray:
+    """The canvas once ``steady`` + 1 screenshots half a second apart agree (the scene has arrived and
+    been drawn; on a busy machine an update can pause half-way for half a second); with ``since``, once
+    it has first changed from that picture (a slider's update goes to the viewer's server and back,
+    later on a busy machine; until then the old picture is steady too)."""
     deadline = time.monotonic() + timeout
     previous = _pixels(_canvas_png(page))
     while since is not None and np.array_equal(previous, since) and time.monotonic() < deadline:
         time.sleep(0.25)
         previous = _pixels(_canvas_png(page))
+    agreed = 0
     while time.monotonic() < deadline:
         time.sleep(0.5)
         current = _pixels(_canvas_png(page))
-        if np.array_equal(current, previous):
+        agreed = agreed + 1 if np.array_equal(current, previous) else 0
+        if agreed >= steady:
             return current
         previous = current
     return previous
