@@ -4,6 +4,12 @@ Invalid points (NaN or inf coordinates) are dropped. Per-point labels become gro
 ``label_scheme: raw`` keeps each label as an instance of class ``object`` (0 = unlabelled);
 ``label_scheme: mosd`` reads the Object Segmentation Database convention (0 invalid, 1-9 parts
 of the supporting table, 10k..10k+9 parts of object k-1: label // 10 is the object).
+
+Which way is up (``up_axis``) cannot always be read from the geometry: a room's floor, ceiling and
+walls all bound it, and any of them may hold the most points. ``auto`` follows the conventions (an
+organized cloud is a camera's, y down; any other is z up, else y down) and, on an unorganized cloud,
+looks along the other conventions too: a larger plane there, or a plane opposite the floor half its
+size, is a warning that names the ``up_axis`` to set (``rival_floors``, ``up_doubt``).
 """
 
 from __future__ import annotations
@@ -40,7 +46,9 @@ class PointCloudConfig(StageConfig):
         description=(
             "Up direction of the input: -y for a cloud in a camera's optical frame (Kinect and stereo scans), z for "
             "a scan or map in a z-up frame; auto: -y for an organized cloud (a PCD with one point per pixel of an "
-            "image, so in its camera's frame), else z, then -y if no floor is found along z."
+            "image, so in its camera's frame), else z, then -y if no floor is found along z; on such a cloud a plane "
+            "along z, y or -y larger than the floor taken, or one opposite it half its size or more, is a warning: "
+            "which of a room's bounding planes is its floor is then a guess (y: glTF and phone scans)."
         ),
     )
     gravity: Literal["auto", "off"] = Field(
@@ -84,6 +92,48 @@ def up_settings(up_axis: str, tolerance: float | None, organized: bool) -> list[
     tolerance defaults to 60 in a camera's frame (-y or y) and to 35 for a z-up input."""
     axes = [up_axis] if up_axis != "auto" else ["-y"] if organized else ["z", "-y"]
     return [(axis, tolerance if tolerance is not None else (60.0 if axis in ("-y", "y") else 35.0)) for axis in axes]
+
+
+#: The up axes of the common conventions of unorganized clouds: z (ROS, PCL, LAS, Blender), y (glTF,
+#: phone scanners such as ARKit-based apps), -y (a camera's optical frame).
+CONVENTIONS = ("z", "y", "-y")
+
+
+def rival_floors(stream: Any, chosen: str) -> dict[str, int]:
+    """For ``up_axis: auto`` on an unorganized cloud: the points of the floor each other convention's
+    up axis finds (0: none), to tell whether the chosen one was a guess."""
+    rivals = {}
+    for axis in CONVENTIONS:
+        if axis == chosen:
+            continue
+        try:
+            tolerance = up_settings(axis, None, organized=False)[0][1]
+            rivals[axis] = estimate_alignment(stream, np.array(UP_AXES[axis]), max_angle_deg=tolerance).floor_inliers
+        except DataError:
+            rivals[axis] = 0
+    return rivals
+
+
+def up_doubt(chosen: str, inliers: int, rivals: dict[str, int]) -> str | None:
+    """Why the floor ``up_axis: auto`` chose may be a wall or the ceiling, or None. Geometry alone cannot
+    tell them apart: a room's floor, ceiling and walls all bound it, and any of them may be the largest.
+    A plane along another axis larger than the floor found, or the plane opposite the floor half its
+    size or more (a floor and a ceiling), leaves the choice a guess the user must confirm."""
+    opposite = chosen[1:] if chosen.startswith("-") else f"-{chosen}"
+    larger = [axis for axis, count in rivals.items() if count > inliers]
+    if larger:
+        axis = max(larger, key=lambda a: rivals[a])
+        return (
+            f"up_axis auto took {chosen} (a floor of {inliers} sampled points), but a plane along {axis} holds "
+            f"{rivals[axis]}: if the map lies on its side or upside down, set up_axis {axis} (y for glTF and "
+            "phone scans, z for ROS and PCL, -y for a camera's frame)"
+        )
+    if rivals.get(opposite, 0) >= 0.5 * inliers:
+        return (
+            f"up_axis auto took {chosen}, but the plane opposite the floor ({rivals[opposite]} sampled points "
+            f"against its {inliers}) may be the floor instead: if the map is upside down, set up_axis {opposite}"
+        )
+    return None
 
 
 def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labels: np.ndarray | None) -> None:
@@ -165,7 +215,14 @@ class PointCloudSource(Source[PointCloudConfig]):
                 except DataError:
                     if k == len(tries) - 1:
                         raise
-            self.note("gravity_alignment", {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()})
+            report = {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()}
+            if cfg.up_axis == "auto" and cloud.image_size is None:
+                rivals = rival_floors(stream, up_axis)
+                report["other_axes"] = rivals
+                doubt = up_doubt(up_axis, alignment.floor_inliers, rivals)
+                if doubt:
+                    self.warn(f"{path}: {doubt}")
+            self.note("gravity_alignment", report)
             if alignment.realigned:
                 transform_stream(stream, alignment.transform)
                 self.warn(

@@ -293,6 +293,65 @@ def test_an_organized_cloud_is_read_in_its_cameras_frame_by_default(tmp_path):
         PointCloudSource(path=str(flat), up_axis="z").run(PipelineData())
 
 
+def cloud_file(folder: Path, name: str, points: np.ndarray) -> Path:
+    import open3d as o3d
+
+    path = folder / name
+    o3d.io.write_point_cloud(str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)))
+    return path
+
+
+def _box_room(rng: np.random.Generator) -> np.ndarray:
+    """A 5 x 4 x 2.6 m room, z up: its floor, four walls and 60 % of its ceiling (scans miss some of it)."""
+    floor = _plane_points((0, 0, 0), (1, 0, 0), (0, 1, 0), 5.0, 4.0, 0.05, rng)
+    ceiling = _plane_points((0, 0, 2.6), (1, 0, 0), (0, 1, 0), 3.0, 4.0, 0.05, rng)
+    walls = [
+        _plane_points((0, 0, 0), (1, 0, 0), (0, 0, 1), 5.0, 2.6, 0.05, rng),
+        _plane_points((0, 4, 0), (1, 0, 0), (0, 0, 1), 5.0, 2.6, 0.05, rng),
+        _plane_points((0, 0, 0), (0, 1, 0), (0, 0, 1), 4.0, 2.6, 0.05, rng),
+        _plane_points((5, 0, 0), (0, 1, 0), (0, 0, 1), 4.0, 2.6, 0.05, rng),
+    ]
+    return np.vstack([floor, ceiling, *walls])
+
+
+def test_a_room_stored_y_up_is_flagged_by_auto_and_read_with_its_up_axis(tmp_path):
+    """A room scan stored y up (glTF's and phone scanners' convention), read with ``up_axis: auto``: the
+    z-up guess finds a wall for the floor (a bounding plane, all points on one side of it), and a
+    plane along y larger than that "floor" makes it a warning naming the file and ``up_axis y``. With
+    ``up_axis: y`` the floor is z = 0 and nothing is flagged; the same room stored z up is not flagged."""
+    room = _box_room(np.random.default_rng(5))
+    y_up = cloud_file(tmp_path, "phone.ply", np.c_[room[:, 0], room[:, 2], -room[:, 1]])
+    data = PipelineData()
+    PointCloudSource(path=str(y_up)).run(data)
+    flagged = [w for w in data.warnings if "up_axis auto took" in w]
+    assert len(flagged) == 1 and "phone.ply" in flagged[0] and "set up_axis y" in flagged[0], data.warnings
+    assert data.notes["pointcloud"]["gravity_alignment"]["other_axes"]["y"] > 0
+    data = PipelineData()
+    out = PointCloudSource(path=str(y_up), up_axis="y").run(data)
+    z = out["frames"].points[:, 2]
+    assert abs(np.percentile(z, 1)) < 0.02 and 2.55 < np.percentile(z, 99.5) < 2.65
+    assert not [w for w in data.warnings if "up_axis" in w]
+    data = PipelineData()
+    PointCloudSource(path=str(cloud_file(tmp_path, "lidar.ply", room))).run(data)
+    assert not [w for w in data.warnings if "up_axis" in w], data.warnings
+
+
+def test_a_real_room_scan_stored_y_up_is_flagged(tmp_path):
+    """PCL's real 360-degree room scan turned y up: ``auto`` takes a wall for the floor along z, and says
+    so (the floor along y is 3.5 times its size); z up as scanned, nothing is flagged."""
+    from stratamap.core.io.pointcloud import read_point_cloud
+
+    points = read_point_cloud(shared_data("pcl_scenes", "room_scan1.pcd"), "label").points
+    points = points[np.all(np.isfinite(points), axis=1)]
+    data = PipelineData()
+    PointCloudSource(path=str(cloud_file(tmp_path, "scan.ply", points))).run(data)
+    assert not [w for w in data.warnings if "up_axis" in w], data.warnings
+    turned = np.c_[points[:, 0], points[:, 2], -points[:, 1]]
+    data = PipelineData()
+    PointCloudSource(path=str(cloud_file(tmp_path, "turned.ply", turned))).run(data)
+    assert [w for w in data.warnings if "set up_axis y" in w], data.warnings
+
+
 def test_pointcloud_formats_and_errors(tmp_path):
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(0, 1, (500, 2)), np.zeros(500)]
