@@ -59,3 +59,49 @@ def write_mesh(mesh: Any, path: str | Path, file_type: str | None = None) -> Pat
     with atomic_path(path) as tmp:
         mesh.export(tmp, file_type=file_type or path.suffix.lstrip(".").lower())
     return path
+
+
+#: Files read as meshes by point-cloud readers (a PLY is one when it declares faces).
+MESH_SUFFIXES = (".obj", ".stl", ".off", ".glb", ".gltf")
+
+
+def is_mesh_file(path: str | Path) -> bool:
+    """Whether ``path`` holds a surface mesh rather than points: a mesh format, or a PLY declaring faces."""
+    from stratamap.core.io.pointcloud import parse_ply_header
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return True
+    if suffix != ".ply" or not path.is_file():
+        return False
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    try:
+        face = parse_ply_header(head, path).element("face")
+    except DataError:
+        return False  # the point-cloud reader reports what is wrong with it
+    return face is not None and face.count > 0
+
+
+def sample_surface(
+    mesh: Any, spacing: float, max_points: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """Points on ``mesh``'s surface, one per ``spacing``² of area on average (area-weighted, seeded: the
+    same points every run), with the mesh's colours where it has them (vertex or face colours, or its
+    texture); at most ``max_points``. Returns (points, colours in [0, 1] or None, the spacing used)."""
+    area = float(mesh.area)
+    if not np.isfinite(area) or area <= 0:
+        raise DataError("the mesh has no surface area (all its triangles are degenerate)")
+    count = int(np.ceil(area / spacing**2))
+    used = spacing
+    if count > max_points:
+        count = max_points
+        used = float(np.sqrt(area / count))
+    kind = getattr(mesh.visual, "kind", None)
+    if kind in ("vertex", "face", "texture"):
+        points, faces, colors = trimesh.sample.sample_surface(mesh, count, sample_color=True, seed=seed)
+        if colors is not None and len(colors) == len(points):
+            return np.asarray(points, np.float64), np.asarray(colors, np.float64)[:, :3] / 255.0, used
+    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return np.asarray(points, np.float64), None, used

@@ -266,9 +266,14 @@ def working_voxel(points: np.ndarray, map_voxel: float | None, cfg: ClustersConf
     return float(cfg.spacing_factor * np.median(spacing)) if len(spacing) else 0.01
 
 
+#: Where a map with no sensor is looked at from: this high (m) over its lowest point, over its centre.
+EYE_HEIGHT = 1.5
+
+
 def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
     """Where the map was seen from: the camera positions of posed frames, a static cloud's sensor
-    (``world_transform``), else a point 2 m above the map's centre."""
+    (``world_transform``), EYE_HEIGHT over the centre of a cloud with no sensor (``metadata['sensor']``
+    False: a mesh's surface samples), else a point 2 m above the map's centre."""
     stream = data.stream
     if stream is not None:
         poses = getattr(stream.frames, "poses", None)
@@ -277,9 +282,13 @@ def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
         centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
         if len(centres):
             return centres[:: max(1, len(centres) // 200)]
-        if stream.points is not None:
+        if stream.points is not None and stream.metadata.get("sensor", True):
             transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
             return transform[:3, 3][None]
+        if stream.points is not None:
+            # No sensor (a mesh's surface samples): where someone inside would stand, eye high.
+            centre = (cells.min(axis=0) + cells.max(axis=0)) / 2.0
+            return np.array([[centre[0], centre[1], float(cells[:, 2].min()) + EYE_HEIGHT]])
     return (cells.mean(axis=0) + [0.0, 0.0, 2.0])[None]
 
 

@@ -1,4 +1,6 @@
-"""Source ``pointcloud``: a static point cloud (PLY, PCD, XYZ, NPY) with optional colors and labels.
+"""Source ``pointcloud``: a static point cloud (PLY, PCD, XYZ, NPY) with optional colors and labels, or
+a scanned mesh (OBJ, GLB/glTF, STL, OFF, a PLY with faces) sampled evenly on its surface, with its
+colours (a room mesh's walls may be two triangles each: its vertices are no sampling of it).
 
 Invalid points (NaN or inf coordinates) are dropped. Per-point labels become ground truth:
 ``label_scheme: raw`` keeps each label as an instance of class ``object`` (0 = unlabelled);
@@ -22,6 +24,7 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.io.mesh import is_mesh_file, read_mesh, sample_surface
 from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
@@ -35,7 +38,10 @@ class PointCloudConfig(StageConfig):
     path_fields = ("path",)
 
     path: str = Field(
-        description="A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label)."
+        description=(
+            "A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label), or a scanned "
+            "mesh (.obj, .glb/.gltf, .stl, .off, or a .ply with faces), sampled on its surface."
+        )
     )
     label_field: str = Field(default="label", description="Name of the per-point label attribute (PLY/PCD).")
     label_scheme: Literal["none", "raw", "mosd"] = Field(
@@ -68,6 +74,16 @@ class PointCloudConfig(StageConfig):
         ),
     )
     scale: float = Field(default=1.0, gt=0, description="Multiply coordinates by this (e.g. 0.001 for millimetres).")
+    # A scanned room's mesh has few vertices where it is flat (a wall may be two triangles): its points are
+    # taken on the surface, evenly by area, not at the vertices.
+    mesh_spacing: float = Field(
+        default=0.02, gt=0, description="A mesh is sampled with one point per mesh_spacing^2 of surface, metres."
+    )
+    mesh_max_points: int = Field(
+        default=4_000_000,
+        ge=1000,
+        description="At most this many points from a mesh (a larger surface is sampled more sparsely, with a warning).",
+    )
 
 
 def read_cloud(path: Path, label_field: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -156,7 +172,8 @@ def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labe
 
 
 class PointCloudSource(Source[PointCloudConfig]):
-    """Static point clouds (PLY, PCD, XYZ, NPY) with optional colors and per-point labels as ground truth."""
+    """Static point clouds (PLY, PCD, XYZ, NPY) with optional colors and per-point labels as ground truth, or
+    scanned meshes (OBJ, GLB, STL, OFF, PLY with faces) sampled on their surface."""
 
     name = "pointcloud"
     Config = PointCloudConfig
@@ -174,12 +191,40 @@ class PointCloudSource(Source[PointCloudConfig]):
         np.save(path, arr)
         return {"path": str(path), "label_scheme": "mosd"}
 
+    def _sample_mesh(self, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+        cfg = self.config
+        mesh = read_mesh(path, "scanned mesh")
+        try:  # spacing in the file's units (scale turns them into metres afterwards)
+            pts, colors, used = sample_surface(mesh, cfg.mesh_spacing / cfg.scale, cfg.mesh_max_points)
+        except DataError as err:
+            raise DataError(f"{path}: {err}") from None
+        area, used = float(mesh.area) * cfg.scale**2, used * cfg.scale
+        if used > cfg.mesh_spacing * (1 + 1e-9):
+            self.warn(
+                f"{path}: {area:.1f} m^2 of surface at mesh_spacing {cfg.mesh_spacing:g} m would be over "
+                f"mesh_max_points ({cfg.mesh_max_points}): sampled every {used:.3f} m instead"
+            )
+        self.note("mesh", {"triangles": len(mesh.faces), "area_m2": round(area, 3), "spacing_m": round(used, 4)})
+        return pts, colors
+
     def read(self) -> dict[str, Any]:
         cfg = self.config
         path = Path(cfg.path).expanduser()
-        cloud = read_point_cloud(path, cfg.label_field)
-        pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
-        tries = up_settings(cfg.up_axis, cfg.up_tolerance_deg, cloud.image_size is not None)
+        gltf = path.suffix.lower() in (".glb", ".gltf")
+        mesh = is_mesh_file(path)
+        if mesh:
+            pts, colors = self._sample_mesh(path)
+            labels, organized = None, False
+        else:
+            cloud = read_point_cloud(path, cfg.label_field)
+            pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
+            organized = cloud.image_size is not None
+        # glTF is y up by its specification: turned z up as read, no guess (an up_axis given is the file's).
+        from_gltf = gltf and cfg.up_axis == "auto"
+        if from_gltf:
+            pts = np.c_[pts[:, 0], -pts[:, 2], pts[:, 1]]
+        wanted = "z" if from_gltf else cfg.up_axis
+        tries = up_settings(wanted, cfg.up_tolerance_deg, organized)
         valid = np.all(np.isfinite(pts), axis=1)
         dropped = int((~valid).sum())
         if not valid.any():
@@ -190,9 +235,10 @@ class PointCloudSource(Source[PointCloudConfig]):
         labels = None if labels is None else labels[valid].astype(np.int64)
         if not np.all(np.isfinite(pts)):
             raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
-        stream = SensorStream(
-            name=path.stem, points=pts, point_colors=colors, metadata={"path": str(path), "dropped_invalid": dropped}
-        )
+        metadata = {"path": str(path), "dropped_invalid": dropped}
+        if mesh:
+            metadata["sensor"] = False  # its origin is where the modeller put it, no scanner's position
+        stream = SensorStream(name=path.stem, points=pts, point_colors=colors, metadata=metadata)
         self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
         out: dict[str, Any] = {"frames": stream}
         if labels is not None and cfg.label_scheme != "none":
@@ -216,7 +262,9 @@ class PointCloudSource(Source[PointCloudConfig]):
                     if k == len(tries) - 1:
                         raise
             report = {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()}
-            if cfg.up_axis == "auto" and cloud.image_size is None:
+            if from_gltf:
+                report["converted_from"] = "glTF y up"
+            elif wanted == "auto" and not organized:
                 rivals = rival_floors(stream, up_axis)
                 report["other_axes"] = rivals
                 doubt = up_doubt(up_axis, alignment.floor_inliers, rivals)

@@ -9,7 +9,7 @@ import numpy as np
 from stratamap.core.config import load_pipeline
 from stratamap.core.map.layers import LayeredMap
 from stratamap.core.pipeline import Pipeline
-from tests.conftest import REPO, shared_data
+from tests.conftest import REPO, low_poly_room, shared_data
 
 
 def test_a_real_room_scan_through_configs_scan_yaml(tmp_path):
@@ -28,3 +28,25 @@ def test_a_real_room_scan_through_configs_scan_yaml(tmp_path):
         assert max(inst.box.size[:2]) < 3.0 and inst.box.size[2] < 2.5, (inst.class_name, inst.box.size)
     for name in ("scene.urdf", "scene.glb", "map.yaml", "map.pgm", "scene_graph.json"):
         assert (out / "export" / name).is_file(), name
+
+
+def test_a_low_poly_room_mesh_through_configs_scan_yaml(tmp_path):
+    """A room mesh whose floor, walls and ceiling are two triangles each (72 vertices), stored as glTF
+    (y up): sampled on its surface, its floor is floor at z = 0, its four walls are found, and its
+    table is one table of its size; the scene is exported."""
+    import trimesh
+
+    mesh = low_poly_room()
+    mesh.apply_transform([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+    path = tmp_path / "room.glb"
+    trimesh.Scene([mesh]).export(path)
+    out = tmp_path / "room"
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    notes = report["notes"]["clusters"]["segments"]
+    assert notes["walls"] == 4 and abs(notes["floor_height"]) < 0.01, notes
+    m = LayeredMap.load(out / "map")
+    z = m.geometry.points[:, 2]
+    assert (m.semantics.class_ids[np.abs(z) < 0.02] == m.semantics.vocabulary.id("floor")).mean() > 0.95
+    tables = [inst for inst in m.instances if inst.class_name == "table"]
+    assert len(tables) == 1 and np.allclose(sorted(tables[0].box.size), [0.72, 0.8, 1.2], atol=0.05)
+    assert (out / "export" / "scene.urdf").is_file()

@@ -544,3 +544,26 @@ def test_a_cloud_with_no_floor_either_way_names_both_axes_looked_along(tmp_path)
     with pytest.raises(DataError, match=r"wall: no floor plane found .*looked along up_axis z then -y") as err:
         PointCloudSource(path=str(path)).run(PipelineData())
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "name,content,message",
+    [
+        ("scan.glb", b"not a glTF file", r"scan\.glb: cannot be read as a scanned mesh \("),
+        ("points.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", r"points\.obj: no triangles"),
+        ("flat.obj", b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", r"flat\.obj: the mesh has no surface area"),
+        (
+            "faces.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
+            r"faces\.ply: a face uses vertex index 7, but there are 3 vertices",
+        ),
+    ],
+)
+def test_a_broken_scanned_mesh_is_a_one_line_error_naming_it(tmp_path, name, content, message):
+    """A mesh that cannot be read, holds no triangles, has no surface or indexes missing vertices."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(DataError, match=message) as err:
+        PointCloudSource(path=str(path)).run(PipelineData())
+    assert "\n" not in str(err.value)

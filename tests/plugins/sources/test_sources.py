@@ -19,7 +19,7 @@ from stratamap.plugins.sources.redwood import RedwoodSource
 from stratamap.plugins.sources.rosbag import RosbagSource
 from stratamap.plugins.sources.scannet import ScanNetSource
 from stratamap.plugins.sources.tum import TUMSource
-from tests.conftest import shared_data
+from tests.conftest import low_poly_room, shared_data
 
 SMALL = {"type": "room", "seed": 2, "camera": {"width": 96, "height": 72}, "trajectory": {"type": "orbit", "frames": 5}}
 
@@ -350,6 +350,58 @@ def test_a_real_room_scan_stored_y_up_is_flagged(tmp_path):
     data = PipelineData()
     PointCloudSource(path=str(cloud_file(tmp_path, "turned.ply", turned))).run(data)
     assert [w for w in data.warnings if "set up_axis y" in w], data.warnings
+
+
+def test_a_scanned_room_mesh_is_read_as_points_on_its_surface(tmp_path):
+    """A mesh (a PLY with faces, an OBJ) is sampled evenly on its surface, one point per mesh_spacing^2,
+    with its colours, the same points on every read; its 72 vertices alone could not show its floor."""
+    mesh = low_poly_room()
+    path = tmp_path / "room.ply"
+    mesh.export(path)
+    data = PipelineData()
+    out = PointCloudSource(path=str(path)).run(data)
+    points = out["frames"].points
+    assert len(mesh.vertices) == 72 and abs(len(points) - mesh.area / 0.02**2) <= 1
+    assert data.notes["pointcloud"]["mesh"] == {"triangles": 84, "area_m2": round(mesh.area, 3), "spacing_m": 0.02}
+    assert np.allclose(out["frames"].point_colors, [180 / 255, 160 / 255, 140 / 255], atol=0.01)
+    z = points[:, 2]
+    assert (np.abs(z) < 0.01).mean() > 0.15 and not data.warnings  # the floor at z = 0, z up taken as stored
+    again = PointCloudSource(path=str(path)).run(PipelineData())["frames"].points
+    assert np.array_equal(points, again)
+    mesh.export(tmp_path / "room.obj")
+    from_obj = PointCloudSource(path=str(tmp_path / "room.obj")).run(PipelineData())["frames"].points
+    assert abs(len(from_obj) - len(points)) <= 1 and abs(np.percentile(from_obj[:, 2], 99) - 2.6) < 0.02
+
+
+def test_a_gltf_room_is_turned_z_up_by_its_specification(tmp_path):
+    """glTF is y up by its specification: a GLB room is turned z up as read, levelled without a guess or
+    a warning, and its points are the PLY's; an up_axis given says how the file itself is stored."""
+    import trimesh
+
+    mesh = low_poly_room()
+    mesh.export(tmp_path / "room.ply")
+    stored = mesh.copy()
+    stored.apply_transform([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])  # z up -> glTF's y up
+    trimesh.Scene([stored]).export(tmp_path / "room.glb")
+    data = PipelineData()
+    glb = PointCloudSource(path=str(tmp_path / "room.glb")).run(data)["frames"].points
+    ply = PointCloudSource(path=str(tmp_path / "room.ply")).run(PipelineData())["frames"].points
+    assert np.allclose(glb, ply, atol=1e-4)
+    assert data.notes["pointcloud"]["gravity_alignment"]["converted_from"] == "glTF y up" and not data.warnings
+    data = PipelineData()
+    out = PointCloudSource(path=str(tmp_path / "room.glb"), up_axis="y").run(data)["frames"].points
+    assert np.allclose(out, ply, atol=1e-3)
+
+
+def test_a_mesh_larger_than_its_point_budget_is_sampled_sparser_with_a_warning(tmp_path):
+    mesh = low_poly_room()
+    path = tmp_path / "room.ply"
+    mesh.export(path)
+    data = PipelineData()
+    out = PointCloudSource(path=str(path), mesh_max_points=20000).run(data)
+    assert len(out["frames"].points) == 20000
+    assert any("room.ply" in w and "sampled every 0.069 m" in w for w in data.warnings), data.warnings
+    assert data.notes["pointcloud"]["mesh"]["spacing_m"] == pytest.approx(np.sqrt(mesh.area / 20000), abs=1e-4)
 
 
 def test_pointcloud_formats_and_errors(tmp_path):
