@@ -98,6 +98,7 @@ def test_out_naming_a_file_is_an_error(tmp_path):
     assert target.read_text() == "x"
 
 
+@pytest.mark.slow  # a whole pipeline run (make test runs it; make test-fast does not)
 def test_a_failing_run_leaves_no_folder_and_the_previous_output_intact(tmp_path):
     """A run is staged beside its output folder and swapped in at the end: a source that fails
     creates nothing, and a failed re-run leaves the earlier output exactly as it was."""
@@ -133,6 +134,7 @@ def test_a_failing_run_leaves_no_folder_and_the_previous_output_intact(tmp_path)
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.slow  # a whole pipeline run (make test runs it; make test-fast does not)
 def test_rerun_replaces_the_whole_output(tmp_path):
     scan = tmp_path / "scan.xyz"
     scan.write_text("\n".join(f"{x * 0.1} {y * 0.1} 0" for x in range(20) for y in range(20)) + "\n")

@@ -124,6 +124,7 @@ def test_semantic_tsdf_then_clusters_maps_objects(tmp_path):
     assert m.provenance["semantics"] == "instance_clusters" and len(m.instances) >= 12
 
 
+@pytest.mark.slow  # a whole pipeline run (make test runs it; make test-fast does not)
 def test_geometry_of_the_real_office_is_gravity_aligned(tmp_path):
     seq = shared_data("align3d_office")
     report = Pipeline(load_pipeline(REPO / "configs" / "map_geometry.yaml", [f"source.params.path={seq}"])).run(

@@ -57,6 +57,7 @@ def test_room_layout_is_stuff_and_objects_are_instances():
     check_room(points, names, segment(points, 0.02))
 
 
+@pytest.mark.slow  # clusters on two 1 cm rooms (make test runs it; make test-fast does not)
 def test_the_same_room_at_two_voxel_sizes_gives_the_same_instances():
     for spacing in (0.015, 0.03):
         points, names = synthetic_room(spacing)
@@ -283,6 +284,7 @@ def test_a_real_scan_of_an_office_floor_has_its_floor():
     assert (sem.class_ids[low] == sem.vocabulary.id("floor")).mean() > 0.9
 
 
+@pytest.mark.slow  # clusters on two 1 cm rooms (make test runs it; make test-fast does not)
 def test_a_cloud_holding_every_point_twice_gets_the_grid_of_its_points():
     """A raw cloud saved with each point twice (PCL's room scans): the spacing is measured between
     distinct points, so the working grid and the room's instances are those of the cloud once."""

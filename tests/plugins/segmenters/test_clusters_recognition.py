@@ -156,6 +156,7 @@ def test_a_frame_with_no_box_leaves_objects_things_though_their_feet_were_voted_
     assert (sem.instance_ids[mat] > 0).mean() < 0.1
 
 
+@pytest.mark.slow  # a whole pipeline run (make test runs it; make test-fast does not)
 def test_clusters_takes_the_floor_where_the_rgbd_source_found_it():
     """A sequence source's gravity alignment put the floor at z = 0; the single frame's floor bends
     down at range. clusters labels the near floor floor, and the table stays a table on it."""

@@ -57,6 +57,7 @@ def no_pose_sequence(tmp_path_factory, world) -> Path:
     return seq
 
 
+@pytest.mark.slow  # a whole pipeline run (make test runs it; make test-fast does not)
 def test_rgbd_odometry_twice_gives_byte_identical_poses(world):
     frames = [world.frame(k)[0] for k in range(10)]
     first = rgbd_frame_to_model(frames, world.intrinsics)

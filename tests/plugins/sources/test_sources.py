@@ -359,17 +359,18 @@ def test_a_scanned_room_mesh_is_read_as_points_on_its_surface(tmp_path):
     path = tmp_path / "room.ply"
     mesh.export(path)
     data = PipelineData()
-    out = PointCloudSource(path=str(path)).run(data)
+    out = PointCloudSource(path=str(path), mesh_spacing=0.05).run(data)
     points = out["frames"].points
-    assert len(mesh.vertices) == 72 and abs(len(points) - mesh.area / 0.02**2) <= 1
-    assert data.notes["pointcloud"]["mesh"] == {"triangles": 84, "area_m2": round(mesh.area, 3), "spacing_m": 0.02}
+    assert len(mesh.vertices) == 72 and abs(len(points) - mesh.area / 0.05**2) <= 1
+    assert data.notes["pointcloud"]["mesh"] == {"triangles": 84, "area_m2": round(mesh.area, 3), "spacing_m": 0.05}
     assert np.allclose(out["frames"].point_colors, [180 / 255, 160 / 255, 140 / 255], atol=0.01)
     z = points[:, 2]
     assert (np.abs(z) < 0.01).mean() > 0.15 and not data.warnings  # the floor at z = 0, z up taken as stored
-    again = PointCloudSource(path=str(path)).run(PipelineData())["frames"].points
+    again = PointCloudSource(path=str(path), mesh_spacing=0.05).run(PipelineData())["frames"].points
     assert np.array_equal(points, again)
     mesh.export(tmp_path / "room.obj")
-    from_obj = PointCloudSource(path=str(tmp_path / "room.obj")).run(PipelineData())["frames"].points
+    from_obj = PointCloudSource(path=str(tmp_path / "room.obj"), mesh_spacing=0.05).run(PipelineData())
+    from_obj = from_obj["frames"].points
     assert abs(len(from_obj) - len(points)) <= 1 and abs(np.percentile(from_obj[:, 2], 99) - 2.6) < 0.02
 
 
@@ -384,12 +385,13 @@ def test_a_gltf_room_is_turned_z_up_by_its_specification(tmp_path):
     stored.apply_transform([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])  # z up -> glTF's y up
     trimesh.Scene([stored]).export(tmp_path / "room.glb")
     data = PipelineData()
-    glb = PointCloudSource(path=str(tmp_path / "room.glb")).run(data)["frames"].points
-    ply = PointCloudSource(path=str(tmp_path / "room.ply")).run(PipelineData())["frames"].points
+    glb = PointCloudSource(path=str(tmp_path / "room.glb"), mesh_spacing=0.05).run(data)["frames"].points
+    ply = PointCloudSource(path=str(tmp_path / "room.ply"), mesh_spacing=0.05).run(PipelineData())["frames"].points
     assert np.allclose(glb, ply, atol=1e-4)
     assert data.notes["pointcloud"]["gravity_alignment"]["converted_from"] == "glTF y up" and not data.warnings
     data = PipelineData()
-    out = PointCloudSource(path=str(tmp_path / "room.glb"), up_axis="y").run(data)["frames"].points
+    out = PointCloudSource(path=str(tmp_path / "room.glb"), up_axis="y", mesh_spacing=0.05).run(data)
+    out = out["frames"].points
     assert np.allclose(out, ply, atol=1e-3)
 
 
