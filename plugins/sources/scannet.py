@@ -1,6 +1,12 @@
-"""Source ``scannet``: exported ScanNet-style frames (color/, depth/, pose/, intrinsic/).
+"""Source ``scannet``: ScanNet's raw ``.sens`` streams, or exported ScanNet-style frames (color/, depth/,
+pose/, intrinsic/).
 
-``color/N.jpg`` (resampled to the depth size), ``depth/N.png`` (16-bit millimetres),
+A ``.sens`` file (``path`` names it, or a folder holding one and no color/) is read as distributed
+(:mod:`stratamap.core.io.sens`): depth at the file's depth shift, colour resampled to the depth size,
+the depth intrinsics, camera-to-world poses (``-inf`` where tracking was lost: missing poses), the
+depth timestamps when the file has them (else frame number / ``frame_rate``).
+
+An export: ``color/N.jpg`` (resampled to the depth size), ``depth/N.png`` (16-bit millimetres),
 ``pose/N.txt`` (4x4 camera-to-world; rows of -inf mark lost tracking and become missing poses),
 ``intrinsic/intrinsic_depth.txt`` (4x4). Frames sort by their number.
 """
@@ -11,6 +17,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from pydantic import Field
 
 from stratamap.core import hookimpl
@@ -25,13 +32,17 @@ from stratamap.core.io.rgbd import (
     rigid_pose,
     write_scannet,
 )
+from stratamap.core.io.sens import read_sens, read_sens_frame
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 
 class ScanNetConfig(SequenceConfig):
-    depth_scale: float = Field(default=1000.0, gt=0, description="Depth units per metre (ScanNet: millimetres).")
+    path: str = Field(description="A ScanNet .sens file, or a folder of an export (or holding one .sens file).")
+    depth_scale: float = Field(
+        default=1000.0, gt=0, description="Depth units per metre (ScanNet: millimetres; a .sens file's own when unset)."
+    )
     frame_rate: float = Field(default=30.0, gt=0, description="Timestamps are frame number / frame_rate, seconds.")
 
 
@@ -70,6 +81,65 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
         return {"path": str(folder)}
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        sens = self._sens_file(Path(self.config.path).expanduser())
+        if sens is not None:
+            return self._load_sens(sens)
+        return self._load_export()
+
+    @staticmethod
+    def _sens_file(path: Path) -> Path | None:
+        """The .sens file ``path`` names or its folder holds (with no export beside it), else None."""
+        if path.is_file():
+            if path.suffix.lower() != ".sens":
+                raise DataError(f"{path}: a file that is no .sens stream; give a .sens file or an export's folder")
+            return path
+        if not path.is_dir() or (path / "color").is_dir():
+            return None
+        found = sorted(path.glob("*.sens"))
+        if len(found) > 1:
+            raise DataError(f"{path}: holds {len(found)} .sens files ({found[0].name}, ...); give one as the path")
+        return found[0] if found else None
+
+    def _load_sens(self, path: Path) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
+        cfg = self.config
+        sens = read_sens(path)
+        K = sens.intrinsic_depth
+        width, height = sens.depth_size
+        intr = intrinsics_from(
+            {"width": width, "height": height, "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]},
+            f"{path} (depth intrinsics)",
+        )
+        scale = cfg.depth_scale if "depth_scale" in cfg.model_fields_set else sens.depth_shift
+        idx = select(list(range(len(sens))), cfg.stride, cfg.max_frames)
+
+        def read(k: int) -> tuple[np.ndarray, np.ndarray]:
+            rgb, raw = read_sens_frame(sens, idx[k])
+            if rgb.shape[:2] != (height, width):  # ScanNet's colour is larger than its depth
+                rgb = np.asarray(Image.fromarray(rgb).resize((width, height), Image.BILINEAR))
+            return rgb, raw.astype(np.float32) / np.float32(scale)
+
+        check_depth_scale(read(0)[1], path, scale)
+        poses: list = []
+        for i in idx:
+            pose = sens.poses[i]
+            poses.append(rigid_pose(pose, f"{path}: frame {i}'s pose") if np.all(np.isfinite(pose)) else None)
+        lost = sum(p is None for p in poses)
+        if lost:
+            self.warn(f"{path}: {lost} frames have invalid (-inf) poses (tracking lost); they use odometry")
+        stamps = np.asarray(sens.timestamps, np.float64)[idx]
+        recorded = len(stamps) > 0 and stamps[0] > 0 and np.all(np.diff(stamps) > 0)
+        times = (stamps / 1e6).tolist() if recorded else [i / cfg.frame_rate for i in idx]
+        frames = PosedFrames(times, read, poses)
+        stream = SensorStream(
+            name=path.stem,
+            intrinsics=intr,
+            frames=frames,
+            metadata={"path": str(path), "format": "scannet_sens", "sensor": sens.sensor_name},
+        )
+        self.note("sens", {"frames": len(sens), "read": len(idx), "depth_shift": sens.depth_shift, "lost_poses": lost})
+        return stream, frames, None
+
+    def _load_export(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config
         root = self.sequence_folder(
             ("color", "depth", "intrinsic"), "ScanNet exports have color/, depth/, pose/, intrinsic/"

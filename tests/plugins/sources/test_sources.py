@@ -194,6 +194,58 @@ def test_scannet_and_redwood_layouts_read():
         assert stream.frames[0].rgb.shape[:2] == stream.frames[0].depth.shape
 
 
+def test_a_scannet_sens_stream_reads_as_its_export_does(world, tmp_path):
+    """A ScanNet .sens file (version 4: JPEG colour larger than the depth, zlib depth in mm, the depth
+    intrinsics, camera-to-world poses) reads like the same frames exported to folders: the same depth,
+    poses and intrinsics, colour within JPEG's error; a folder holding only the .sens file reads the
+    same; a pose stored as -inf (tracking lost) is a missing pose."""
+    from stratamap.core.io.rgbd import write_scannet
+    from stratamap.core.io.sens import write_sens
+
+    stream = world.stream()
+    frames = [(f.rgb, f.depth, f.pose) for f in stream.frames]
+    n = len(frames)
+    width, height = stream.intrinsics.width, stream.intrinsics.height
+    big = (2 * width, 2 * height)
+    sens = write_sens(tmp_path / "scene" / "scene0000_00.sens", frames, stream.intrinsics.matrix, color_size=big)
+    export = write_scannet(stream, tmp_path / "export", color_size=big)
+    data = PipelineData()
+    got = ScanNetSource(path=str(sens), gravity="off").run(data)["frames"]
+    want = ScanNetSource(path=str(export), gravity="off").run(PipelineData())["frames"]
+    assert n >= 5 and len(got.frames) == n and data.notes["scannet"]["sens"]["depth_shift"] == 1000.0
+    np.testing.assert_allclose(got.intrinsics.matrix, want.intrinsics.matrix, rtol=1e-6)  # .sens holds float32
+    for a, b in zip(got.frames, want.frames, strict=True):
+        np.testing.assert_array_equal(a.depth, b.depth)
+        np.testing.assert_allclose(a.pose, b.pose, atol=1e-6)
+        assert np.abs(a.rgb.astype(int) - b.rgb.astype(int)).mean() < 2.0
+    folder = ScanNetSource(path=str(sens.parent), gravity="off").run(PipelineData())["frames"]
+    np.testing.assert_array_equal(folder.frames[n - 1].depth, got.frames[n - 1].depth)
+    frames[3] = (frames[3][0], frames[3][1], np.full((4, 4), -np.inf))
+    write_sens(sens, frames, stream.intrinsics.matrix)
+    with pytest.raises(DataError, match=rf"1 of {n} frames have no pose and odometry is 'never'"):
+        ScanNetSource(path=str(sens), gravity="off", odometry="never").run(PipelineData())
+
+
+@pytest.mark.parametrize(
+    "damage,message",
+    [
+        (lambda b: b[: len(b) - 100], r"truncated: the header promises 3 frames, frame 2 is cut"),
+        (lambda b: (3).to_bytes(4, "little") + b[4:], r"\.sens version 3; expected 4"),
+        (lambda b: b[:12], r"truncated: the sensor name needs"),
+    ],
+)
+def test_a_damaged_sens_file_is_a_one_line_error_naming_it(world, tmp_path, damage, message):
+    from stratamap.core.io.sens import write_sens
+
+    stream = world.stream()
+    frames = [(f.rgb, f.depth, f.pose) for f in stream.frames][:3]
+    path = write_sens(tmp_path / "a.sens", frames, stream.intrinsics.matrix)
+    path.write_bytes(damage(path.read_bytes()))
+    with pytest.raises(DataError, match=message) as err:
+        ScanNetSource(path=str(path)).run(PipelineData())
+    assert "a.sens" in str(err.value) and "\n" not in str(err.value)
+
+
 def test_redwood_reads_the_open3d_sample():
     root = shared_data("open3d_rgbd")
     data = PipelineData()
