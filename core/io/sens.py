@@ -154,8 +154,8 @@ def read_sens_frame(sens: SensFile, k: int) -> tuple[np.ndarray, np.ndarray]:
         if rgb.shape[:2] != (ch, cw):
             raise DataError(f"{where}: a {rgb.shape[1]}x{rgb.shape[0]} colour image; the header says {cw}x{ch}")
     if sens.depth_compression == "zlib_ushort":
-        try:
-            depth = zlib.decompress(depth)
+        try:  # at most one byte more than the image needs: a corrupt stream cannot inflate without bound
+            depth = zlib.decompressobj().decompress(depth, dw * dh * 2 + 1)
         except zlib.error as exc:
             raise DataError(f"{where}: its depth image cannot be decompressed ({brief(exc)})") from exc
     if len(depth) != dw * dh * 2:

@@ -370,6 +370,44 @@ def test_fuzz_images(name):
     run()
 
 
+def valid_sens() -> bytes:
+    """A two-frame ScanNet .sens file of 8 x 6 images (JPEG colour, zlib depth)."""
+    from stratamap.core.io.sens import write_sens
+
+    rng = np.random.default_rng(1)
+    frames = [
+        (rng.integers(0, 256, (6, 8, 3)).astype(np.uint8), rng.uniform(0.5, 3.0, (6, 8)), np.eye(4)) for _ in range(2)
+    ]
+    with scratch() as tmp:
+        return write_sens(Path(tmp) / "s.sens", frames, np.array([[5.0, 0, 4], [0, 5.0, 3], [0, 0, 1]])).read_bytes()
+
+
+SENS = valid_sens()
+
+
+def test_fuzz_sens_files():
+    """A cut, flipped or garbled .sens file: its index and every frame read, or a one-line DataError."""
+    from stratamap.core.io.sens import read_sens, read_sens_frame
+
+    @fuzz(150)
+    @given(inputs(SENS, header=400))
+    def run(data: bytes) -> None:
+        with scratch() as tmp:
+            path = Path(tmp) / "s.sens"
+            path.write_bytes(data)
+            try:
+                sens = read_sens(path)
+                for k in range(len(sens)):
+                    rgb, depth = read_sens_frame(sens, k)
+                    w, h = sens.color_size
+                    assert rgb.shape == (h, w, 3) and rgb.dtype == np.uint8
+                    assert depth.shape == sens.depth_size[::-1] and depth.dtype == np.dtype("<u2")
+            except DataError as err:
+                one_line_naming(err, str(path))
+
+    run()
+
+
 def test_found_by_fuzzing(tmp_path):
     """Inputs the fuzzer once found to escape as other exceptions."""
     npy = CLOUDS["c.npy"].replace(b"'shape': (", b"'shape': )", 1)
