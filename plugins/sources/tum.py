@@ -3,12 +3,14 @@
 RGB and depth are associated by nearest timestamp within ``association_tolerance``; poses come
 from ``groundtruth.txt`` (interpolated to the depth timestamps) when it exists, else from
 odometry. Intrinsics: ``camera.json`` beside the sequence (keys width, height, fx, fy, cx, cy,
-depth_scale) when present, else ``intrinsics`` in the params, else the TUM defaults (Freiburg 1).
+depth_scale) when present, else ``intrinsics`` in the params, else the TUM benchmark camera its folder
+name says (``freiburg1``, ``2`` or ``3``), else the TUM defaults (Freiburg 1, with a warning).
 A ``gt/`` folder written by ``stratamap synth`` is loaded as ground truth (labels, meshes, graph).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,13 @@ from stratamap.core.map.sensors import CameraIntrinsics, SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, select
 
 TUM_DEFAULT = {"width": 640, "height": 480, "fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "depth_scale": 5000.0}
+#: The colour cameras of the TUM RGB-D benchmark (its published calibration), by the "freiburgN" its
+#: sequences' folder names carry (rgbd_dataset_freiburg3_long_office_household).
+TUM_CAMERAS = {
+    "1": {"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3},
+    "2": {"fx": 520.9, "fy": 521.0, "cx": 325.1, "cy": 249.7},
+    "3": {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6},
+}
 
 
 class TUMConfig(SequenceConfig):
@@ -99,8 +108,14 @@ class TUMSource(SequenceSource[TUMConfig]):
             return intr, float(scale)
         if cfg.intrinsics is not None:
             return intrinsics_from(cfg.intrinsics, "intrinsics"), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
+        scale = cfg.depth_scale or TUM_DEFAULT["depth_scale"]
+        named = re.search(r"freiburg([123])", root.resolve().name)
+        if named:
+            camera = named.group(1)
+            self.note("intrinsics", {"from": f"TUM Freiburg {camera} (the folder's name)", **TUM_CAMERAS[camera]})
+            return CameraIntrinsics.from_dict({**TUM_DEFAULT, **TUM_CAMERAS[camera]}), scale
         self.warn(f"{root}: no camera.json and no intrinsics given; using the TUM Freiburg-1 defaults")
-        return CameraIntrinsics.from_dict(TUM_DEFAULT), cfg.depth_scale or TUM_DEFAULT["depth_scale"]
+        return CameraIntrinsics.from_dict(TUM_DEFAULT), scale
 
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         cfg = self.config

@@ -246,6 +246,21 @@ def test_a_damaged_sens_file_is_a_one_line_error_naming_it(world, tmp_path, dama
     assert "a.sens" in str(err.value) and "\n" not in str(err.value)
 
 
+def test_a_tum_benchmark_folder_without_camera_json_takes_its_cameras_calibration(tmp_path):
+    """A sequence as the TUM benchmark distributes it has no camera.json: its folder's name says which
+    camera took it (rgbd_dataset_freiburg3_...), and that camera's published calibration is used, with
+    no warning; a folder whose name says nothing gets the Freiburg 1 defaults and a warning."""
+    spec = SceneSpec.model_validate({**SMALL, "camera": {"width": 640, "height": 480}, "trajectory": {"frames": 2}})
+    world = SyntheticWorld(spec)
+    for name, fx, warned in (("rgbd_dataset_freiburg3_long_office_household", 535.4, False), ("my_walk", 517.3, True)):
+        seq = write_sequence(world, tmp_path / name)
+        (seq / "camera.json").unlink()
+        data = PipelineData()
+        stream = TUMSource(path=str(seq), gravity="off").run(data)["frames"]
+        assert stream.intrinsics.fx == fx and stream.intrinsics.width == 640
+        assert any("TUM Freiburg-1 defaults" in w for w in data.warnings) == warned, data.warnings
+
+
 def test_redwood_reads_the_open3d_sample():
     root = shared_data("open3d_rgbd")
     data = PipelineData()
