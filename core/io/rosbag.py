@@ -72,11 +72,16 @@ def write_rgbd_bag(
     world_frame: str = "map",
     camera_frame: str = "camera_color_optical_frame",
     depth_encoding: str = "16UC1",
+    compressed: bool = False,
 ) -> Path:
     """Depth (``16UC1`` in mm, or ``32FC1`` in metres), color (rgb8), camera_info and tf (world -> camera)
-    per frame."""
+    per frame. ``compressed``: as image_transport records them, ``sensor_msgs/CompressedImage`` on
+    ``.../compressed`` (colour as JPEG) and ``.../compressedDepth`` (16UC1 depth as PNG after
+    compressed_depth_image_transport's 12-byte header) topics."""
     if depth_encoding not in ("16UC1", "32FC1"):
         raise ValueError(f"depth_encoding must be 16UC1 or 32FC1, got {depth_encoding!r}")
+    if compressed and depth_encoding != "16UC1":
+        raise ValueError("compressed depth is written as 16UC1")
     path = Path(path)
     ts = _typestore(ros_version)
     T = ts.types
@@ -84,8 +89,12 @@ def write_rgbd_bag(
     assert intr is not None
     with _writer(path, ros_version) as w:
         kw = {"typestore": ts}
-        c_depth = w.add_connection("/camera/depth/image_raw", "sensor_msgs/msg/Image", **kw)
-        c_color = w.add_connection("/camera/color/image_raw", "sensor_msgs/msg/Image", **kw)
+        image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+        depth_topic, color_topic = "/camera/depth/image_raw", "/camera/color/image_raw"
+        if compressed:
+            depth_topic, color_topic = f"{depth_topic}/compressedDepth", f"{color_topic}/compressed"
+        c_depth = w.add_connection(depth_topic, image_type, **kw)
+        c_color = w.add_connection(color_topic, image_type, **kw)
         c_info = w.add_connection("/camera/color/camera_info", "sensor_msgs/msg/CameraInfo", **kw)
         c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", **kw)
         for k, frame in enumerate(stream.frames):
@@ -114,6 +123,8 @@ def write_rgbd_bag(
                 step=intr.width * 3,
                 data=np.frombuffer(np.ascontiguousarray(frame.rgb).tobytes(), np.uint8),
             )
+            if compressed:
+                d_msg, c_msg = _compressed_pair(T, header, depth, frame.rgb)
             K = intr.matrix.reshape(-1)
             P = np.c_[intr.matrix, np.zeros(3)].reshape(-1)
             roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
@@ -133,8 +144,8 @@ def write_rgbd_bag(
                 **info_kw,
             )
             for conn, msg, mtype in (
-                (c_depth, d_msg, "sensor_msgs/msg/Image"),
-                (c_color, c_msg, "sensor_msgs/msg/Image"),
+                (c_depth, d_msg, image_type),
+                (c_color, c_msg, image_type),
                 (c_info, i_msg, "sensor_msgs/msg/CameraInfo"),
             ):
                 w.write(conn, ns, _serialize(ts, msg, mtype, ros_version))
@@ -150,6 +161,26 @@ def write_rgbd_bag(
                     ),
                 )
     return path
+
+
+def _compressed_pair(T: Any, header: Any, depth_mm: np.ndarray, rgb: np.ndarray) -> tuple[Any, Any]:
+    """A depth image (``uint16`` mm) and a colour image as image_transport's compressed messages."""
+    import io
+    import struct
+
+    from PIL import Image
+
+    png, jpeg = io.BytesIO(), io.BytesIO()
+    Image.fromarray(np.asarray(depth_mm, np.uint16)).save(png, format="PNG")
+    Image.fromarray(np.ascontiguousarray(rgb)).save(jpeg, format="JPEG", quality=95)
+    config = struct.pack("<iff", 0, 0.0, 0.0)  # compressed_depth_image_transport's ConfigHeader (unused for 16UC1)
+    Compressed = T["sensor_msgs/msg/CompressedImage"]
+    return (
+        Compressed(
+            header=header, format="16UC1; compressedDepth png", data=np.frombuffer(config + png.getvalue(), np.uint8)
+        ),
+        Compressed(header=header, format="rgb8; jpeg compressed bgr8", data=np.frombuffer(jpeg.getvalue(), np.uint8)),
+    )
 
 
 def write_lidar_bag(

@@ -2,7 +2,9 @@
 ``rosbags`` library (no ROS install).
 
 RGB-D: depth (``sensor_msgs/Image``, 16UC1 in millimetres or 32FC1 in metres), color
-(rgb8, bgr8, rgba8, bgra8, mono8) paired by nearest stamp, intrinsics from ``CameraInfo``, and
+(rgb8, bgr8, rgba8, bgra8, mono8), or both as image_transport's ``sensor_msgs/CompressedImage``
+(colour JPEG or PNG; depth ``compressedDepth`` PNG, 16UC1 or 32FC1's quantized inverse depth),
+paired by nearest stamp, intrinsics from ``CameraInfo``, and
 camera poses from ``/tf`` (+ ``/tf_static``): the chain from ``world_frame`` to the image's
 frame at the image's stamp (image frames are optical frames, as ROS defines them).
 LiDAR: ``sensor_msgs/PointCloud2`` sweeps (x, y, z fields), posed from ``/tf`` when available.
@@ -30,6 +32,9 @@ from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, Seq
 rotations = lazy_module("scipy.spatial.transform")
 
 IMAGE = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
+#: image_transport's compressed images: colour as JPEG or PNG (``.../compressed``), depth as PNG after
+#: compressed_depth_image_transport's 12-byte header (``.../compressedDepth``).
+COMPRESSED = {"sensor_msgs/msg/CompressedImage", "sensor_msgs/CompressedImage"}
 INFO = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
 CLOUD = {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2"}
 TF = {"tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage"}
@@ -78,9 +83,66 @@ def _where(topic: str, msg: Any) -> str:
         return topic
 
 
+def image_encoding(msg: Any) -> str:
+    """A ``sensor_msgs/Image``'s encoding; for a ``CompressedImage``, the encoding its ``format`` names
+    ("16UC1; compressedDepth png", "rgb8; jpeg compressed bgr8"), else 16UC1 for compressed depth and
+    rgb8 for a bare "jpeg" or "png"."""
+    if not hasattr(msg, "format"):
+        return msg.encoding
+    fmt = str(msg.format)
+    first = fmt.split(";")[0].strip()
+    if first in DEPTH_ENCODINGS or first in COLOR_ENCODINGS:
+        return first
+    return "16UC1" if "compresseddepth" in fmt.lower() else "rgb8"
+
+
+def compressed_array(msg: Any, topic: str) -> np.ndarray:
+    """The image of a ``sensor_msgs/CompressedImage``: depth in metres from compressedDepth's PNG (16UC1
+    millimetres, or 32FC1 as quantized inverse depth, ``depth = a / (v - b)`` with a and b from its
+    header), colour as 8-bit RGB; what cannot be decoded is a DataError naming the topic and stamp."""
+    import io
+    import struct
+
+    from PIL import Image
+
+    fmt = str(msg.format)
+    enc = image_encoding(msg)
+    data = bytes(msg.data)
+    depth_codec = "compresseddepth" in fmt.lower()
+    if depth_codec:
+        if "rvl" in fmt.lower():
+            raise DataError(f"{_where(topic, msg)}: compressedDepth {fmt!r}: the RVL codec is not read (PNG is)")
+        if len(data) < 12:
+            raise DataError(f"{_where(topic, msg)}: compressedDepth of {len(data)} bytes; its 12-byte header is cut")
+        _, quant_a, quant_b = struct.unpack("<iff", data[:12])
+        data = data[12:]
+    try:
+        image = Image.open(io.BytesIO(data))
+        image.load()
+    except Exception as exc:  # Pillow raises many types for a damaged image
+        raise DataError(f"{_where(topic, msg)}: its {fmt!r} image cannot be decoded ({brief(exc, True)})") from exc
+    if enc in DEPTH_ENCODINGS:
+        raw = np.asarray(image)
+        if raw.ndim != 2 or raw.dtype.kind not in "ui" or raw.dtype.itemsize < 2:
+            raise DataError(f"{_where(topic, msg)}: depth {fmt!r} decodes to {raw.dtype} {raw.shape}; expected 16-bit")
+        if enc == "32FC1" and depth_codec:
+            inverse = raw.astype(np.float64)
+            depth = np.zeros(raw.shape, np.float32)
+            seen = inverse != 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                depth[seen] = quant_a / (inverse[seen] - quant_b)
+            depth[~np.isfinite(depth) | (depth < 0)] = 0.0
+            return depth
+        return raw.astype(np.float32) / 1000.0
+    return np.asarray(image.convert("RGB"))
+
+
 def image_array(msg: Any, topic: str) -> np.ndarray:
     """The image of a ``sensor_msgs/Image``: depth in metres (16UC1 millimetres or 32FC1 metres), color as
-    8-bit RGB; a size, step or data length that disagree is a DataError naming the topic and stamp."""
+    8-bit RGB; a size, step or data length that disagree is a DataError naming the topic and stamp. A
+    ``CompressedImage`` is decoded (:func:`compressed_array`)."""
+    if hasattr(msg, "format"):
+        return compressed_array(msg, topic)
     enc = msg.encoding
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
@@ -238,7 +300,7 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         try:
             for c in reader.connections:
                 by_type.setdefault(c.msgtype, []).append(c.topic)
-            wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | INFO | CLOUD | TF}
+            wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | COMPRESSED | INFO | CLOUD | TF}
             conns = [c for c in reader.connections if c.topic in wanted]
             for conn, _, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -249,7 +311,7 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                         edges.setdefault(child, []).append(
                             (0.0 if static else stamp_of(tf), tf.header.frame_id.lstrip("/"), transform_matrix(tf))
                         )
-                elif conn.msgtype in IMAGE:
+                elif conn.msgtype in IMAGE | COMPRESSED:
                     images.append((conn.topic, stamp_of(msg), msg))
                 elif conn.msgtype in INFO:
                     infos.append((conn.topic, msg))
@@ -268,8 +330,8 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             v.sort(key=lambda e: e[0])
         topics = {t: m for m, ts in by_type.items() for t in ts}
         for param, kinds in (
-            ("depth_topic", IMAGE),
-            ("color_topic", IMAGE),
+            ("depth_topic", IMAGE | COMPRESSED),
+            ("color_topic", IMAGE | COMPRESSED),
             ("camera_info_topic", INFO),
             ("pointcloud_topic", CLOUD),
         ):
@@ -280,7 +342,8 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                 raise DataError(f"{path}: no topic {topic!r} (asked for by {param}); the bag has {sorted(topics)}")
             if topics[topic] not in kinds:
                 raise DataError(
-                    f"{path}: topic {topic!r} ({param}) carries {topics[topic]}, expected {sorted(kinds)[0]}"
+                    f"{path}: topic {topic!r} ({param}) carries {topics[topic]}, expected "
+                    f"{' or '.join(sorted(k for k in kinds if '/msg/' in k))}"
                 )
         return {"types": by_type, "images": images, "infos": infos, "clouds": clouds, "tf": TfBuffer(edges), "cfg": cfg}
 
@@ -303,7 +366,7 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         images = bag["images"]
         encodings: dict[str, str] = {}
         for topic, _, msg in images:
-            encodings.setdefault(topic, msg.encoding)
+            encodings.setdefault(topic, image_encoding(msg))
         depth_topic = cfg.depth_topic or next((t for t, e in encodings.items() if e in DEPTH_ENCODINGS), None)
         color_topic = cfg.color_topic or next((t for t, e in encodings.items() if e in COLOR_ENCODINGS), None)
         tf: TfBuffer = bag["tf"]
