@@ -227,7 +227,9 @@ def connected_pieces(
 
 def piece_majority(piece: np.ndarray, values: np.ndarray) -> np.ndarray:
     """The most frequent value of each piece (pieces numbered from 0; ties to the smaller value)."""
-    span = np.int64(values.max()) + 1 if len(values) else 1
+    if not len(piece):
+        return np.zeros(0, values.dtype)
+    span = np.int64(values.max()) + 1
     code, n = np.unique(piece.astype(np.int64) * span + values, return_counts=True)
     p, v = code // span, code % span
     order = np.lexsort((v, -n, p))

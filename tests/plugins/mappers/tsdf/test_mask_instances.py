@@ -133,6 +133,17 @@ def test_isolated_small_piece_stays_with_its_fused_instance():
     assert np.all(out_inst[body:] == 0) and np.all(out_cls[body:] == 0)
 
 
+def test_a_map_of_small_pieces_only_is_no_error():
+    """Nothing but pieces too small to stand alone (a tiny clip's map: two plant leaves that touch
+    nothing, and no body): they have no host to join and are dropped, without an error."""
+    leaves = np.concatenate([slab(0, 0, 0, 3, 3, 2), slab(10, 0, 0, 3, 3, 2)])
+    cls, inst = np.full(len(leaves), VOCAB.id("plant")), np.full(len(leaves), 4)
+    obs = MaskObservations()
+    obs.add(leaves, cls, np.ones(len(leaves), int))
+    out_cls, out_inst = mask_instances(leaves * VOXEL, cls, inst, obs, VOCAB, VOXEL)
+    assert out_cls.shape == out_inst.shape == (len(leaves),) and not out_inst.any()
+
+
 def two_chairs(gap_voxels: int, frames_together: int, frames: int = 10):
     """Two chair pieces ``gap_voxels`` apart, fused as one instance, that ``frames_together`` of the
     frames' masks cover as one (the others split them)."""
