@@ -252,8 +252,11 @@ class PointCloudSource(Source[PointCloudConfig]):
                         up_hint=np.array(UP_AXES[up_axis]),
                         max_angle_deg=up_tolerance,
                         advice=(
-                            f"looked along up_axis {looked}: if the input is already z-up set `gravity: off`, else "
-                            "give its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a "
+                            "looked along glTF's up, y (its specification): if the file was written z up, as some "
+                            "exporters do, set up_axis z"
+                            if from_gltf
+                            else f"looked along up_axis {looked}: if the input is already z-up set `gravity: off`, "
+                            "else give its up_axis (-y for a camera's optical frame, as Kinect and stereo scans) or a "
                             "larger up_tolerance_deg (a steep view of a tabletop needs about 60)"
                         ),
                     )
@@ -263,7 +266,16 @@ class PointCloudSource(Source[PointCloudConfig]):
                         raise
             report = {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()}
             if from_gltf:
+                # Some exporters write glTF z up, against the specification: say so when another way fits.
                 report["converted_from"] = "glTF y up"
+                rivals = rival_floors(stream, up_axis)
+                report["other_axes"] = rivals
+                if up_doubt(up_axis, alignment.floor_inliers, rivals):
+                    self.warn(
+                        f"{path}: taken y up, as glTF specifies, but another way up fits as well ({rivals} sampled "
+                        f"points against the floor's {alignment.floor_inliers}, as turned z up): if the map lies on "
+                        "its side, the file was written z up: set up_axis z"
+                    )
             elif wanted == "auto" and not organized:
                 rivals = rival_floors(stream, up_axis)
                 report["other_axes"] = rivals

@@ -512,6 +512,12 @@ def test_a_gltf_room_is_turned_z_up_by_its_specification(tmp_path):
     out = PointCloudSource(path=str(tmp_path / "room.glb"), up_axis="y", mesh_spacing=0.05).run(data)
     out = out["frames"].points
     assert np.allclose(out, ply, atol=1e-3)
+    trimesh.Scene([mesh]).export(tmp_path / "z_up.glb")  # written z up, against the specification
+    data = PipelineData()
+    PointCloudSource(path=str(tmp_path / "z_up.glb"), mesh_spacing=0.05).run(data)
+    assert any("z_up.glb: taken y up, as glTF specifies" in w and w.endswith("set up_axis z") for w in data.warnings)
+    out = PointCloudSource(path=str(tmp_path / "z_up.glb"), up_axis="z", mesh_spacing=0.05).run(PipelineData())
+    assert np.allclose(out["frames"].points, ply, atol=1e-3)
 
 
 def test_a_mesh_larger_than_its_point_budget_is_sampled_sparser_with_a_warning(tmp_path):
