@@ -43,7 +43,8 @@ def test_a_low_poly_room_mesh_through_configs_scan_yaml(tmp_path):
     path = tmp_path / "room.glb"
     trimesh.Scene([mesh]).export(path)
     out = tmp_path / "room"
-    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    sets = [f"source.params.path={path}", "source.params.mesh_spacing=0.03"]  # 3 cm: half the points, same room
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", sets)).run(out)
     notes = report["notes"]["clusters"]["segments"]
     assert notes["walls"] == 4 and abs(notes["floor_height"]) < 0.01, notes
     m = LayeredMap.load(out / "map")
