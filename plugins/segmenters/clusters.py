@@ -272,7 +272,7 @@ EYE_HEIGHT = 1.5
 
 def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
     """Where the map was seen from: the camera positions of posed frames, a static cloud's sensor
-    (``world_transform``), EYE_HEIGHT over the centre of a cloud with no sensor (``metadata['sensor']``
+    (``world_transform``), EYE_HEIGHT over the centre of a cloud with no sensor (``metadata['sensor_origin']``
     False: a mesh's surface samples), else a point 2 m above the map's centre."""
     stream = data.stream
     if stream is not None:
@@ -282,7 +282,7 @@ def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
         centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
         if len(centres):
             return centres[:: max(1, len(centres) // 200)]
-        if stream.points is not None and stream.metadata.get("sensor", True):
+        if stream.points is not None and stream.metadata.get("sensor_origin", True):
             transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
             return transform[:3, 3][None]
         if stream.points is not None:

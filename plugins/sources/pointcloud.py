@@ -237,7 +237,7 @@ class PointCloudSource(Source[PointCloudConfig]):
             raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
         metadata = {"path": str(path), "dropped_invalid": dropped}
         if mesh:
-            metadata["sensor"] = False  # its origin is where the modeller put it, no scanner's position
+            metadata["sensor_origin"] = False  # its origin is where the modeller put it, no scanner's position
         stream = SensorStream(name=path.stem, points=pts, point_colors=colors, metadata=metadata)
         self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
         out: dict[str, Any] = {"frames": stream}

@@ -134,7 +134,7 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
             name=path.stem,
             intrinsics=intr,
             frames=frames,
-            metadata={"path": str(path), "format": "scannet_sens", "sensor": sens.sensor_name},
+            metadata={"path": str(path), "format": "scannet_sens", "sensor_name": sens.sensor_name},
         )
         self.note("sens", {"frames": len(sens), "read": len(idx), "depth_shift": sens.depth_shift, "lost_poses": lost})
         return stream, frames, None
