@@ -109,45 +109,69 @@ PARALLEL_DEG = 10.0
 SENSOR_BELOW = 0.1
 
 
-def find_floor(
+@dataclass
+class ScenePlanes:
+    """The planes iterative RANSAC finds in a cloud's voxel sample, which do not depend on any up
+    hint (so several hints can be tried on one search): the sample, in a fixed order, and each
+    plane's unit normal, offset (n.x + d = 0) and inlier indices, in the order found."""
+
+    sampled: np.ndarray
+    planes: list[tuple[np.ndarray, float, np.ndarray]]
+
+
+def find_planes(
     points: np.ndarray,
-    up_hint: np.ndarray,
     voxel: float = 0.03,
     distance: float = 0.02,
     max_planes: int = 8,
-    max_angle_deg: float = 35.0,
     min_share: float = 0.03,
     seed: int = 0,
-    viewpoints: np.ndarray | None = None,
-) -> tuple[np.ndarray, float, int] | None:
-    """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None.
-
-    Planes are found one after another (RANSAC); those within ``max_angle_deg`` of ``up_hint`` are
-    candidates, less those the sensor (``viewpoints``: where it stood) was under: a floor or a table
-    is seen from above, and a wall the hint's tolerance admits (a steep view of a tabletop) is not.
-    Up is the normal that the most candidate points agree on (a floor, a table top and a seat are
-    parallel; a slanted patch is not), and the floor is the lowest candidate parallel to it with
-    (almost) nothing below it but the walls (a wall reaches below a table top whose floor the scan
-    never saw: a tabletop scan's floor is its table)."""
+) -> ScenePlanes:
+    """Up to ``max_planes`` planes, one after another (seeded RANSAC, inliers removed after each), in
+    the ``voxel`` sample of ``points``; none when the sample has fewer than 100 points."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     sampled = np.asarray(pcd.voxel_down_sample(voxel).points)
     sampled = sampled[np.lexsort(sampled.T[::-1])]  # a fixed order, whatever the downsampler's
     total = len(sampled)
+    planes: list[tuple[np.ndarray, float, np.ndarray]] = []
     if total < 100:
-        return None
+        return ScenePlanes(sampled, planes)
     rest = np.arange(total)  # indices of the points no plane has taken yet
-    planes = []
     for k in range(max_planes):
         if len(rest) < max(50, min_share * total):
             break
         n, d, inliers = ransac_plane(sampled[rest], distance, iterations=400, seed=seed + k)
-        if np.dot(n, up_hint) < 0:
-            n, d = -n, -d
         planes.append((n, d, rest[inliers]))
         rest = np.delete(rest, inliers)
+    return ScenePlanes(sampled, planes)
+
+
+def find_floor(
+    points: np.ndarray | None,
+    up_hint: np.ndarray,
+    max_angle_deg: float = 35.0,
+    min_share: float = 0.03,
+    viewpoints: np.ndarray | None = None,
+    planes: ScenePlanes | None = None,
+) -> tuple[np.ndarray, float, int] | None:
+    """(unit normal pointing up, offset d with n.x + d = 0, inlier count) of the floor, or None.
+
+    The planes of ``points`` (:func:`find_planes`, or ``planes`` already found) within
+    ``max_angle_deg`` of ``up_hint`` are candidates, less those the sensor (``viewpoints``: where it
+    stood) was under: a floor or a table is seen from above, and a wall the hint's tolerance admits
+    (a steep view of a tabletop) is not. Up is the normal that the most candidate points agree on (a
+    floor, a table top and a seat are parallel; a slanted patch is not), and the floor is the lowest
+    candidate parallel to it with (almost) nothing below it but the walls (a wall reaches below a
+    table top whose floor the scan never saw: a tabletop scan's floor is its table)."""
+    found = planes if planes is not None else find_planes(points, min_share=min_share)
+    sampled = found.sampled
+    total = len(sampled)
+    if total < 100:
+        return None
+    planes_up = [(n, d, idx) if np.dot(n, up_hint) >= 0 else (-n, -d, idx) for n, d, idx in found.planes]
     max_cos = np.cos(np.radians(max_angle_deg))
     candidates = [
-        (n, d, idx) for n, d, idx in planes if len(idx) >= min_share * total and np.dot(n, up_hint) >= max_cos
+        (n, d, idx) for n, d, idx in planes_up if len(idx) >= min_share * total and np.dot(n, up_hint) >= max_cos
     ]
     if viewpoints is not None and len(viewpoints):
         seen_from_above = [
@@ -161,7 +185,7 @@ def find_floor(
     agreement = [sum(len(idx) for m, _, idx in candidates if np.dot(n, m) >= parallel) for n, _, _ in candidates]
     up = candidates[int(np.argmax(agreement))][0]
     on_wall = np.zeros(total, bool)
-    for n, _, idx in planes:
+    for n, _, idx in planes_up:
         if abs(np.dot(n, up)) <= np.sin(np.radians(PARALLEL_DEG)):
             on_wall[idx] = True
     others = sampled[~on_wall]
@@ -185,19 +209,28 @@ def find_floor(
     return normal, float(-np.dot(normal, centroid)), len(pts)
 
 
+def stream_planes(stream: SensorStream) -> ScenePlanes:
+    """The planes of a stream's sampled points (:func:`find_planes`), to try up hints on."""
+    pts = sample_points(stream)
+    if len(pts) < 100:
+        raise DataError(f"{stream.name}: too few valid points to find the floor ({len(pts)})")
+    return find_planes(pts)
+
+
 def estimate_alignment(
     stream: SensorStream,
     up_hint: np.ndarray | None = None,
     max_angle_deg: float = 35.0,
     advice: str = "if the input is already z-up set `gravity: off`",
+    planes: ScenePlanes | None = None,
 ) -> GravityAlignment:
-    pts = sample_points(stream)
-    if len(pts) < 100:
-        raise DataError(f"{stream.name}: too few valid points to find the floor ({len(pts)})")
+    """The transform that levels the stream on its floor; ``planes``: the stream's planes, when
+    several hints are tried on one search (:func:`stream_planes`)."""
+    planes = planes if planes is not None else stream_planes(stream)
     hint = up_hint if up_hint is not None else camera_up_hint(stream)
     if hint is None:
         hint = np.array([0.0, 0.0, 1.0])
-    floor = find_floor(pts, hint, max_angle_deg=max_angle_deg, viewpoints=sensor_positions(stream))
+    floor = find_floor(None, hint, max_angle_deg=max_angle_deg, viewpoints=sensor_positions(stream), planes=planes)
     if floor is None:
         raise DataError(
             f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "

@@ -29,7 +29,7 @@ from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
+from stratamap.plugins.sources._gravity import ScenePlanes, estimate_alignment, stream_planes, transform_stream
 
 UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 
@@ -115,16 +115,17 @@ def up_settings(up_axis: str, tolerance: float | None, organized: bool) -> list[
 CONVENTIONS = ("z", "y", "-y")
 
 
-def rival_floors(stream: Any, chosen: str) -> dict[str, int]:
+def rival_floors(stream: Any, chosen: str, planes: ScenePlanes) -> dict[str, int]:
     """For ``up_axis: auto`` on an unorganized cloud: the points of the floor each other convention's
-    up axis finds (0: none), to tell whether the chosen one was a guess."""
+    up axis finds among the stream's ``planes`` (0: none), to tell whether the chosen one was a guess."""
     rivals = {}
     for axis in CONVENTIONS:
         if axis == chosen:
             continue
         try:
             tolerance = up_settings(axis, None, organized=False)[0][1]
-            rivals[axis] = estimate_alignment(stream, np.array(UP_AXES[axis]), max_angle_deg=tolerance).floor_inliers
+            hint = np.array(UP_AXES[axis])
+            rivals[axis] = estimate_alignment(stream, hint, max_angle_deg=tolerance, planes=planes).floor_inliers
         except DataError:
             rivals[axis] = 0
     return rivals
@@ -245,12 +246,14 @@ class PointCloudSource(Source[PointCloudConfig]):
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)
         if cfg.gravity == "auto":
             looked = " then ".join(axis for axis, _ in tries)
+            planes = stream_planes(stream)  # one plane search for every up axis tried
             for k, (up_axis, up_tolerance) in enumerate(tries):
                 try:
                     alignment = estimate_alignment(
                         stream,
                         up_hint=np.array(UP_AXES[up_axis]),
                         max_angle_deg=up_tolerance,
+                        planes=planes,
                         advice=(
                             "looked along glTF's up, y (its specification): if the file was written z up, as some "
                             "exporters do, set up_axis z"
@@ -266,20 +269,17 @@ class PointCloudSource(Source[PointCloudConfig]):
                         raise
             report = {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()}
             if from_gltf:
-                # Some exporters write glTF z up, against the specification: say so when another way fits.
                 report["converted_from"] = "glTF y up"
-                rivals = rival_floors(stream, up_axis)
-                report["other_axes"] = rivals
-                if up_doubt(up_axis, alignment.floor_inliers, rivals):
-                    self.warn(
-                        f"{path}: taken y up, as glTF specifies, but another way up fits as well ({rivals} sampled "
-                        f"points against the floor's {alignment.floor_inliers}, as turned z up): if the map lies on "
-                        "its side, the file was written z up: set up_axis z"
-                    )
-            elif wanted == "auto" and not organized:
-                rivals = rival_floors(stream, up_axis)
+            if from_gltf or (wanted == "auto" and not organized):
+                rivals = rival_floors(stream, up_axis, planes)
                 report["other_axes"] = rivals
                 doubt = up_doubt(up_axis, alignment.floor_inliers, rivals)
+                if doubt and from_gltf:  # some exporters write glTF z up, against the specification
+                    doubt = (
+                        f"taken y up, as glTF specifies, but another way up fits as well ({rivals} sampled points "
+                        f"against the floor's {alignment.floor_inliers}, as turned z up): if the map lies on its "
+                        "side, the file was written z up: set up_axis z"
+                    )
                 if doubt:
                     self.warn(f"{path}: {doubt}")
             self.note("gravity_alignment", report)
