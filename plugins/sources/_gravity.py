@@ -79,10 +79,13 @@ def sample_points(stream: SensorStream, max_frames: int = 8, stride: int = 4) ->
 
 def sensor_positions(stream: SensorStream) -> np.ndarray:
     """Where the sensor stood: the cameras of posed frames, else the origin of a static cloud (a
-    scanner's or camera's own frame; a map frame's origin usually lies on its floor)."""
+    scanner's or camera's own frame; a map frame's origin usually lies on its floor), unless the
+    cloud says its origin is none (``metadata['sensor_origin']`` False: a mesh's surface samples)."""
     posed = [f.pose[:3, 3] for f in _some_frames(stream) if f.pose is not None]
     if posed:
         return np.asarray(posed)
+    if not stream.metadata.get("sensor_origin", True):
+        return np.zeros((0, 3))
     return np.zeros((1, 3))
 
 
