@@ -169,7 +169,9 @@ def footprint_area(xy: np.ndarray, cell: float) -> float:
     """Area (m^2) of the grid squares of side ``cell`` that points ``xy`` occupy."""
     if len(xy) == 0:
         return 0.0
-    keys = np.unique(np.floor(xy / cell).astype(np.int64), axis=0)
+    ij = np.floor(xy / cell).astype(np.int64)
+    ij -= ij.min(axis=0)
+    keys = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])  # one integer per square: a 1-D unique
     return float(len(keys) * cell * cell)
 
 
@@ -194,11 +196,12 @@ def _regions(
     return out
 
 
-def _group(values: np.ndarray, ids: np.ndarray, n: int) -> list[np.ndarray]:
-    """Member indices of each id 0..n-1 (ids < 0 left out)."""
+def members_of(ids: np.ndarray, n: int) -> list[np.ndarray]:
+    """Member indices of each id 0..n-1 (ids < 0 left out), ascending, found with one sort: selecting
+    ``ids == k`` for each k costs a pass over every element per id, which on a hall of hundreds of
+    tables was most of a run."""
     order = np.argsort(ids, kind="stable")
-    sorted_ids = ids[order]
-    starts = np.searchsorted(sorted_ids, np.arange(n + 1))
+    starts = np.searchsorted(ids[order], np.arange(n + 1))
     return [order[starts[k] : starts[k + 1]] for k in range(n)]
 
 
@@ -313,7 +316,7 @@ def find_layout(
     horizontal = nz >= np.cos(np.radians(p.horizontal_deg))
     h_region = _regions(cells, normal, pairs, horizontal, tol, p.horizontal_deg)
     n_h = int(h_region.max()) + 1 if (h_region >= 0).any() else 0
-    h_members = _group(cells, h_region, n_h)
+    h_members = members_of(h_region, n_h)
     h_height = np.array([np.median(z[m]) for m in h_members]) if n_h else np.zeros(0)
     h_area = np.array([footprint_area(cells[m, :2], voxel_size) for m in h_members]) if n_h else np.zeros(0)
 
@@ -375,7 +378,7 @@ def find_layout(
         comp = components(len(cells), pairs[keep])
         idx = np.flatnonzero(member)
         _, region = np.unique(comp[idx], return_inverse=True)
-        members = _group(idx, region, int(region.max()) + 1 if len(region) else 0)
+        members = members_of(region, int(region.max()) + 1 if len(region) else 0)
         offsets = np.array([np.median(along_n[idx[m]]) for m in members])
         sizes = np.array([len(m) for m in members])
         # Regions of one plane (offsets within the inlier distance, largest first) form one wall candidate.
@@ -436,6 +439,6 @@ def find_layout(
         support_of_cell = np.full(len(cells), -1, np.int64)
         for k, s in enumerate(supports):
             support_of_cell[s.indices] = k
-        for s, members in zip(supports, _group(points, support_of_cell[cell_of_point], len(supports)), strict=True):
+        for s, members in zip(supports, members_of(support_of_cell[cell_of_point], len(supports)), strict=True):
             s.indices = np.sort(members)
     return Layout(labels, floor_height, ceiling_height, supports, planes)

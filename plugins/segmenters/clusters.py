@@ -50,7 +50,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
+from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout, members_of
 from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
     HAND_HELD,
@@ -452,12 +452,16 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig, cu
     labels = segments.copy()
     next_label = int(labels.max()) + 1 if len(labels) else 0
     cos_par, cos_crease = np.cos(np.radians(cfg.smooth_deg)), np.cos(np.radians(cfg.cut_crease_deg))
+    side_of = np.zeros(len(labels), bool)
     for _ in range(cfg.cut_depth):
         changed = False
         same = labels[edges[:, 0]] == labels[edges[:, 1]]
+        # Each segment's own edges and patches, found once a pass (a cut relabels only the segment cut).
+        edges_of = members_of(np.where(same, labels[edges[:, 0]], -1), next_label)
+        patches_of = members_of(labels, next_label)
         for seg in np.unique(labels[edges[same & ~convex, 0]]):
-            inside = same & (labels[edges[:, 0]] == seg)
-            ca, cb = edges[inside & ~convex, 0], edges[inside & ~convex, 1]
+            own, own_convex = edges[edges_of[seg]], convex[edges_of[seg]]
+            ca, cb = own[~own_convex, 0], own[~own_convex, 1]
             # Creases, not curvature: the faces meeting there turn by more than cut_crease_deg
             # (a box side on a box top: 90 degrees; a bowl's inside: a few degrees per patch).
             sharp = np.einsum("ij,ij->i", normal[ca], normal[cb]) <= cos_crease
@@ -473,8 +477,7 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig, cu
                 near = np.abs(n @ mid.T - np.einsum("ij,ij->i", n, p)[:, None]) <= cut_distance
                 aligned = (np.abs(n @ normal[ca].T) >= cos_par) | (np.abs(n @ normal[cb].T) >= cos_par)
                 score[start : start + 256] = (near & aligned).sum(1)
-            members = np.flatnonzero(labels == seg)
-            side_of = np.zeros(len(labels), bool)
+            members = patches_of[seg]
             chosen, chosen_share = None, cfg.cut_concave_share
             # The best supported planes, each tried; the one severing the most concave share wins.
             tried: list[tuple[np.ndarray, float]] = []
@@ -489,10 +492,10 @@ def planar_cuts(graph: PatchGraph, segments: np.ndarray, cfg: ClustersConfig, cu
                 side = _cut_side(graph, members, n, p0, cfg, cut_distance)
                 if side is None:
                     continue
-                side_of[:] = False
                 side_of[members] = side
-                crossing = inside & (side_of[edges[:, 0]] != side_of[edges[:, 1]])
-                share = (crossing & ~convex).sum() / max(crossing.sum(), 1)
+                crossing = side_of[own[:, 0]] != side_of[own[:, 1]]
+                side_of[members] = False
+                share = (crossing & ~own_convex).sum() / max(crossing.sum(), 1)
                 if crossing.any() and share >= chosen_share:
                     chosen, chosen_share = side, share
             if chosen is None:
@@ -590,10 +593,7 @@ def grow_supports(
     if not n_sup or not len(pairs):
         return np.zeros(0, np.int64)
     z = cells[:, 2]
-    hulls = [
-        _hull_equations(cells[supports.of_cell == k, :2]) if (supports.of_cell == k).sum() >= 3 else None
-        for k in range(n_sup)
-    ]
+    hulls = [_hull_equations(cells[m, :2]) if len(m) >= 3 else None for m in members_of(supports.of_cell, n_sup)]
     both = np.concatenate([pairs, pairs[:, ::-1]])
     # Only pairs from a cell that could join a surface (free, not on one, at a surface's height) matter.
     lo, hi = supports.height.min() - tolerance, supports.height.max() + tolerance
@@ -681,7 +681,7 @@ def join_supports(
     if n_sup and n_seg:
         # Each support's footprint: the convex hull of its top, so the hole an object's shadow
         # leaves in the scanned top still counts as on it; grown by a voxel for its rim.
-        hulls = [_hull_equations(cells[supports.of_cell == k, :2]) for k in range(n_sup)]
+        hulls = [_hull_equations(cells[m, :2]) for m in members_of(supports.of_cell, n_sup)]
         order = np.argsort(segment, kind="stable")
         starts = np.searchsorted(segment[order], np.arange(n_seg + 1))
         rise = 2.5 * voxel
@@ -928,8 +928,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             )
             kept = kept[:0]  # the loop below is the clusters-only naming
             things = added
+        points_of = members_of(point_obj, n_obj) if len(kept) else []
         for k in kept:
-            mask = point_obj == k
+            mask = points_of[k]
             name = None
             label = int(np.argmax(on_plane[k]))
             if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
@@ -1015,8 +1016,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         np.add.at(votes_by_instance, (prev_i, prev_c), 1)
         inst_class = votes_by_instance.argmax(axis=1)
         next_id, added = int(prev_i.max()) + 1, 0
+        points_of = members_of(point_obj, int(point_obj.max(initial=-1)) + 1)
+        instance_points = members_of(prev_i, int(prev_i.max(initial=0)) + 1)
         for k in kept:
-            mask = np.flatnonzero(point_obj == k)
+            mask = points_of[k]
             inside = prev_i[mask] > 0
             carried_by = None  # the class of the instance whose mask took this object along, if any
             if inside.mean() >= cfg.covered_share:
@@ -1041,7 +1044,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         out_c[rest] = prev_c[mask[inside][near]]
                     continue
                 rest = mask
-                if not fits_class(vocab.name(owner_class), describe_shape(points[prev_i == owner], base_z, walls)):
+                owner_shape = describe_shape(points[instance_points[owner]], base_z, walls)
+                if not fits_class(vocab.name(owner_class), owner_shape):
                     carried_by = owner_class
             else:
                 rest = mask[~inside]
@@ -1058,7 +1062,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # Instances lying within this object whose own class their shape rules out (a detector box
             # that framed one side of a unit) are pieces of it.
             for piece in np.unique(prev_i[mask[inside]]):
-                members = np.flatnonzero(prev_i == piece)
+                members = instance_points[piece]
                 if (point_obj[members] == k).mean() < 0.8:
                     continue
                 if not fits_class(vocab.name(int(inst_class[piece])), describe_shape(points[members], base_z, walls)):
