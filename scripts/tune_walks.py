@@ -60,6 +60,26 @@ def cache_file(cache: Path, scene: dict[str, Any], spec: bench.BenchSpec, varian
     return cache / f"{bench.safe(scene['name'])}-{hashlib.sha256(key.encode()).hexdigest()[:10]}.pkl"
 
 
+def light_stream(stream: Any) -> Any:
+    """The stream without its images, which are the bulk of it: the late stages read the map, and of
+    the stream only its metadata and where each frame was taken (clusters turns its normals to the
+    cameras and takes the floor where the source found it)."""
+    import dataclasses
+
+    from stratamap.core.map.sensors import RGBDFrame
+
+    if stream is None:
+        return None
+    world = getattr(stream.frames, "world", None)  # a synthetic walk: its poses without rendering
+    if world is not None:
+        poses = [np.asarray(pose).copy() for pose in world.reported_poses]
+    else:
+        poses = [None if f.pose is None else np.asarray(f.pose).copy() for f in stream.frames]
+    rgb, depth = np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), np.float32)
+    frames = [RGBDFrame(k, 0.0, rgb, depth, pose) for k, pose in enumerate(poses)]
+    return dataclasses.replace(stream, frames=frames)
+
+
 def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
     from stratamap.core.stages import PipelineData
 
@@ -74,7 +94,7 @@ def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
     pipe._run_stage(pipe.validated.source, -1, data)
     for i in range(stages):
         pipe._run_stage(pipe.validated.stages[i], i, data)
-    data.stream = None  # the frames are the bulk of it; the late stages read the map
+    data.stream = light_stream(data.stream)
     tmp = target.with_suffix(".tmp")
     with open(tmp, "wb") as fh:
         pickle.dump(data, fh)
