@@ -13,6 +13,7 @@ what was found (``the header promises 112586 vertex rows (1351032 bytes), the fi
 * Text (``.xyz``, ``.xyzrgb``, ``.xyzn``, ``.pts``): one point per line, every line with the same number
   of values; ``.pts`` may start with the point count.
 * NPY: an (N, 3|4|6|7) integer or float array (xyz[, label] or xyz rgb[, label]).
+* Laser scanners' E57 and LAS/LAZ files, through their libraries (:mod:`stratamap.core.io.scans`).
 
 Coordinates may hold NaN (organized clouds mark pixels without a return so); what to do with them is the
 caller's choice.
@@ -30,6 +31,7 @@ import numpy as np
 from stratamap.core.atomic import write_bytes
 from stratamap.core.errors import DataError
 from stratamap.core.io import brief
+from stratamap.core.io.scans import SCAN_SUFFIXES, read_e57, read_las
 
 PLY_TYPES = {
     "char": "i1",
@@ -81,6 +83,10 @@ class CloudData:
     #: (width, height) of an organized cloud (a PCD whose HEIGHT is over 1: one point per pixel of a
     #: camera's image, so in that camera's frame); None for an unorganized one.
     image_size: tuple[int, int] | None = None
+    #: Where the scanner stood for each scan, (K, 3) in the file's frame (E57 scans' poses); an empty
+    #: array when the file says no position (LAS); None when it says nothing (the file's origin, as a
+    #: scanner's or camera's own frame).
+    sensor_positions: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------- headers
@@ -738,17 +744,24 @@ def _read_npy(path: Path, label_field: str) -> CloudData:
 
 
 def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
-    """Points, colors (in [0, 1]) and other per-point fields of a PLY, PCD, XYZ-style or NPY file,
+    """Points, colors (in [0, 1]) and other per-point fields of a PLY, PCD, XYZ-style, NPY, E57 or LAS file,
     verified against the file's header; a text or NPY label column is returned as ``label_field``."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: point cloud file not found")
     suffix = path.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise DataError(f"{path}: unsupported point cloud format {suffix!r} (use {', '.join(SUFFIXES)})")
+    if suffix not in SUFFIXES + SCAN_SUFFIXES:
+        known = ", ".join(SUFFIXES + SCAN_SUFFIXES)
+        raise DataError(f"{path}: unsupported point cloud format {suffix!r} (use {known})")
     if path.stat().st_size == 0:
         raise DataError(f"{path}: empty file")
-    if suffix == ".npy":
+    if suffix == ".e57":
+        points, colors, positions = read_e57(path)
+        cloud = CloudData(points, colors, sensor_positions=positions)
+    elif suffix in (".las", ".laz"):
+        points, colors = read_las(path)
+        cloud = CloudData(points, colors, sensor_positions=np.zeros((0, 3)))
+    elif suffix == ".npy":
         cloud = _read_npy(path, label_field)
     elif suffix in TEXT_SUFFIXES:
         cloud = _read_text(path, label_field)

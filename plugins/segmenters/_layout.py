@@ -41,6 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.geometry.points import voxel_downsample
+from stratamap.core.map.instances import members_of
 
 NONE, FLOOR, WALL, CEILING = 0, 1, 2, 3
 #: Layout label -> class name (the vocabulary's layout classes); ``NONE`` is no layout.
@@ -194,15 +195,6 @@ def _regions(
     idx = np.flatnonzero(member)
     _, out[idx] = np.unique(comp[idx], return_inverse=True)
     return out
-
-
-def members_of(ids: np.ndarray, n: int) -> list[np.ndarray]:
-    """Member indices of each id 0..n-1 (ids < 0 left out), ascending, found with one sort: selecting
-    ``ids == k`` for each k costs a pass over every element per id, which on a hall of hundreds of
-    tables was most of a run."""
-    order = np.argsort(ids, kind="stable")
-    starts = np.searchsorted(ids[order], np.arange(n + 1))
-    return [order[starts[k] : starts[k + 1]] for k in range(n)]
 
 
 def _wall_directions(normal: np.ndarray, vertical: np.ndarray, spread_deg: float, min_cells: int) -> list[np.ndarray]:

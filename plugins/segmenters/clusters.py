@@ -48,9 +48,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
+from stratamap.core.map.instances import members_of
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout, members_of
+from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
     HAND_HELD,
@@ -271,9 +272,10 @@ EYE_HEIGHT = 1.5
 
 
 def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
-    """Where the map was seen from: the camera positions of posed frames, a static cloud's sensor
-    (``world_transform``), EYE_HEIGHT over the centre of a cloud with no sensor (``metadata['sensor_origin']``
-    False: a mesh's surface samples), else a point 2 m above the map's centre."""
+    """Where the map was seen from: the camera positions of posed frames, a scanner file's scan
+    positions (``sensor_positions``: E57), a static cloud's sensor (``world_transform``), EYE_HEIGHT
+    over the centre of a cloud with no sensor (``metadata['sensor_origin']`` False: a mesh's surface
+    samples, a LAS file), else a point 2 m above the map's centre."""
     stream = data.stream
     if stream is not None:
         poses = getattr(stream.frames, "poses", None)
@@ -282,6 +284,8 @@ def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
         centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
         if len(centres):
             return centres[:: max(1, len(centres) // 200)]
+        if stream.points is not None and stream.metadata.get("sensor_positions"):  # a scanner file's (E57)
+            return np.asarray(stream.metadata["sensor_positions"], float).reshape(-1, 3)
         if stream.points is not None and stream.metadata.get("sensor_origin", True):
             transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
             return transform[:3, 3][None]

@@ -78,12 +78,15 @@ def sample_points(stream: SensorStream, max_frames: int = 8, stride: int = 4) ->
 
 
 def sensor_positions(stream: SensorStream) -> np.ndarray:
-    """Where the sensor stood: the cameras of posed frames, else the origin of a static cloud (a
-    scanner's or camera's own frame; a map frame's origin usually lies on its floor), unless the
-    cloud says its origin is none (``metadata['sensor_origin']`` False: a mesh's surface samples)."""
+    """Where the sensor stood: the cameras of posed frames, a scanner file's positions (E57's scan
+    poses, ``metadata['sensor_positions']``), else the origin of a static cloud (a scanner's or
+    camera's own frame; a map frame's origin usually lies on its floor), unless the cloud says its
+    origin is none (``metadata['sensor_origin']`` False: a mesh's surface samples, a LAS file)."""
     posed = [f.pose[:3, 3] for f in _some_frames(stream) if f.pose is not None]
     if posed:
         return np.asarray(posed)
+    if stream.metadata.get("sensor_positions"):  # a scanner file's own (E57), in the stream's frame
+        return np.asarray(stream.metadata["sensor_positions"], float).reshape(-1, 3)
     if not stream.metadata.get("sensor_origin", True):
         return np.zeros((0, 3))
     return np.zeros((1, 3))
@@ -265,6 +268,8 @@ def transform_stream(stream: SensorStream, transform: np.ndarray) -> None:
             scan.pose = transform @ scan.pose
     if stream.points is not None:
         stream.points = apply(transform, np.asarray(stream.points))
+    if stream.metadata.get("sensor_positions"):
+        stream.metadata["sensor_positions"] = apply(transform, np.asarray(stream.metadata["sensor_positions"])).tolist()
     stream.metadata["world_transform"] = (
         transform @ np.asarray(stream.metadata.get("world_transform", np.eye(4)))
     ).tolist()

@@ -1,6 +1,13 @@
-"""Source ``pointcloud``: a static point cloud (PLY, PCD, XYZ, NPY) with optional colors and labels, or
-a scanned mesh (OBJ, GLB/glTF, STL, OFF, a PLY with faces) sampled evenly on its surface, with its
-colours (a room mesh's walls may be two triangles each: its vertices are no sampling of it).
+"""Source ``pointcloud``: a static point cloud (PLY, PCD, XYZ, NPY) with optional colors and labels, a
+laser scanner's E57 or LAS/LAZ file (:mod:`stratamap.core.io.scans`), or a scanned mesh (OBJ,
+GLB/glTF, STL, OFF, a PLY with faces) sampled evenly on its surface, with its colours (a room mesh's
+walls may be two triangles each: its vertices are no sampling of it).
+
+An E57 file's scans are merged in its common frame and its scanners' positions kept
+(``metadata['sensor_positions']``: where `clusters` looks from and the floor search's sensors). A
+LAS file, or any cloud farther than ``FAR_COORDINATES`` from its origin (a georeferenced frame), has
+no scanner position; a georeferenced cloud is moved next to the origin (``metadata['origin_offset']``),
+since maps and exports keep coordinates in 32-bit floats.
 
 Invalid points (NaN or inf coordinates) are dropped. Per-point labels become ground truth:
 ``label_scheme: raw`` keeps each label as an instance of class ``object`` (0 = unlabelled);
@@ -31,6 +38,8 @@ from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.sources._gravity import ScenePlanes, estimate_alignment, stream_planes, transform_stream
 
+#: Farther than this from the origin (metres, x or y), a cloud is moved next to it (a georeferenced frame).
+FAR_COORDINATES = 10_000.0
 UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 
 
@@ -39,8 +48,9 @@ class PointCloudConfig(StageConfig):
 
     path: str = Field(
         description=(
-            "A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label), or a scanned "
-            "mesh (.obj, .glb/.gltf, .stl, .off, or a .ply with faces), sampled on its surface."
+            "A .ply, .pcd, .xyz/.xyzrgb/.pts or .npy file (N x 3, 6 or 7 columns: xyz, rgb, label), a laser "
+            "scanner's .e57 (every scan, seen from its scanner's pose) or .las/.laz (the `scans` extra), or a "
+            "scanned mesh (.obj, .glb/.gltf, .stl, .off, or a .ply with faces), sampled on its surface."
         )
     )
     label_field: str = Field(default="label", description="Name of the per-point label attribute (PLY/PCD).")
@@ -173,8 +183,9 @@ def _check_values(path: Path, valid: np.ndarray, colors: np.ndarray | None, labe
 
 
 class PointCloudSource(Source[PointCloudConfig]):
-    """Static point clouds (PLY, PCD, XYZ, NPY) with optional colors and per-point labels as ground truth, or
-    scanned meshes (OBJ, GLB, STL, OFF, PLY with faces) sampled on their surface."""
+    """Static point clouds (PLY, PCD, XYZ, NPY) with optional colors and per-point labels as ground truth,
+    laser scanners' files (E57, LAS/LAZ), or scanned meshes (OBJ, GLB, STL, OFF, PLY with faces) sampled on
+    their surface."""
 
     name = "pointcloud"
     Config = PointCloudConfig
@@ -208,11 +219,31 @@ class PointCloudSource(Source[PointCloudConfig]):
         self.note("mesh", {"triangles": len(mesh.faces), "area_m2": round(area, 3), "spacing_m": round(used, 4)})
         return pts, colors
 
+    def _near_origin(self, path: Path, pts: np.ndarray, metadata: dict[str, Any]) -> np.ndarray:
+        """A cloud in a georeferenced frame (UTM eastings of 500 km) moved next to the origin: maps and
+        exports keep coordinates in 32-bit floats, which hold centimetres only within a few kilometres."""
+        if np.abs(pts[:, :2]).max() <= FAR_COORDINATES:
+            return pts
+        offset = np.r_[np.floor(pts[:, :2].min(axis=0)), 0.0]
+        metadata["origin_offset"] = offset.tolist()
+        self.note("origin_offset", offset.tolist())  # the report's notes: map + offset = the file's coordinates
+        if "sensor_positions" in metadata:
+            metadata["sensor_positions"] = (np.asarray(metadata["sensor_positions"]) - offset).tolist()
+        else:
+            metadata["sensor_origin"] = False  # a georeferenced frame's origin is no scanner's position
+        self.warn(
+            f"{path}: coordinates reach {np.abs(pts[:, :2]).max():.0f} m from the origin (a georeferenced frame): "
+            f"the map is moved by ({-offset[0]:.0f}, {-offset[1]:.0f}) m to keep centimetres "
+            "(add the stream's origin_offset to map coordinates to get the file's)"
+        )
+        return pts - offset
+
     def read(self) -> dict[str, Any]:
         cfg = self.config
         path = Path(cfg.path).expanduser()
         gltf = path.suffix.lower() in (".glb", ".gltf")
         mesh = is_mesh_file(path)
+        positions = None  # where scanners stood, when the file says (E57), in its frame
         if mesh:
             pts, colors = self._sample_mesh(path)
             labels, organized = None, False
@@ -220,6 +251,7 @@ class PointCloudSource(Source[PointCloudConfig]):
             cloud = read_point_cloud(path, cfg.label_field)
             pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
             organized = cloud.image_size is not None
+            positions = cloud.sensor_positions
         # glTF is y up by its specification: turned z up as read, no guess (an up_axis given is the file's).
         from_gltf = gltf and cfg.up_axis == "auto"
         if from_gltf:
@@ -236,9 +268,13 @@ class PointCloudSource(Source[PointCloudConfig]):
         labels = None if labels is None else labels[valid].astype(np.int64)
         if not np.all(np.isfinite(pts)):
             raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
-        metadata = {"path": str(path), "dropped_invalid": dropped}
-        if mesh:
-            metadata["sensor_origin"] = False  # its origin is where the modeller put it, no scanner's position
+        metadata: dict[str, Any] = {"path": str(path), "dropped_invalid": dropped}
+        if mesh or (positions is not None and len(positions) == 0):
+            # A mesh's origin is where the modeller put it; a LAS file's is a map's: no scanner stood there.
+            metadata["sensor_origin"] = False
+        elif positions is not None:
+            metadata["sensor_positions"] = (np.asarray(positions) * cfg.scale).tolist()
+        pts = self._near_origin(path, pts, metadata)
         stream = SensorStream(name=path.stem, points=pts, point_colors=colors, metadata=metadata)
         self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
         out: dict[str, Any] = {"frames": stream}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stratamap.plugins.segmenters._layout import CEILING, FLOOR, NONE, WALL, LayoutParams, find_layout, members_of
+from stratamap.plugins.segmenters._layout import CEILING, FLOOR, NONE, WALL, LayoutParams, find_layout
 
 ROOM = (6.0, 5.0, 2.6)
 
@@ -233,12 +233,3 @@ def test_a_partition_the_sensor_sees_over_is_no_wall():
     layout = find_layout(points, spacing, viewpoints=view[None])
     assert (layout.labels[-len(partition) :] == WALL).mean() < 0.05
     assert layout.walls == 4
-
-
-def test_members_of_lists_each_ids_indices_in_order():
-    """One sort gives what ``flatnonzero(ids == k)`` gives for every k; negative ids are nobody's."""
-    ids = np.random.default_rng(3).integers(-2, 7, 500)
-    groups = members_of(ids, 9)
-    assert len(groups) == 9
-    for k, group in enumerate(groups):
-        assert np.array_equal(group, np.flatnonzero(ids == k))

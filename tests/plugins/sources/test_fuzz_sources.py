@@ -115,10 +115,31 @@ def clouds() -> dict[str, bytes]:
     points = np.c_[rng.uniform(0, 2, (30, 2)), np.zeros(30)]
     labels = rng.integers(0, 40, 30).astype(np.int32)
     with tempfile.TemporaryDirectory() as tmp:
-        return {
+        out = {
             name: write_point_cloud(Path(tmp) / name, points, None, {"label": labels}, binary=binary).read_bytes()
             for name, binary in (("c.ply", True), ("c.pcd", False), ("c.npy", True))
         }
+        out |= scanner_files(Path(tmp), points)
+    return out
+
+
+def scanner_files(tmp: Path, points: np.ndarray) -> dict[str, bytes]:
+    """The points as LAS 1.4, LAZ and E57 (the libraries of the ``scans`` extra write them)."""
+    try:
+        import laspy
+        import pye57
+    except ImportError:
+        return {}
+    header = laspy.LasHeader(point_format=3, version="1.4")
+    header.scales = [0.001] * 3
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = points.T
+    for name in ("c.las", "c.laz"):
+        las.write(str(tmp / name))
+    e57 = pye57.E57(str(tmp / "c.e57"), mode="w")
+    e57.write_scan_raw({f"cartesian{a}": points[:, k] for k, a in enumerate("XYZ")}, translation=np.zeros(3))
+    e57.close()
+    return {name: (tmp / name).read_bytes() for name in ("c.las", "c.laz", "c.e57")}
 
 
 CLOUDS = clouds()

@@ -1,0 +1,162 @@
+"""Laser scanners' files through configs/scan.yaml: E57 (terrestrial scanners' export, several scans
+with the scanners' poses) and LAS/LAZ (georeferenced, no scanner position), written with their own
+libraries; a broken file is a one-line error naming it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stratamap.core.config import load_pipeline
+from stratamap.core.errors import DataError
+from stratamap.core.map.layers import LayeredMap
+from stratamap.core.pipeline import Pipeline
+from stratamap.core.stages import PipelineData
+from stratamap.plugins.sources.pointcloud import PointCloudSource
+from tests.conftest import REPO, low_poly_room
+
+pye57 = pytest.importorskip("pye57")
+laspy = pytest.importorskip("laspy")
+
+#: Where the room lies in the files: the file's origin outside it, as a site's survey frame puts it.
+SHIFT = np.array([3.0, 2.0, 0.0])
+#: Two scanner stations inside the room, 1.5 m up (room frame).
+STATIONS = np.array([[1.2, 2.0, 1.5], [3.8, 2.0, 1.5]])
+
+
+def room_points() -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    mesh = low_poly_room()
+    points, faces = trimesh.sample.sample_surface(mesh, 150_000, seed=0)
+    colors = np.asarray(mesh.visual.face_colors)[faces, :3]
+    return np.asarray(points), colors
+
+
+def write_e57(path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Each station's half of the room as one scan, in that scanner's own frame, with its pose."""
+    e57 = pye57.E57(str(path), mode="w")
+    half = points[:, 0] < 2.5
+    for station, mine in zip(STATIONS + SHIFT, (half, ~half), strict=True):
+        local = points[mine] + SHIFT - station
+        data = {f"cartesian{a}": local[:, k] for k, a in enumerate("XYZ")}
+        data |= {f"color{c}": colors[mine, k].astype(np.uint8) for k, c in enumerate(("Red", "Green", "Blue"))}
+        e57.write_scan_raw(data, rotation=np.array([1.0, 0.0, 0.0, 0.0]), translation=station)
+    e57.close()
+
+
+def check_room(report: dict, out) -> LayeredMap:
+    notes = report["notes"]["clusters"]["segments"]
+    assert notes["walls"] == 4 and abs(notes["floor_height"]) < 0.01, notes
+    m = LayeredMap.load(out / "map")
+    tables = [inst for inst in m.instances if inst.class_name == "table"]
+    assert len(tables) == 1 and np.allclose(sorted(tables[0].box.size), [0.72, 0.8, 1.2], atol=0.05)
+    return m
+
+
+def test_an_e57_of_two_scans_is_one_room_seen_from_its_stations(tmp_path):
+    """The scans come back in the file's common frame, and `clusters` looks from the scanners' stations
+    (from the file's origin, outside the room, it found two walls and a 5 m "object")."""
+    points, colors = room_points()
+    path = tmp_path / "site.e57"
+    write_e57(path, points, colors)
+    data = PipelineData()
+    stream = PointCloudSource(path=str(path), gravity="off").run(data)["frames"]
+    assert len(stream.points) == len(points)
+    assert np.allclose(np.sort(stream.points, axis=0), np.sort(points + SHIFT, axis=0), atol=1e-6)
+    assert np.allclose(stream.metadata["sensor_positions"], STATIONS + SHIFT)
+    assert np.allclose(stream.point_colors[0], colors[0] / 255.0, atol=1e-6)
+    out = tmp_path / "room"
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    check_room(report, out)
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_a_georeferenced_las_is_moved_next_to_the_origin(tmp_path, suffix):
+    """A LAS/LAZ room 500 km east: its map keeps centimetres (moved next to the origin, the offset in
+    the stream's metadata and a warning), 16-bit colours are read in [0, 1], and no scanner is taken
+    to stand at the survey frame's origin."""
+    points, colors = room_points()
+    east = np.array([500_000.0, 5_400_000.0, 0.0])
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = east, [0.001, 0.001, 0.001]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = (points + east).T
+    las.red, las.green, las.blue = (colors.astype(np.uint16) * 257).T
+    path = tmp_path / f"site{suffix}"
+    las.write(str(path))
+    data = PipelineData()
+    stream = PointCloudSource(path=str(path), gravity="off").run(data)["frames"]
+    assert np.allclose(np.asarray(stream.metadata["origin_offset"]), east, atol=1.0)
+    assert np.abs(stream.points).max() < 10.0 and stream.metadata["sensor_origin"] is False
+    assert np.allclose(stream.points + stream.metadata["origin_offset"], points + east, atol=2e-3)
+    assert np.allclose(stream.point_colors[0], colors[0] / 255.0, atol=1e-3)
+    assert any("georeferenced" in w for w in data.warnings)
+    out = tmp_path / "room"
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    m = check_room(report, out)
+    assert np.abs(m.geometry.points).max() < 10.0
+    assert np.allclose(report["notes"]["pointcloud"]["origin_offset"], east, atol=1.0)
+
+
+@pytest.mark.parametrize("name", ["broken.e57", "broken.las", "broken.laz"])
+def test_a_broken_scanner_file_is_a_one_line_error_naming_it(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(b"LASF" + bytes(range(256)) * 4)
+    with pytest.raises(DataError) as err:
+        PointCloudSource(path=str(path)).run(PipelineData())
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_without_the_scans_extra_the_error_says_what_to_install(tmp_path, monkeypatch):
+    import importlib
+
+    from stratamap.core.io import scans
+
+    real = importlib.import_module
+
+    def missing(name, *args):
+        if name in ("pye57", "laspy"):
+            raise ImportError(name)
+        return real(name, *args)
+
+    monkeypatch.setattr(scans.importlib, "import_module", missing)
+    path = tmp_path / "site.e57"
+    path.write_bytes(b"x" * 64)
+    with pytest.raises(DataError, match=r"site\.e57: reading E57 scans needs pye57.*stratamap\[scans\]"):
+        PointCloudSource(path=str(path)).run(PipelineData())
+
+
+def _patched(data: bytes, at: int, fmt: str, value: int) -> bytes:
+    import struct
+
+    out = bytearray(data)
+    struct.pack_into(fmt, out, at, value)
+    return bytes(out)
+
+
+def test_a_las_header_promising_more_than_the_file_holds_is_refused_before_reading(tmp_path):
+    """Counts laspy and the LAZ decoder trust, damaged: billions of variable-length records (laspy read
+    for hours), a point count past the file's end, LASzip chunks of a billion points and a chunk
+    table of billions of chunks (the decoder aborted the process asking for 38 and 57 GB)."""
+    import struct
+
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.random.default_rng(0).uniform(0, 1, (500, 3)).T
+    for suffix in (".las", ".laz"):
+        las.write(str(tmp_path / f"ok{suffix}"))
+    plain, packed = (tmp_path / "ok.las").read_bytes(), (tmp_path / "ok.laz").read_bytes()
+    header_size, offset = struct.unpack_from("<HI", packed, 94)
+    table = struct.unpack_from("<q", packed, offset)[0]
+    cases = {
+        "vlrs.las": (_patched(plain, 100, "<I", 3_000_000_000), "variable-length records"),
+        "points.las": (_patched(plain, 107, "<I", 520_094_196), "promises 520094196 points"),
+        "chunk.laz": (_patched(packed, header_size + 54 + 12, "<I", 1_124_123_472), "LASzip chunks"),
+        "table.laz": (_patched(packed, table + 4, "<I", 3_589_080_462), "chunk table"),
+    }
+    for name, (data, message) in cases.items():
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(DataError, match=message):
+            PointCloudSource(path=str(path)).run(PipelineData())
