@@ -245,7 +245,8 @@ CLOUD_CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
         lambda t: put(t, "c.npy", b"PK\x03\x04 this is a zip"),
         r"c\.npy: not a \.npy array file",
     ),
-    "unsupported-suffix": (lambda t: put(t, "c.las", b"LASF"), r"c\.las: unsupported point"),
+    "unsupported-suffix": (lambda t: put(t, "c.rcp", b"RCP"), r"c\.rcp: unsupported point"),
+    "las-header-cut": (lambda t: put(t, "c.las", b"LASF"), r"c\.las: not a LAS file \(no 'LASF' header of 227"),
 }
 
 

@@ -540,6 +540,6 @@ def test_pointcloud_formats_and_errors(tmp_path):
     np.save(tmp_path / "bad.npy", np.zeros((10, 5)))
     with pytest.raises(DataError, match="expected an"):
         read(PointCloudSource(path=str(tmp_path / "bad.npy")))
-    (tmp_path / "c.las").write_text("x")
+    (tmp_path / "c.rcp").write_text("x")
     with pytest.raises(DataError, match="unsupported"):
-        read(PointCloudSource(path=str(tmp_path / "c.las")))
+        read(PointCloudSource(path=str(tmp_path / "c.rcp")))
