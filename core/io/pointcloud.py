@@ -139,6 +139,9 @@ class PcdHeader:
     points: int
     data: str  # ascii | binary | binary_compressed
     body_offset: int
+    #: VIEWPOINT: where the sensor stood, tx ty tz qw qx qy qz in the cloud's frame (PCL's "acquisition
+    #: viewpoint"); None when the header has none.
+    viewpoint: tuple[float, ...] | None = None
 
     def dtype(self, order: str = "<") -> np.dtype:
         return np.dtype(
@@ -306,7 +309,17 @@ def parse_pcd_header(data: bytes, path: Path) -> PcdHeader:
             raise DataError(f"{path}: no {axis!r} field (FIELDS {' '.join(names)}); a point cloud needs x, y and z")
         if counts[names.index(axis)] != 1:
             raise DataError(f"{path}: field {axis!r} has COUNT {counts[names.index(axis)]}, expected 1")
-    return PcdHeader(names, sizes, types, counts, width, height, points, data_s[0].lower(), m.end())
+    viewpoint = None
+    viewpoint_entry = values("VIEWPOINT", required=False)
+    if viewpoint_entry:
+        ln, numbers = viewpoint_entry
+        try:
+            viewpoint = tuple(float(v) for v in numbers)
+        except ValueError:
+            viewpoint = ()
+        if len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint)):
+            raise DataError(f"{path}: header line {ln}: VIEWPOINT {' '.join(numbers)!r}; expected tx ty tz qw qx qy qz")
+    return PcdHeader(names, sizes, types, counts, width, height, points, data_s[0].lower(), m.end(), viewpoint)
 
 
 # --------------------------------------------------------------------------------------------- bodies
@@ -777,6 +790,8 @@ def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
             cloud = _read_compressed_pcd(path, header) if columns is None else _from_columns(columns, path)
             if header.height > 1:
                 cloud.image_size = (header.width, header.height)
+            if header.viewpoint is not None and any(header.viewpoint[:3]):
+                cloud.sensor_positions = np.array([header.viewpoint[:3]])  # at the origin: as without one
     if len(cloud.points) == 0:
         raise DataError(f"{path}: the header declares no points")
     return cloud

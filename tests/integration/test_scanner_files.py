@@ -160,3 +160,24 @@ def test_a_las_header_promising_more_than_the_file_holds_is_refused_before_readi
         path.write_bytes(data)
         with pytest.raises(DataError, match=message):
             PointCloudSource(path=str(path)).run(PipelineData())
+
+
+def test_a_pcd_viewpoint_is_where_its_scanner_stood(tmp_path):
+    """PCL's VIEWPOINT header line (tx ty tz qw qx qy qz) is the scanner's position, as an E57 pose is:
+    the room, its origin outside, is seen from there; a VIEWPOINT that is no seven numbers is refused."""
+    from stratamap.core.io.pointcloud import write_point_cloud
+
+    points, colors = room_points()
+    path = write_point_cloud(tmp_path / "room.pcd", points + SHIFT, colors / 255.0, binary=True)
+    station = STATIONS[0] + SHIFT
+    line = "VIEWPOINT {:g} {:g} {:g} 1 0 0 0".format(*station).encode()
+    path.write_bytes(path.read_bytes().replace(b"VIEWPOINT 0 0 0 1 0 0 0", line, 1))
+    stream = PointCloudSource(path=str(path), gravity="off").run(PipelineData())["frames"]
+    assert np.allclose(stream.metadata["sensor_positions"], [station])
+    out = tmp_path / "room"
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    check_room(report, out)
+    bad = tmp_path / "bad.pcd"
+    bad.write_bytes(path.read_bytes().replace(line, b"VIEWPOINT 1 2 three", 1))
+    with pytest.raises(DataError, match=r"bad\.pcd: header line \d+: VIEWPOINT '1 2 three'"):
+        PointCloudSource(path=str(bad)).run(PipelineData())
