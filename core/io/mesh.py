@@ -53,6 +53,39 @@ def read_mesh(path: str | Path, what: str = "mesh") -> Any:
     return loaded
 
 
+def _vertex_colors(mesh: Any) -> np.ndarray | None:
+    colors = getattr(mesh.visual, "vertex_colors", None) if getattr(mesh.visual, "kind", None) == "vertex" else None
+    return None if colors is None or len(colors) != len(mesh.vertices) else np.asarray(colors)
+
+
+def read_vertices_only(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """The vertices (and their colours in [0, 1]) of a mesh file that holds points and no faces (an OBJ
+    of ``v`` lines only, as some scanners and photogrammetry tools export clouds; a glTF of POINTS);
+    None when the file holds faces, or nothing trimesh reads as points."""
+    path = Path(path)
+    try:
+        loaded = trimesh.load(path, process=False)
+    except Exception:  # read_mesh reports what is wrong with the file
+        return None
+    parts = [loaded]
+    if isinstance(loaded, trimesh.Scene):  # each part where the scene puts it
+        parts = [loaded.geometry[n].copy().apply_transform(loaded.graph[n][0]) for n in loaded.graph.nodes_geometry]
+    # A faceless Trimesh is the same (trimesh reads an OFF of vertices only so).
+    parts = [
+        trimesh.points.PointCloud(g.vertices, colors=_vertex_colors(g))
+        if isinstance(g, trimesh.Trimesh) and len(g.vertices) and not len(g.faces)
+        else g
+        for g in parts
+    ]
+    if not parts or not all(isinstance(g, trimesh.points.PointCloud) for g in parts):
+        return None
+    points = np.concatenate([np.asarray(g.vertices, np.float64) for g in parts])
+    colors = None
+    if all(len(getattr(g, "colors", [])) == len(g.vertices) for g in parts):
+        colors = np.concatenate([np.asarray(g.colors, np.float64)[:, :3] / 255.0 for g in parts])
+    return (points, colors) if len(points) else None
+
+
 def write_mesh(mesh: Any, path: str | Path, file_type: str | None = None) -> Path:
     """Export ``mesh`` atomically; the type follows the suffix unless ``file_type`` is given."""
     path = Path(path)

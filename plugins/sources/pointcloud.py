@@ -31,7 +31,7 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.io.mesh import is_mesh_file, read_mesh, sample_surface
+from stratamap.core.io.mesh import is_mesh_file, read_mesh, read_vertices_only, sample_surface
 from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
@@ -205,6 +205,10 @@ class PointCloudSource(Source[PointCloudConfig]):
 
     def _sample_mesh(self, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         cfg = self.config
+        vertices = read_vertices_only(path)
+        if vertices is not None:  # a cloud stored in a mesh format: its vertices are the points
+            self.note("mesh", {"triangles": 0, "vertices_as_points": len(vertices[0])})
+            return vertices
         mesh = read_mesh(path, "scanned mesh")
         try:  # spacing in the file's units (scale turns them into metres afterwards)
             pts, colors, used = sample_surface(mesh, cfg.mesh_spacing / cfg.scale, cfg.mesh_max_points)

@@ -181,3 +181,20 @@ def test_a_pcd_viewpoint_is_where_its_scanner_stood(tmp_path):
     bad.write_bytes(path.read_bytes().replace(line, b"VIEWPOINT 1 2 three", 1))
     with pytest.raises(DataError, match=r"bad\.pcd: header line \d+: VIEWPOINT '1 2 three'"):
         PointCloudSource(path=str(bad)).run(PipelineData())
+
+
+def test_an_obj_of_vertices_only_is_read_as_its_points(tmp_path):
+    """A cloud stored as an OBJ of `v x y z r g b` lines and no faces (as some scanners and
+    photogrammetry tools export one) is read as its points and colours, not refused as a mesh without
+    triangles; it has no sensor position, as a mesh has none."""
+    points, colors = room_points()
+    rows = np.c_[points + SHIFT, colors / 255.0]
+    path = tmp_path / "cloud.obj"
+    path.write_text("".join("v {:.5f} {:.5f} {:.5f} {:.4f} {:.4f} {:.4f}\n".format(*row) for row in rows))
+    stream = PointCloudSource(path=str(path), gravity="off").run(PipelineData())["frames"]
+    assert np.allclose(stream.points, points + SHIFT, atol=1e-5)
+    assert np.allclose(stream.point_colors, colors / 255.0, atol=3e-3)
+    assert stream.metadata["sensor_origin"] is False
+    out = tmp_path / "room"
+    report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
+    check_room(report, out)

@@ -550,7 +550,7 @@ def test_a_cloud_with_no_floor_either_way_names_both_axes_looked_along(tmp_path)
     "name,content,message",
     [
         ("scan.glb", b"not a glTF file", r"scan\.glb: cannot be read as a scanned mesh \("),
-        ("points.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", r"points\.obj: no triangles"),
+        ("empty.stl", b"solid empty\nendsolid empty\n", r"empty\.stl: no triangles"),
         ("flat.obj", b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", r"flat\.obj: the mesh has no surface area"),
         (
             "faces.ply",
