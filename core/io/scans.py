@@ -70,8 +70,6 @@ def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
             colors.append(np.c_[data["colorRed"], data["colorGreen"], data["colorBlue"]] if has_color else None)
             # A scan without a pose is in the file's frame already, its scanner at the origin.
             positions.append(np.asarray(header.translation, np.float64) if header.has_pose() else np.zeros(3))
-    except DataError:
-        raise
     except Exception as exc:
         raise DataError(f"{path}: scan {k} cannot be read ({_e57_reason(exc)})") from exc
     finally:
@@ -84,9 +82,8 @@ def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
 
 
 #: The LAS public header block's fields checked before laspy reads the file (ASPRS LAS 1.0-1.4).
-LAS_HEADER = struct.Struct(
-    "<4s20xBB68xHIIBHI"
-)  # signature, version, header size, point offset, VLRs, format, length, points
+# signature, version major and minor, header size, offset to points, VLRs, point format, record length, points
+LAS_HEADER = struct.Struct("<4s20xBB68xHIIBHI")
 LAS_MIN_HEADER = 227  # bytes of a LAS 1.0-1.2 public header block
 VLR_HEADER = 54  # bytes before each variable-length record's payload
 EVLR_HEADER = 60
@@ -99,7 +96,11 @@ def check_las_header(path: Path) -> None:
     count of variable-length records (a few billion) kept it reading for hours."""
     size = path.stat().st_size
     with open(path, "rb") as fh:
-        head = fh.read(375)
+        _check_las_header(path, fh, size)
+
+
+def _check_las_header(path: Path, fh: Any, size: int) -> None:
+    head = fh.read(375)
     if len(head) < LAS_MIN_HEADER or head[:4] != b"LASF":
         raise DataError(f"{path}: not a LAS file (no 'LASF' header of {LAS_MIN_HEADER} bytes)")
     _, major, minor, header_size, offset, vlrs, point_format, record_length, points = LAS_HEADER.unpack_from(head)
@@ -125,54 +126,50 @@ def check_las_header(path: Path) -> None:
             f"{path}: the header promises {points} points of {record_length} bytes "
             f"({points * record_length} bytes), the file holds {size - offset} after the header"
         )
-    # LAZ stores each chunk's first point whole (chunks of 50,000 points as written by LASzip and
-    # lazrs); four times that per stored record is more than any real file holds.
-    if compressed and points > LAZ_POINTS_PER_RECORD * max(size - offset, 0) // max(record_length, 1):
-        raise DataError(
-            f"{path}: the header promises {points} compressed points, more than its {size - offset} bytes of "
-            "point data can hold"
-        )
     if compressed:
-        _check_laszip_chunks(path, header_size, vlrs, points)
-        _check_chunk_table(path, size, offset, points)
+        # LAZ stores each chunk's first point whole (chunks of 50,000 points as written by LASzip and
+        # lazrs); four times that per stored record is more than any real file holds.
+        if points > LAZ_POINTS_PER_RECORD * max(size - offset, 0) // max(record_length, 1):
+            raise DataError(
+                f"{path}: the header promises {points} compressed points, more than its {size - offset} bytes of "
+                "point data can hold"
+            )
+        _check_laszip_chunks(path, fh, header_size, vlrs, points)
+        _check_chunk_table(path, fh, size, offset, points)
 
 
-def _check_laszip_chunks(path: Path, header_size: int, vlrs: int, points: int) -> None:
+def _check_laszip_chunks(path: Path, fh: Any, header_size: int, vlrs: int, points: int) -> None:
     """The LASzip record's chunk size (points per chunk; 0xFFFFFFFF: variable) within what a file of
     ``points`` can use: the decoder allocates a whole chunk first, and a damaged size aborted it."""
-    with open(path, "rb") as fh:
-        fh.seek(header_size)
-        for _ in range(vlrs):
-            head = fh.read(VLR_HEADER)
-            if len(head) < VLR_HEADER:
-                return
-            user, record, length = head[2:18].rstrip(b"\0"), *struct.unpack_from("<HH", head, 18)
-            payload = fh.read(length)
-            if user == b"laszip encoded" and record == 22204 and len(payload) >= 16:
-                (chunk,) = struct.unpack_from("<I", payload, 12)
-                if chunk != 0xFFFFFFFF and chunk > max(points, LAZ_MAX_CHUNK):
-                    raise DataError(f"{path}: LASzip chunks of {chunk} points, in a file of {points} points")
-                return
+    fh.seek(header_size)
+    for _ in range(vlrs):
+        head = fh.read(VLR_HEADER)
+        if len(head) < VLR_HEADER:
+            return
+        user, record, length = head[2:18].rstrip(b"\0"), *struct.unpack_from("<HH", head, 18)
+        payload = fh.read(length)
+        if user == b"laszip encoded" and record == 22204 and len(payload) >= 16:
+            (chunk,) = struct.unpack_from("<I", payload, 12)
+            if chunk != 0xFFFFFFFF and chunk > max(points, LAZ_MAX_CHUNK):
+                raise DataError(f"{path}: LASzip chunks of {chunk} points, in a file of {points} points")
+            return
 
 
-def _check_chunk_table(path: Path, size: int, offset: int, points: int) -> None:
+def _check_chunk_table(path: Path, fh: Any, size: int, offset: int, points: int) -> None:
     """LAZ's chunk table (its position is the first 8 bytes of the point data; version 0, then the
     number of chunks) holds at most a chunk per point: the LAZ decoder allocates what it says before
     reading it, and a damaged count aborted the process asking for 57 GB."""
-    with open(path, "rb") as fh:
-        fh.seek(offset)
-        raw = fh.read(8)
-        if len(raw) < 8:
-            raise DataError(f"{path}: the compressed point data ends before its chunk table's position")
-        (table,) = struct.unpack("<q", raw)
-        if table < 0:  # -1: written as a stream, no table
-            return
-        if not offset + 8 <= table <= size - 8:
-            raise DataError(
-                f"{path}: the chunk table lies at byte {table}, outside the point data (file: {size} bytes)"
-            )
-        fh.seek(table)
-        version, chunks = struct.unpack("<II", fh.read(8))
+    fh.seek(offset)
+    raw = fh.read(8)
+    if len(raw) < 8:
+        raise DataError(f"{path}: the compressed point data ends before its chunk table's position")
+    (table,) = struct.unpack("<q", raw)
+    if table < 0:  # -1: written as a stream, no table
+        return
+    if not offset + 8 <= table <= size - 8:
+        raise DataError(f"{path}: the chunk table lies at byte {table}, outside the point data (file: {size} bytes)")
+    fh.seek(table)
+    version, chunks = struct.unpack("<II", fh.read(8))
     if version != 0 or chunks > points + 1:
         raise DataError(
             f"{path}: the chunk table (version {version}) promises {chunks} chunks for {points} points; expected "

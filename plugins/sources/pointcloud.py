@@ -205,11 +205,15 @@ class PointCloudSource(Source[PointCloudConfig]):
 
     def _sample_mesh(self, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         cfg = self.config
-        vertices = read_vertices_only(path)
-        if vertices is not None:  # a cloud stored in a mesh format: its vertices are the points
+        try:
+            mesh = read_mesh(path, "scanned mesh")
+        except DataError:
+            vertices = read_vertices_only(path)  # read again only when it holds no triangle mesh
+            if vertices is None:
+                raise
+            # A cloud stored in a mesh format: its vertices are the points.
             self.note("mesh", {"triangles": 0, "vertices_as_points": len(vertices[0])})
             return vertices
-        mesh = read_mesh(path, "scanned mesh")
         try:  # spacing in the file's units (scale turns them into metres afterwards)
             pts, colors, used = sample_surface(mesh, cfg.mesh_spacing / cfg.scale, cfg.mesh_max_points)
         except DataError as err:
