@@ -19,11 +19,36 @@ from stratamap.core.atomic import write_text
 from stratamap.core.evaluation.html_page import dict_table, drawn, figure, page, png_data_uri
 from stratamap.core.hookspecs import hookimpl
 
-MAX_POINTS = 60_000  # drawn in the top-down views; more add nothing visible
+#: Pixels across the longer side of a top-down view: finer than the figure shows adds nothing.
+RASTER_PIXELS = 560
 
 
-def _subsample(n: int) -> np.ndarray:
-    return np.arange(n) if n <= MAX_POINTS else np.linspace(0, n - 1, MAX_POINTS).astype(np.int64)
+def top_down_raster(xy: np.ndarray, z: np.ndarray, rgba: np.ndarray) -> tuple[np.ndarray, tuple[float, ...]]:
+    """Points seen from above as an RGBA image (transparent where none falls) and its extent
+    (xmin, xmax, ymin, ymax): each pixel shows the highest point in it and its eight neighbours
+    (tabletops over floors), so a surface sampled sparser than the pixels still reads as a surface."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    pixel = max(float((hi - lo).max()) / RASTER_PIXELS, 1e-6)
+    width, height = (np.floor((hi - lo) / pixel).astype(np.int64) + 1).tolist()
+    col, row = (np.floor((xy - lo) / pixel).astype(np.int64)).T
+    flat = np.minimum(row, height - 1) * width + np.minimum(col, width - 1)
+    order = np.lexsort((z, flat))
+    flat, top = flat[order], np.r_[flat[order][1:] != flat[order][:-1], True]
+    zbuf = np.full(height * width, -np.inf)
+    image = np.zeros((height * width, 4))
+    zbuf[flat[top]], image[flat[top]] = z[order][top], rgba[order][top]
+    zbuf, image = zbuf.reshape(height, width), image.reshape(height, width, 4)
+    best, filled = zbuf.copy(), image.copy()
+    padded_z = np.pad(zbuf, 1, constant_values=-np.inf)
+    padded = np.pad(image, ((1, 1), (1, 1), (0, 0)))
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            z_near = padded_z[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width]
+            take = z_near > best
+            best[take] = z_near[take]
+            filled[take] = padded[1 + dr : 1 + dr + height, 1 + dc : 1 + dc + width][take]
+    extent = (float(lo[0]), float(lo[0] + width * pixel), float(lo[1]), float(lo[1] + height * pixel))
+    return filled, extent
 
 
 def _palette(plt: Any) -> np.ndarray:
@@ -50,27 +75,24 @@ def top_down(data: Any, by: str) -> str | None:
     import matplotlib.pyplot as plt
 
     pts = geometry.points
-    keep = _subsample(len(pts))
+    keep = np.arange(len(pts))
     if semantics is not None and len(semantics) == len(pts) and "ceiling" in semantics.vocabulary:
         # Seen from above, a room's ceiling would hide everything under it.
         keep = keep[np.asarray(semantics.class_ids)[keep] != semantics.vocabulary.id("ceiling")]
+    if not len(keep):
+        return None
     if semantics is not None and len(semantics) == len(pts):
         ids = semantics.class_ids if by == "class" else semantics.instance_ids
         palette = _palette(plt)
         color = palette[np.asarray(ids)[keep] % len(palette)]
         color[np.asarray(ids)[keep] == 0] = (0.75, 0.75, 0.75, 1.0)
     elif geometry.colors is not None:
-        color = geometry.colors[keep]
+        color = np.c_[np.clip(geometry.colors[keep], 0, 1), np.ones(len(keep))]
     else:
-        color = "0.4"
+        color = np.tile((0.4, 0.4, 0.4, 1.0), (len(keep), 1))
+    image, extent = top_down_raster(pts[keep, :2], pts[keep, 2], color)
     fig, ax = plt.subplots(figsize=(7, 6))
-    order = np.argsort(pts[keep, 2])  # higher points drawn last: tabletops over floors
-    ax.scatter(
-        pts[keep][order, 0],
-        pts[keep][order, 1],
-        s=0.3,
-        c=np.asarray(color)[order] if not isinstance(color, str) else color,
-    )
+    ax.imshow(image, origin="lower", extent=extent, interpolation="nearest")
     centers = {}
     for inst in instances or []:
         corners = np.vstack([inst.box.corners_2d(), inst.box.corners_2d()[:1]])
