@@ -14,7 +14,8 @@ KISS-ICP's registration reduces in parallel too.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import re
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -27,16 +28,26 @@ o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
 
 
+def open3d_message(exc: Exception) -> str:
+    """An Open3D error's own words, without its terminal colours and the C++ function and file
+    it came from."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).strip()
+    return re.sub(r"^\[Open3D Error\] \(.*?\) \S+:\d+: ", "", text).strip().rstrip(".")
+
+
 def rgbd_frame_to_model(
-    frames: Sequence[RGBDFrame],
+    frames: Iterable[RGBDFrame],
     intrinsics: CameraIntrinsics,
     voxel_size: float = 0.01,
     depth_max: float = 4.0,
     depth_min: float = 0.2,
     trunc_multiplier: float = 8.0,
     progress: Callable[[int], None] | None = None,
+    fitness: list[float] | None = None,
 ) -> list[np.ndarray]:
-    """Camera-to-world poses (the first camera is the world) by frame-to-model tracking."""
+    """Camera-to-world poses (the first camera is the world) by frame-to-model tracking. The frames
+    are read once, in order, and not kept. Each tracked frame's fitness (the share of its pixels
+    that found a match in the model) is appended to ``fitness`` when given."""
     device = o3c.Device("CPU:0")
     K = o3c.Tensor(intrinsics.matrix, o3c.float64)
     model = o3d.t.pipelines.slam.Model(voxel_size, 16, 40000, o3c.Tensor(np.eye(4)), device)
@@ -58,8 +69,14 @@ def rgbd_frame_to_model(
                 try:
                     result = model.track_frame_to_model(input_frame, raycast_frame, scale, depth_max, 0.07)
                     pose = pose @ result.transformation.numpy()
+                    if fitness is not None:
+                        fitness.append(float(result.fitness))
                 except RuntimeError as exc:  # Open3D raises when the system is degenerate
-                    raise DataError(f"odometry: tracking lost at frame {frame.index} ({exc})") from exc
+                    raise DataError(
+                        f"odometry: tracking lost at frame {frame.index} ({open3d_message(exc)}): the camera moved "
+                        "far between frames or saw too little structure; read more frames (a smaller `stride`) "
+                        "or give poses"
+                    ) from None
             poses.append(pose.copy())
             model.update_frame_pose(i, o3c.Tensor(pose))
             model.integrate(input_frame, scale, depth_max, trunc_multiplier)

@@ -119,6 +119,76 @@ def test_tum_without_poses_runs_odometry_and_reports_ate(tmp_path):
         read(TUMSource(path=str(seq), odometry="never"))
 
 
+@pytest.fixture(scope="module")
+def orbit_without_poses(tmp_path_factory):
+    """A TUM folder of a 144-frame orbit (2.5 degrees between frames) with no groundtruth.txt."""
+    spec = SceneSpec.model_validate(
+        {
+            "type": "room",
+            "seed": 4,
+            "camera": {"width": 160, "height": 120},
+            "trajectory": {"type": "orbit", "frames": 144},
+        }
+    )
+    seq = write_sequence(SyntheticWorld(spec), tmp_path_factory.mktemp("orbit") / "noposes")
+    (seq / "groundtruth.txt").unlink()
+    return seq
+
+
+def test_rgbd_odometry_reads_each_frame_once_and_holds_only_a_few(orbit_without_poses):
+    """Odometry streams the frames: a sequence of thousands of frames must not be held whole (it
+    was: 2 MB a 640x480 frame)."""
+    import weakref
+
+    alive = {"now": 0, "peak": 0, "reads": 0}
+
+    def gone():
+        alive["now"] -= 1
+
+    class Counted(TUMSource):
+        def load(self):
+            stream, frames, gt = super().load()
+            inner = frames._read
+
+            def read(k):
+                rgb, depth = inner(k)
+                depth = depth.copy()
+                alive["now"] += 1
+                alive["reads"] += 1
+                alive["peak"] = max(alive["peak"], alive["now"])
+                weakref.finalize(depth, gone)
+                return rgb, depth
+
+            frames._read = read
+            return stream, frames, gt
+
+    data = PipelineData()
+    Counted(path=str(orbit_without_poses), gravity="off", max_frames=24).run(data)
+    assert data.notes["tum"]["odometry"]["frames"] == 24
+    assert alive["peak"] <= 5, alive  # the frame cache's three, and the frame in hand
+
+
+def test_odometry_that_loses_its_way_says_where_and_a_lost_track_is_one_clean_line(orbit_without_poses):
+    """Frames 2.5 degrees apart track without a word; 7.5 degrees apart, some frames match little
+    of the map and the warning names them; 12.5 degrees apart, tracking fails: one line, without
+    Open3D's terminal colours or C++ source file."""
+    quiet = PipelineData()
+    TUMSource(path=str(orbit_without_poses), gravity="off", max_frames=12).run(quiet)
+    assert not any("odometry" in w for w in quiet.warnings), quiet.warnings
+    assert quiet.notes["tum"]["odometry"]["fitness"]["min"] >= 0.3
+
+    fast = PipelineData()
+    TUMSource(path=str(orbit_without_poses), gravity="off", stride=3, max_frames=12).run(fast)
+    (warning,) = [w for w in fast.warnings if "odometry" in w]
+    assert "of 12 frames matched under 30%" in warning and "(frames " in warning and "stride" in warning
+
+    with pytest.raises(DataError) as lost:
+        read(TUMSource(path=str(orbit_without_poses), gravity="off", stride=5, max_frames=12))
+    message = str(lost.value)
+    assert message.startswith("odometry: tracking lost at frame") and "stride" in message
+    assert "\x1b" not in message and ".cpp" not in message and "\n" not in message
+
+
 def test_nan_and_zero_depth_become_no_measurement(tmp_path):
     from stratamap.core.io.rgbd import read_depth
 
