@@ -7,7 +7,8 @@ with 0 marking a pixel with no measurement.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+import zlib
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -128,8 +129,9 @@ class FrameSegmentation:
 class FrameLabels:
     """The segmenter's output for a stream, aligned with ``SensorStream.frames``.
 
-    ``frames`` is a list when a segmenter labels every frame up front, or any sequence computed on
-    access (:class:`MappedFrames`), so that a long stream's label images are never all held at once."""
+    ``frames`` is any sequence: a list, the compressed images of a segmenter that labels every frame
+    up front (:class:`PackedFrames`), or images computed on access (:class:`MappedFrames`), so that
+    a long stream's label images are never all held at once."""
 
     segmenter: str
     frames: Sequence[FrameSegmentation] = field(default_factory=list)
@@ -138,6 +140,43 @@ class FrameLabels:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+
+class PackedFrames(Sequence):
+    """Frame segmentations kept compressed, each unpacked when read: a label image is mostly runs of
+    a few ids, so a long stream's labels (1.8 MB a 640 x 480 frame, 4.6 GB for 2,500 frames) take a
+    few percent of their size. For a segmenter that labels every frame up front, as ``frames``."""
+
+    def __init__(self, items: Iterable[FrameSegmentation] = ()):
+        self._packed: list[tuple[int, list[tuple[str, str, tuple[int, ...], bytes]]]] = []
+        for item in items:
+            self.append(item)
+
+    def append(self, seg: FrameSegmentation) -> None:
+        arrays = []
+        for name in ("class_ids", "instance_ids", "scores"):
+            value = getattr(seg, name)
+            if value is not None:
+                value = np.ascontiguousarray(value)
+                arrays.append((name, value.dtype.str, value.shape, zlib.compress(value.tobytes(), 1)))
+        self._packed.append((seg.frame_index, arrays))
+
+    def __len__(self) -> int:
+        return len(self._packed)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        index, arrays = self._packed[k]
+        fields = {
+            name: np.frombuffer(zlib.decompress(blob), dtype=dtype).reshape(shape).copy()
+            for name, dtype, shape, blob in arrays
+        }
+        return FrameSegmentation(index, **fields)
+
+    def nbytes(self) -> int:
+        """Bytes the packed images take."""
+        return sum(len(blob) for _, arrays in self._packed for *_, blob in arrays)
 
 
 class MappedFrames(Sequence):

@@ -24,7 +24,7 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
+from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters import _depth
 
@@ -188,7 +188,7 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
                 self.warn("no upward-facing surface in the frames: no floor labelled")
                 floor = float("-inf")
         stuff = _depth.stuff_class_ids(vocab)
-        out = FrameLabels(segmenter=self.name, tracked_instances=False)
+        out = FrameLabels(segmenter=self.name, frames=PackedFrames(), tracked_instances=False)
         counts: dict[str, int] = {}
         for frame in self.progress(stream.frames, description="detector"):
             detections = detect_tiled(detector, np.asarray(frame.rgb), cfg.score_threshold, cfg.nms_iou, cfg.tiles)

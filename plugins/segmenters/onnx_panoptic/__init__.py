@@ -23,7 +23,7 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
-from stratamap.core.map.sensors import FrameLabels, FrameSegmentation
+from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.plugins.segmenters import _depth
 
 SHIPPED = Path(__file__).resolve().parent / "models" / "panoptic_small.onnx"
@@ -258,7 +258,7 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
             if floor is None:
                 self.warn("depth_refine: no upward-facing surface in the frames: no floor labelled")
                 floor = float("-inf")
-        out = FrameLabels(segmenter=self.name, tracked_instances=False)
+        out = FrameLabels(segmenter=self.name, frames=PackedFrames(), tracked_instances=False)
         for frame in self.progress(stream.frames, description="onnx_panoptic"):
             rgb = np.asarray(frame.rgb)
             if depth_channel and frame.depth is None:

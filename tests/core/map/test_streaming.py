@@ -14,6 +14,7 @@ from stratamap.core.map.sensors import (
     FrameSegmentation,
     FrameWindow,
     MappedFrames,
+    PackedFrames,
     RGBDFrame,
     SensorStream,
 )
@@ -126,3 +127,35 @@ def test_memory_sampler_sees_a_peak_that_is_gone_by_the_end():
         time.sleep(0.1)
         del block
     assert memory.peak_mb - memory.start_mb > 200
+
+
+def test_packed_label_images_read_back_equal_and_take_a_fraction_of_their_size():
+    """A segmenter that labels every frame up front keeps its label images compressed: each reads
+    back equal (and writable), in a few percent of the raw arrays' bytes."""
+    seq = generate_sequence(SceneSpec.model_validate({**SMALL, "camera": {"width": 320, "height": 240}}))
+    truth = list(seq.ground_truth.frame_labels)
+    packed = PackedFrames(FrameSegmentation(s.frame_index, s.class_ids, s.instance_ids) for s in truth)
+    assert len(packed) == len(truth)
+    for k in (0, len(truth) // 2, -1):
+        back = packed[k]
+        assert back.frame_index == truth[k].frame_index and back.scores is None
+        assert back.class_ids.dtype == truth[k].class_ids.dtype
+        assert np.array_equal(back.class_ids, truth[k].class_ids)
+        assert np.array_equal(back.instance_ids, truth[k].instance_ids)
+        back.instance_ids[0, 0] = 7  # a stage may edit what it reads
+    raw = sum(s.class_ids.nbytes + s.instance_ids.nbytes for s in truth)
+    assert packed.nbytes() < 0.1 * raw
+    assert [s.frame_index for s in pickle.loads(pickle.dumps(packed))] == [s.frame_index for s in truth]
+
+
+def test_the_detector_keeps_its_label_images_packed():
+    """The detector labels every frame before the mapper reads them: 80 frames of 640 x 480 held
+    raw were 144 MB, a 2,500-frame sequence's 4.6 GB."""
+    from stratamap.plugins.segmenters.detector import DetectorSegmenter
+
+    seq = generate_sequence(SceneSpec.model_validate({**SMALL, "camera": {"width": 320, "height": 240}}))
+    data = PipelineData(stream=seq.stream)
+    labels = DetectorSegmenter().run(data)["frame_labels"]
+    assert len(labels) == len(seq.stream)
+    raw = sum(s.class_ids.nbytes + s.instance_ids.nbytes for s in labels.frames)
+    assert len(pickle.dumps(labels.frames)) < 0.2 * raw
