@@ -92,8 +92,10 @@ def sensor_positions(stream: SensorStream) -> np.ndarray:
     return np.zeros((1, 3))
 
 
-def camera_up_hint(stream: SensorStream) -> np.ndarray | None:
-    ups = [-f.pose[:3, 1] for f in _some_frames(stream) if f.pose is not None]
+def camera_up_hint(stream: SensorStream, axis: tuple[float, float, float] = (0.0, -1.0, 0.0)) -> np.ndarray | None:
+    """The cameras' mean ``axis`` (camera frame: x right, y down) in the world: up when the camera is
+    held level (image up, -y, by default); None without poses."""
+    ups = [f.pose[:3, :3] @ np.asarray(axis) for f in _some_frames(stream) if f.pose is not None]
     if not ups:
         return None
     up = np.mean(ups, axis=0)

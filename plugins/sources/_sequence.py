@@ -13,15 +13,35 @@ from pydantic import Field
 
 from stratamap.core.errors import DataError
 from stratamap.core.evaluation.trajectory import ate, rpe
+from stratamap.core.geometry.transforms import apply
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import RGBDFrame, SensorStream
 from stratamap.core.stages import Source, StageConfig
-from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
+from stratamap.plugins.sources._gravity import (
+    GravityAlignment,
+    camera_up_hint,
+    estimate_alignment,
+    sensor_positions,
+    stream_planes,
+    transform_stream,
+)
 
 #: Below this share of its pixels matched to the model, a tracked frame is reported: 640 x 480 frames
 #: of a camera moving at walking pace at 30 Hz match 70-90 % (the real align3d office clip: 82-88 %),
 #: a 160 x 120 orbit 2.5 degrees a frame 35-41 %; a walk read every 0.25 m matched 16-58 % and lost its way.
 WEAK_TRACKING = 0.3
+#: Up in the camera's frame (x right, y down) when it is held level.
+LEVEL = (0.0, -1.0, 0.0)
+#: Ways a camera may be held other than level: which of its axes is then up.
+CAMERA_TURNS = (
+    ("turned a quarter clockwise (image left up)", (-1.0, 0.0, 0.0)),
+    ("turned a quarter anticlockwise (image right up)", (1.0, 0.0, 0.0)),
+    ("upside down", (0.0, 1.0, 0.0)),
+)
+#: The floor found held level stands unless the cameras' heights above it spread (std) more than
+#: this (m) and over four times as much as above another way's: a walk carried level spreads 0.01 m
+#: above its floor, and 1 m above the walls a turned hint finds (and the reverse when carried turned).
+STEADY_HEIGHT = 0.25
 
 
 class SequenceConfig(StageConfig):
@@ -161,6 +181,46 @@ class SequenceSource(Source[SequenceConfigT]):
         stream.metadata["odometry"] = report
         self.note("odometry", report)
 
+    def _level_on_floor(self, stream: SensorStream) -> GravityAlignment:
+        """The floor found below the camera held level (image up is up), unless the camera was held
+        turned: a phone recording upright has image right or left up, a camera mounted upside down
+        image down. Held level, such a camera finds a wall within the hint's tolerance, or nothing. The
+        floor is where the cameras' heights hardly change: a person or a robot carries a camera at a
+        steady height, and a wall's distance changes as the camera walks along the room."""
+        planes = stream_planes(stream)
+        centres = sensor_positions(stream)
+        found: list[tuple[str, GravityAlignment, float]] = []
+        level_error: DataError | None = None
+        for held, axis in (("level", LEVEL), *CAMERA_TURNS):
+            hint = camera_up_hint(stream, axis)
+            try:
+                alignment = estimate_alignment(stream, hint, planes=planes)
+            except DataError as exc:
+                level_error = level_error or exc
+            else:
+                heights = apply(alignment.transform, centres)[:, 2] if len(centres) else np.zeros(1)
+                if held == "level" or heights.mean() > 0:
+                    found.append((held, alignment, float(heights.std())))
+            if hint is None:  # no poses: no camera to turn
+                break
+        if not found:
+            assert level_error is not None
+            raise level_error
+        held, alignment, spread = min(found, key=lambda f: f[2])
+        level = found[0] if found[0][0] == "level" else None
+        if level is not None and not (level[2] > STEADY_HEIGHT and spread < level[2] / 4):
+            return level[1]
+        above_level = (
+            f"above the plane found held level, {level[2]:.2f} m" if level is not None else "held level, none was found"
+        )
+        self.warn(
+            f"the floor is found with the camera {held}, as a phone recording upright holds it (the cameras' heights "
+            f"above it spread {spread:.2f} m; {above_level}): the map is levelled on it (if it stands on a wall, give "
+            "z-up poses and set `gravity: off`)"
+        )
+        alignment.details["camera_held"] = held
+        return alignment
+
     def _weak_tracking(self, fitness: list[float]) -> None:
         """Warn of frames that matched little of the model built so far: tracked a frame after
         one that was far from it (a fast camera, a large `stride`), odometry may have lost its way."""
@@ -181,7 +241,7 @@ class SequenceSource(Source[SequenceConfigT]):
         )
 
     def _align(self, stream: SensorStream, frames: PosedFrames, gt: GroundTruth | None) -> None:
-        alignment = estimate_alignment(stream)
+        alignment = self._level_on_floor(stream)
         self.note("gravity_alignment", alignment.report())
         stream.metadata["gravity_alignment"] = alignment.report()
         if not alignment.realigned:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -613,3 +614,66 @@ def test_pointcloud_formats_and_errors(tmp_path):
     (tmp_path / "c.rcp").write_text("x")
     with pytest.raises(DataError, match="unsupported"):
         read(PointCloudSource(path=str(tmp_path / "c.rcp")))
+
+
+def _held_upright(level: Path, folder: Path) -> Path:
+    """``level``'s TUM sequence as a phone held upright records it: images turned a quarter clockwise,
+    intrinsics to match, poses turned with them and given from the first camera (as odometry gives
+    them: no z-up world to lean on)."""
+    from scipy.spatial.transform import Rotation
+
+    shutil.copytree(level, folder)
+    shutil.rmtree(folder / "gt", ignore_errors=True)
+    for sub in ("rgb", "depth"):
+        for path in sorted((folder / sub).glob("*.png")):
+            Image.fromarray(np.ascontiguousarray(np.rot90(np.asarray(Image.open(path)), -1))).save(path)
+    cam = json.loads((folder / "camera.json").read_text())
+    cam.update(
+        width=cam["height"],
+        height=cam["width"],
+        fx=cam["fy"],
+        fy=cam["fx"],
+        cx=cam["height"] - 1 - cam["cy"],
+        cy=cam["cx"],
+    )
+    (folder / "camera.json").write_text(json.dumps(cam))
+    quarter = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    rows, first = [], None
+    for line in (folder / "groundtruth.txt").read_text().splitlines():
+        if line.startswith("#"):
+            continue
+        t, *v = line.split()
+        pose = np.eye(4)
+        pose[:3, :3] = Rotation.from_quat([float(x) for x in v[3:]]).as_matrix() @ quarter
+        pose[:3, 3] = [float(x) for x in v[:3]]
+        first = np.linalg.inv(pose) if first is None else first
+        pose = first @ pose
+        quat = Rotation.from_matrix(pose[:3, :3]).as_quat()
+        rows.append(" ".join([t, *(f"{x:.9f}" for x in (*pose[:3, 3], *quat))]))
+    (folder / "groundtruth.txt").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_a_camera_held_upright_is_levelled_on_the_floor_not_a_wall(tmp_path):
+    """A phone recording upright has image right up: held level, the floor search finds a wall. The
+    floor is where the cameras' heights hold steady; the map stands on it, and the warning says so.
+    A level walk's floor stands as before, without a word."""
+    spec = SceneSpec.model_validate(
+        {"type": "room", "seed": 2, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 30}}
+    )
+    level = write_sequence(SyntheticWorld(spec), tmp_path / "level")
+    data = PipelineData()
+    TUMSource(path=str(level), load_ground_truth=False).run(data)
+    assert not any("held" in w for w in data.warnings), data.warnings
+    assert data.notes["tum"]["gravity_alignment"]["rotation_deg"] < 2  # the walk's world is z-up already
+
+    upright = _held_upright(level, tmp_path / "upright")
+    data = PipelineData()
+    out = TUMSource(path=str(upright), load_ground_truth=False).run(data)
+    assert data.notes["tum"]["gravity_alignment"]["camera_held"].startswith("turned a quarter")
+    assert any("as a phone recording upright holds it" in w for w in data.warnings)
+    # Levelled: each camera at the walk's height (1.3 m) over the floor, its image right pointing up.
+    frames = out["frames"].frames
+    for k in (0, len(frames) // 2, len(frames) - 1):
+        pose = frames[k].pose
+        assert abs(pose[2, 3] - 1.3) < 0.05 and pose[2, 0] > 0.9, pose
