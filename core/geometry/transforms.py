@@ -65,3 +65,16 @@ def matrix_to_quat_xyzw(r: np.ndarray) -> np.ndarray:
 
 def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def upright_turns(pose: np.ndarray | None) -> int:
+    """Quarter turns (anticlockwise, as ``np.rot90``) that bring the image of a camera at ``pose``
+    (camera to z-up world; optical frame, x right, y down) upright: 0 for a camera held level, 1 when
+    the world's up points to the image's right (a phone held upright, turned anticlockwise), 2 upside
+    down, 3 up to the left. 0 without a pose, or looking straight up or down."""
+    if pose is None:
+        return 0
+    up = np.asarray(pose)[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the world's up in the camera's frame
+    if np.hypot(up[0], up[1]) < 0.3:
+        return 0
+    return int(np.round(np.degrees(np.arctan2(up[0], -up[1])) / 90.0)) % 4

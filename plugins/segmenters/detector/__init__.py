@@ -24,6 +24,7 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.geometry.transforms import upright_turns
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters import _depth
@@ -135,18 +136,6 @@ def detect_tiled(detector: Any, rgb: np.ndarray, score_threshold: float, nms_iou
         kept.extend(idx[nms(all_boxes[idx], all_scores[idx], nms_iou)].tolist())
     kept.sort(key=lambda i: (-all_scores[i], i))
     return Detections(all_boxes[kept], [labels[i] for i in kept], all_scores[kept])
-
-
-def upright_turns(pose: np.ndarray | None) -> int:
-    """Quarter turns (anticlockwise, as ``np.rot90``) that bring a frame's image upright: 0 for a
-    camera held level, 1 when the world's up points to the image's right (a phone held upright, turned
-    anticlockwise), 2 upside down, 3 up to the left. 0 without a pose, or looking straight up or down."""
-    if pose is None:
-        return 0
-    up = np.asarray(pose)[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the world's up in the camera's frame
-    if np.hypot(up[0], up[1]) < 0.3:
-        return 0
-    return int(np.round(np.degrees(np.arctan2(up[0], -up[1])) / 90.0)) % 4
 
 
 def detect_upright(

@@ -23,6 +23,7 @@ from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.geometry.transforms import upright_turns
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.plugins.segmenters import _depth
 
@@ -266,8 +267,16 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                     f"onnx_panoptic: frame {frame.index} of {stream.name!r} has no depth image, but {path.name} "
                     "takes RGB-D input"
                 )
+            # The network learned level views: a frame of a camera held turned is segmented turned upright.
+            turns = upright_turns(frame.pose)
+            depth = None if frame.depth is None else np.rot90(np.asarray(frame.depth), turns)
             tensor, undo, depth_in = self._prepare(
-                rgb, None if frame.depth is None else np.asarray(frame.depth), width, height, cfg, depth_channel
+                np.ascontiguousarray(np.rot90(rgb, turns)),
+                None if depth is None else np.ascontiguousarray(depth),
+                width,
+                height,
+                cfg,
+                depth_channel,
             )
             result = session.run(None, {inp.name: tensor})
             try:
@@ -277,7 +286,7 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                     f"onnx_panoptic: {path.name} on frame {frame.index}: its outputs do not fit the {layout!r} "
                     f"layout ({exc})"
                 ) from exc
-            cls, ins = undo(cls), undo(ins)
+            cls, ins = np.rot90(undo(cls), -turns), np.rot90(undo(ins), -turns)
             if cfg.depth_refine:
                 cls, ins = self._refine(frame, stream, cls, ins, vocab, floor)
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stratamap.core.map.sensors import RGBDFrame, SensorStream
+from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame, SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
 
@@ -290,3 +290,35 @@ def test_semantic_boundary_leaves_unsure_regions_unknown():
         == 1
     ).all()
     assert inst.max() == 0
+
+
+def test_onnx_panoptic_segments_a_turned_camera_s_frames_upright():
+    """A frame of a camera held turned a quarter (a phone recording upright) is segmented turned
+    upright: its labels are the level frame's, turned with it (the network learned level views)."""
+    from stratamap.core.synthetic import SceneSpec, generate_sequence
+    from stratamap.plugins.segmenters.onnx_panoptic import SHIPPED, ONNXPanopticSegmenter
+
+    if not SHIPPED.is_file():
+        pytest.skip("the shipped model has not been trained in this checkout")
+    seq = generate_sequence(
+        SceneSpec.model_validate(
+            {"type": "office", "seed": 3, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 4}}
+        )
+    )
+    quarter = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # turned image axes in the level camera's
+    level = [seq.stream.frames[k] for k in (1, 2)]
+    turned = []
+    for f in level:
+        pose = np.array(f.pose, float)
+        pose[:3, :3] = pose[:3, :3] @ quarter
+        rgb, depth = (np.ascontiguousarray(np.rot90(a, -1)) for a in (f.rgb, f.depth))
+        turned.append(RGBDFrame(f.index, f.timestamp, rgb, depth, pose))
+    intr = seq.stream.intrinsics
+    turned_intr = CameraIntrinsics(intr.height, intr.width, intr.fy, intr.fx, intr.height - 1 - intr.cy, intr.cx)
+    labels = [
+        ONNXPanopticSegmenter().run(PipelineData(stream=SensorStream("s", intrinsics=i, frames=frames)))["frame_labels"]
+        for i, frames in ((intr, level), (turned_intr, turned))
+    ]
+    for upright, sideways in zip(labels[0].frames, labels[1].frames, strict=True):
+        assert (upright.class_ids > 0).any()
+        assert np.array_equal(np.rot90(upright.class_ids, -1), sideways.class_ids)

@@ -234,7 +234,7 @@ LEVEL = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 1.2], [0, 0, 0, 1]])
 def test_quarter_turns_bring_a_turned_camera_upright():
     """Held level: none; turned (a phone held upright) or upside down: the turns np.rot90 needs; pitched
     down steeply or without a pose: none."""
-    from stratamap.plugins.segmenters.detector import upright_turns
+    from stratamap.core.geometry.transforms import upright_turns
 
     assert upright_turns(LEVEL) == 0 and upright_turns(None) == 0
     for turns in (1, 2, 3):
@@ -255,7 +255,8 @@ def test_a_camera_held_turned_is_detected_on_its_image_turned_upright():
     frame turned, the detector as it is finds a "Vehicle", nothing, or three weak chairs and no table."""
     from PIL import Image
 
-    from stratamap.plugins.segmenters.detector import detect_upright, upright_turns
+    from stratamap.core.geometry.transforms import upright_turns
+    from stratamap.plugins.segmenters.detector import detect_upright
 
     level = LEVEL
     image = np.asarray(Image.open(sorted(shared_data("align3d_office", "rgb").glob("*.png"))[0]).convert("RGB"))
