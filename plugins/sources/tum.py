@@ -27,6 +27,7 @@ from stratamap.core.io.rgbd import (
     intrinsics_from,
     parse_tum_poses,
     read_depth,
+    read_image,
     read_json,
     read_laser_file,
     read_rgb,
@@ -150,13 +151,21 @@ class TUMSource(SequenceSource[TUMConfig]):
         depth_files = [root / depth_rows[d][1][0] for d, _ in pairs]
         shape = (intr.height, intr.width)
 
-        def read(k: int):
-            depth = read_depth(depth_files[k], scale, shape, cfg.depth_encoding)
-            rgb = read_rgb(rgb_files[k], shape)
-            return rgb, depth
-
         first = read_depth(depth_files[0], scale, shape, cfg.depth_encoding)
         check_depth_scale(first, depth_files[0], scale, encoding=cfg.depth_encoding)
+        # A colour camera of more pixels than the depth's (registered to it: the same view) is read
+        # at the depth's size, as ScanNet's; another view (another aspect ratio) is an error.
+        colour = read_image(rgb_files[0]).shape[:2]
+        resample = colour != shape
+        read_rgb(rgb_files[0], shape, resample=resample)
+        if resample:
+            self.note("colour_resampled", {"from": [colour[1], colour[0]], "to": [intr.width, intr.height]})
+
+        def read(k: int):
+            depth = read_depth(depth_files[k], scale, shape, cfg.depth_encoding)
+            rgb = read_rgb(rgb_files[k], shape, resample=resample)
+            return rgb, depth
+
         poses: list = [None] * len(times)
         gt_file = root / "groundtruth.txt"
         if gt_file.is_file():

@@ -67,6 +67,27 @@ def _copy(src: Path, dst: Path) -> Path:
     return dst
 
 
+def test_tum_colour_larger_than_its_depth_is_read_at_the_depth_s_size(tum_seq, tmp_path):
+    """A colour camera of twice the depth's pixels (the same view, as a phone's or an Azure Kinect's
+    registered pair): read at the depth's size, with a note; depth and poses as before."""
+    seq = _copy(tum_seq, tmp_path / "big")
+    for path in sorted((seq / "rgb").glob("*.png")):
+        img = Image.open(path)
+        img.resize((img.width * 2, img.height * 2), Image.NEAREST).save(path)
+    data = PipelineData()
+    stream = TUMSource(path=str(seq), gravity="off").run(data)["frames"]
+    plain = read(TUMSource(path=str(tum_seq), gravity="off"))["frames"]
+    intr = stream.intrinsics
+    assert data.notes["tum"]["colour_resampled"] == {
+        "from": [2 * intr.width, 2 * intr.height],
+        "to": [intr.width, intr.height],
+    }
+    for k in (0, len(stream) - 1):
+        assert stream.frames[k].rgb.shape == plain.frames[k].rgb.shape
+        assert np.abs(stream.frames[k].rgb.astype(int) - plain.frames[k].rgb).mean() < 3
+        assert np.array_equal(stream.frames[k].depth, plain.frames[k].depth)
+
+
 def test_tum_errors_name_the_file(tum_seq, tmp_path):
     with pytest.raises(DataError, match="not found"):
         read(TUMSource(path=str(tmp_path / "nowhere")))
