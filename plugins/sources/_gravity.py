@@ -217,11 +217,16 @@ def find_floor(
     return normal, float(-np.dot(normal, centroid)), len(pts)
 
 
+def _where(stream: SensorStream) -> str:
+    """What an error names: the file or folder the stream was read from, else its name."""
+    return str(stream.metadata.get("path") or stream.name)
+
+
 def stream_planes(stream: SensorStream) -> ScenePlanes:
     """The planes of a stream's sampled points (:func:`find_planes`), to try up hints on."""
     pts = sample_points(stream)
     if len(pts) < 100:
-        raise DataError(f"{stream.name}: too few valid points to find the floor ({len(pts)})")
+        raise DataError(f"{_where(stream)}: too few valid points to find the floor ({len(pts)})")
     return find_planes(pts)
 
 
@@ -241,7 +246,7 @@ def estimate_alignment(
     floor = find_floor(None, hint, max_angle_deg=max_angle_deg, viewpoints=sensor_positions(stream), planes=planes)
     if floor is None:
         raise DataError(
-            f"{stream.name}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "
+            f"{_where(stream)}: no floor plane found (no large plane within {max_angle_deg:g} deg of the up hint "
             f"{np.round(hint, 2).tolist()}); {advice}"
         )
     normal, d, inliers = floor
