@@ -157,6 +157,7 @@ def orbit_without_poses(tmp_path_factory):
     return seq
 
 
+@pytest.mark.slow
 def test_rgbd_odometry_reads_each_frame_once_and_holds_only_a_few(orbit_without_poses):
     """Odometry streams the frames: a sequence of thousands of frames must not be held whole (it
     was: 2 MB a 640x480 frame)."""
@@ -190,6 +191,7 @@ def test_rgbd_odometry_reads_each_frame_once_and_holds_only_a_few(orbit_without_
     assert alive["peak"] <= 5, alive  # the frame cache's three, and the frame in hand
 
 
+@pytest.mark.slow
 def test_odometry_that_loses_its_way_says_where_and_a_lost_track_is_one_clean_line(orbit_without_poses):
     """Frames 2.5 degrees apart track without a word; 7.5 degrees apart, some frames match little
     of the map and the warning names them; 12.5 degrees apart, tracking fails: one line, without
