@@ -120,27 +120,6 @@ def test_tum_errors_name_the_file(tum_seq, tmp_path):
         read(TUMSource(path=str(seq)))
 
 
-@pytest.mark.slow
-def test_tum_without_poses_runs_odometry_and_reports_ate(tmp_path):
-    spec = SceneSpec.model_validate(
-        {
-            "type": "room",
-            "seed": 4,
-            "camera": {"width": 160, "height": 120},
-            "trajectory": {"type": "orbit", "frames": 144},
-        }
-    )
-    seq = write_sequence(SyntheticWorld(spec), tmp_path / "noposes")
-    (seq / "groundtruth.txt").unlink()
-    data = PipelineData()
-    out = TUMSource(path=str(seq), gravity="off", max_frames=12).run(data)
-    odo = data.notes["tum"]["odometry"]
-    assert "ate_rmse_m" in odo and odo["ate_rmse_m"] < 0.05, odo  # ~1 cm with 2.5 degrees between frames
-    assert all(f.pose is not None for f in out["frames"].frames)
-    with pytest.raises(DataError, match="no pose"):
-        read(TUMSource(path=str(seq), odometry="never"))
-
-
 @pytest.fixture(scope="module")
 def orbit_without_poses(tmp_path_factory):
     """A TUM folder of a 144-frame orbit (2.5 degrees between frames) with no groundtruth.txt."""
@@ -155,6 +134,18 @@ def orbit_without_poses(tmp_path_factory):
     seq = write_sequence(SyntheticWorld(spec), tmp_path_factory.mktemp("orbit") / "noposes")
     (seq / "groundtruth.txt").unlink()
     return seq
+
+
+@pytest.mark.slow
+def test_tum_without_poses_runs_odometry_and_reports_ate(orbit_without_poses):
+    seq = orbit_without_poses
+    data = PipelineData()
+    out = TUMSource(path=str(seq), gravity="off", max_frames=12).run(data)
+    odo = data.notes["tum"]["odometry"]
+    assert "ate_rmse_m" in odo and odo["ate_rmse_m"] < 0.05, odo  # ~1 cm with 2.5 degrees between frames
+    assert all(f.pose is not None for f in out["frames"].frames)
+    with pytest.raises(DataError, match="no pose"):
+        read(TUMSource(path=str(seq), odometry="never"))
 
 
 @pytest.mark.slow
