@@ -83,6 +83,11 @@ class OccupancyConfig(StageConfig):
         return self
 
 
+#: The most cells a layer may hold: a 500 x 500 m floor at 5 cm, about 0.8 GB per layer of counts.
+#: A room scanned in millimetres and read as metres spans kilometres (65 GB of counts).
+MAX_CELLS = 100_000_000
+
+
 class OccupancyMapper(Mapper[OccupancyConfig]):
     """2D occupancy: laser log-odds (or a laser-height slice), the object band, and the multimap."""
 
@@ -178,6 +183,13 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         hi = pts.max(0) + cfg.margin
         origin = np.floor(lo / cfg.resolution) * cfg.resolution
         shape = (int(np.ceil((hi[1] - origin[1]) / cfg.resolution)), int(np.ceil((hi[0] - origin[0]) / cfg.resolution)))
+        if shape[0] * shape[1] > MAX_CELLS:
+            span = pts.max(0) - pts.min(0)
+            raise DataError(
+                f"occupancy: the map spans {span[0]:,.0f} x {span[1]:,.0f} m, {shape[1]:,} x {shape[0]:,} cells of "
+                f"{cfg.resolution:g} m (at most {MAX_CELLS:,.0f}): a cloud in millimetres or centimetres read as "
+                "metres? set source.params.scale (0.001 or 0.01); else a coarser occupancy resolution"
+            )
         return origin, shape
 
     @staticmethod

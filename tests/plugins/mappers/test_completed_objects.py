@@ -141,3 +141,18 @@ def test_the_physical_check_updates_the_contact_graph_it_moved_objects_in():
     assert graph.support.edges[1, 2]["plane"][3] == -0.8  # the input graph is left as it was
     box = out["contact_graph"].support.nodes[1]["box_completed"]
     assert np.allclose(box["size"], (1.2, 0.8, 0.75), atol=1e-6)
+
+
+def test_a_room_in_millimetres_read_as_metres_is_a_one_line_error_naming_the_scale():
+    """A scan stored in millimetres and read as metres spans kilometres: its occupancy grid would hold
+    4 billion cells (65 GB of counts; the run died of memory). It is refused, saying what to set."""
+    import pytest
+
+    from stratamap.core.errors import DataError
+
+    data = room([])
+    data.map.geometry = Geometry(points=data.map.geometry.points * 1000.0)
+    with pytest.raises(DataError, match=r"occupancy: the map spans 4,000 x 4,000 m.*set source\.params\.scale") as err:
+        OccupancyMapper().run(data)
+    assert "\n" not in str(err.value)
+    assert OccupancyMapper(resolution=1.0).run(data)["occupancy"]["multimap"].data.size < 20_000_000
