@@ -61,6 +61,21 @@ class Shell:
         """How deep each point lies inside the shell (<= 0 outside)."""
         return -(points @ self.equations[:, :3].T + self.equations[:, 3]).max(axis=1)
 
+    def near(self, points: np.ndarray, margin: float, chunk: int = 8) -> np.ndarray:
+        """Which points lie inside the shell or less than ``margin`` outside every face plane
+        (``depth(points) > -margin``), found ``chunk`` faces at a time: a point is dropped at the
+        first face it lies beyond, so far points cost a face or two, not all of them."""
+        normals, offsets = self.equations[:, :3], self.equations[:, 3]
+        index = np.arange(len(points))
+        for start in range(0, len(normals), chunk):
+            if not len(index):
+                break
+            part = slice(start, start + chunk)
+            index = index[(points[index] @ normals[part].T + offsets[part]).max(axis=1) < margin]
+        keep = np.zeros(len(points), bool)
+        keep[index] = True
+        return keep
+
     def top_at(self, xy: np.ndarray) -> np.ndarray:
         """Height of the shell's upper surface above each (x, y); NaN where the vertical line misses it."""
         n, d = self.equations[:, :3], self.equations[:, 3]

@@ -222,8 +222,7 @@ def _carved_parts(inst, mine: list[Shell], others: list[tuple[np.ndarray, bool]]
                 cut = []
                 for piece in pieces:
                     hull = convex_shell(piece)
-                    depth = hull.depth(points) if hull is not None else np.zeros(len(points))
-                    near = points[depth > -CARVE_MARGIN]
+                    near = points[hull.near(points, CARVE_MARGIN)] if hull is not None else points
                     split = _cut_around(piece, near, supports) if len(near) >= CARVE_MIN_FOREIGN else [piece]
                     cut_now |= split[0] is not piece
                     cut.extend(split)

@@ -167,3 +167,19 @@ def test_settle_sees_a_body_tip_over_its_base_edge(tmp_path):
     )
     result = settle(path, seconds=2.0)
     assert result["free_bodies"] == 1 and result["max_displacement_m"] > 0.3, result
+
+
+def test_near_is_depth_within_the_margin_face_by_face():
+    """``Shell.near`` drops a point at the first face it lies beyond: the same points as testing
+    every face's depth, for points inside, at the margin and far away, whatever the chunk."""
+    from stratamap.core.simulation.physics import convex_shell
+
+    rng = np.random.default_rng(5)
+    shell = convex_shell(rng.normal(size=(60, 3)) * [1.0, 0.5, 0.2])
+    points = np.vstack([rng.uniform(-3, 3, (20000, 3)), rng.normal(size=(500, 3)) * 0.3])
+    for margin in (0.0, 0.05, 0.5):
+        want = shell.depth(points) > -margin
+        assert 0 < want.sum() < len(points)
+        for chunk in (1, 8, 1000):
+            assert np.array_equal(shell.near(points, margin, chunk), want)
+    assert not shell.near(np.zeros((0, 3)), 0.1).any()
