@@ -33,7 +33,8 @@ def top_down_raster(xy: np.ndarray, z: np.ndarray, rgba: np.ndarray) -> tuple[np
     col, row = (np.floor((xy - lo) / pixel).astype(np.int64)).T
     flat = np.minimum(row, height - 1) * width + np.minimum(col, width - 1)
     order = np.lexsort((z, flat))
-    flat, top = flat[order], np.r_[flat[order][1:] != flat[order][:-1], True]
+    flat = flat[order]
+    top = np.r_[flat[1:] != flat[:-1], True]  # the last, highest, point of each pixel
     zbuf = np.full(height * width, -np.inf)
     image = np.zeros((height * width, 4))
     zbuf[flat[top]], image[flat[top]] = z[order][top], rgba[order][top]

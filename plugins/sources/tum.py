@@ -154,16 +154,14 @@ class TUMSource(SequenceSource[TUMConfig]):
         first = read_depth(depth_files[0], scale, shape, cfg.depth_encoding)
         check_depth_scale(first, depth_files[0], scale, encoding=cfg.depth_encoding)
         # A colour camera of more pixels than the depth's (registered to it: the same view) is read
-        # at the depth's size, as ScanNet's; another view (another aspect ratio) is an error.
+        # at the depth's size, as ScanNet's; another view (another aspect ratio) is an error when read.
         colour = read_image(rgb_files[0]).shape[:2]
-        resample = colour != shape
-        read_rgb(rgb_files[0], shape, resample=resample)
-        if resample:
+        if colour != shape:
             self.note("colour_resampled", {"from": [colour[1], colour[0]], "to": [intr.width, intr.height]})
 
         def read(k: int):
             depth = read_depth(depth_files[k], scale, shape, cfg.depth_encoding)
-            rgb = read_rgb(rgb_files[k], shape, resample=resample)
+            rgb = read_rgb(rgb_files[k], shape, resample=True)
             return rgb, depth
 
         poses: list = [None] * len(times)

@@ -269,14 +269,9 @@ class ONNXPanopticSegmenter(Segmenter[ONNXPanopticConfig]):
                 )
             # The network learned level views: a frame of a camera held turned is segmented turned upright.
             turns = upright_turns(frame.pose)
-            depth = None if frame.depth is None else np.rot90(np.asarray(frame.depth), turns)
+            depth = None if frame.depth is None else np.ascontiguousarray(np.rot90(np.asarray(frame.depth), turns))
             tensor, undo, depth_in = self._prepare(
-                np.ascontiguousarray(np.rot90(rgb, turns)),
-                None if depth is None else np.ascontiguousarray(depth),
-                width,
-                height,
-                cfg,
-                depth_channel,
+                np.ascontiguousarray(np.rot90(rgb, turns)), depth, width, height, cfg, depth_channel
             )
             result = session.run(None, {inp.name: tensor})
             try:
