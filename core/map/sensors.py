@@ -95,6 +95,59 @@ class LidarScan:
     intensities: np.ndarray | None = None
 
 
+class LidarSweeps(Sequence):
+    """LiDAR sweeps read when accessed, not held: a long recording's sweeps outgrow memory (an hour of a
+    64-beam LiDAR at 10 Hz is 36,000 sweeps of some 100,000 points). The poses live here, so a source's
+    odometry and gravity alignment set them as on a list of scans (``sweeps[k].pose = T``). Each access
+    to a sweep's ``points`` reads them again, so ``read`` must be deterministic."""
+
+    def __init__(
+        self, timestamps: list[float], read: Callable[[int], np.ndarray], poses: list[np.ndarray | None]
+    ) -> None:
+        if len(timestamps) != len(poses):
+            raise ValueError(f"{len(timestamps)} timestamps for {len(poses)} poses")
+        self.timestamps, self.read, self.poses = timestamps, read, poses
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        return _Sweep(self, k)
+
+
+class _Sweep(LidarScan):
+    """Sweep ``k`` of a :class:`LidarSweeps`: its points are read on access, its pose is the list's."""
+
+    def __init__(self, sweeps: LidarSweeps, k: int) -> None:  # no dataclass __init__: nothing is held
+        self._sweeps, self._k = sweeps, k
+
+    @property  # type: ignore[override]
+    def timestamp(self) -> float:
+        return self._sweeps.timestamps[self._k]
+
+    @property  # type: ignore[override]
+    def points(self) -> np.ndarray:
+        return self._sweeps.read(self._k)
+
+    @property  # type: ignore[override]
+    def pose(self) -> np.ndarray | None:
+        return self._sweeps.poses[self._k]
+
+    @pose.setter
+    def pose(self, value: np.ndarray | None) -> None:
+        self._sweeps.poses[self._k] = value
+
+    @property  # type: ignore[override]
+    def intensities(self) -> np.ndarray | None:
+        return None
+
+
 @dataclass
 class SensorStream:
     """What a source yields: RGB-D frames, laser and LiDAR scans, and static point clouds.
@@ -106,7 +159,7 @@ class SensorStream:
     intrinsics: CameraIntrinsics | None = None
     frames: Sequence[RGBDFrame] = field(default_factory=list)
     laser_scans: list[LaserScan] = field(default_factory=list)
-    lidar_scans: list[LidarScan] = field(default_factory=list)
+    lidar_scans: Sequence[LidarScan] = field(default_factory=list)
     points: np.ndarray | None = None  # static cloud (N, 3), when the input is a point cloud
     point_colors: np.ndarray | None = None  # (N, 3) float 0..1
     metadata: dict[str, Any] = field(default_factory=dict)

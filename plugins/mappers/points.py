@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -12,6 +13,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Geometry
+from stratamap.core.map.sensors import LidarScan
 
 o3d = lazy_module("open3d")
 
@@ -46,13 +48,14 @@ class PointsMapper(Mapper[PointsConfig]):
             missing = [k for k, s in enumerate(stream.lidar_scans) if s.pose is None]
             if missing:
                 raise DataError(f"points: {len(missing)} LiDAR sweeps have no pose; enable odometry")
-            pts = np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans])
+            pts = self._accumulate(stream.lidar_scans)
             colors = None
         else:
             raise DataError(
                 f"points: the stream {stream.name!r} has neither a point cloud nor LiDAR sweeps (use tsdf for RGB-D)"
             )
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        del pts  # the cloud holds its own copy
         if colors is not None:
             pcd.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64))
         if cfg.voxel_size > 0:
@@ -68,6 +71,27 @@ class PointsMapper(Mapper[PointsConfig]):
                 points=np.asarray(pcd.points), colors=out_colors, normals=normals, voxel_size=cfg.voxel_size or None
             )
         }
+
+    def _accumulate(self, sweeps: Sequence[LidarScan]) -> np.ndarray:
+        """The sweeps in the world frame, one after another. With a voxel size, the pile is thinned to
+        one point per voxel whenever it passes ``COMPACT_POINTS``, so a long recording costs the memory
+        of the map rather than of every return (an hour of a 64-beam LiDAR: 3.6 billion points, 86 GB);
+        below that the result is the same as thinning once at the end."""
+        piles: list[np.ndarray] = []
+        held, limit = 0, COMPACT_POINTS
+        for scan in sweeps:
+            piles.append(apply(scan.pose, scan.points))
+            held += len(piles[-1])
+            if self.config.voxel_size > 0 and held > limit:
+                pile = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.vstack(piles)))
+                piles = [np.asarray(pile.voxel_down_sample(self.config.voxel_size).points)]
+                held = len(piles[0])
+                limit = max(COMPACT_POINTS, 2 * held)  # a map larger than the limit is not thinned every sweep
+        return np.vstack(piles) if piles else np.zeros((0, 3))
+
+
+#: Accumulated LiDAR points above which a voxel-thinned map is thinned as it grows (240 MB of points).
+COMPACT_POINTS = 10_000_000
 
 
 @hookimpl

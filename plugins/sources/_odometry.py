@@ -87,7 +87,7 @@ def rgbd_frame_to_model(
 
 
 def lidar_odometry(
-    scans: Sequence[np.ndarray], timestamps: Sequence[float] | None = None, max_range: float = 30.0
+    scans: Iterable[np.ndarray], timestamps: Sequence[float] | None = None, max_range: float = 30.0
 ) -> list[np.ndarray]:
     """Sensor-to-world poses (the first scan is the world) with KISS-ICP."""
     try:

@@ -26,7 +26,7 @@ from stratamap.core.io import brief
 from stratamap.core.io.rgbd import associate, check_depth_scale, intrinsics_from
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.groundtruth import GroundTruth
-from stratamap.core.map.sensors import LidarScan, SensorStream
+from stratamap.core.map.sensors import LidarSweeps, SensorStream
 from stratamap.plugins.sources._sequence import PosedFrames, SequenceConfig, SequenceSource, example_sequence, select
 
 rotations = lazy_module("scipy.spatial.transform")
@@ -266,6 +266,55 @@ class TfBuffer:
         return parents - children
 
 
+@dataclass(frozen=True)
+class MessageRef:
+    """Where an image or a sweep lies in its bag, so that it is read when needed rather than held: a long
+    recording's images do not fit in memory (2,500 raw 640 x 480 RGB-D pairs are 3.8 GB)."""
+
+    connection: int  # index in the reader's connections
+    bag_time: int  # the bag's record time, ns
+    nth: int  # among the connection's messages recorded at that time
+    frame_id: str
+    encoding: str = ""  # images: as image_encoding() reads it
+
+
+class BagMessages:
+    """Reads messages of one bag by :class:`MessageRef`, opening it on the first read and keeping it open."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._reader: Any = None
+        self._finalizer: Any = None
+
+    def get(self, ref: MessageRef) -> Any:
+        reader = self._open()
+        conn = reader.connections[ref.connection]
+        records = reader.messages(connections=[conn], start=ref.bag_time, stop=ref.bag_time + 1)
+        try:
+            for k, (_, _, raw) in enumerate(records):
+                if k == ref.nth:
+                    return reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # corrupt chunk or record: rosbags raises many types
+            raise DataError(f"{self.path}: corrupt bag: cannot read {conn.topic} again ({brief(exc, True)})") from exc
+        raise DataError(f"{self.path}: a message on {conn.topic} has gone from the bag since it was indexed")
+
+    def _open(self) -> Any:
+        if self._reader is None:
+            import weakref
+
+            from rosbags.highlevel import AnyReader
+            from rosbags.typesys import Stores, get_typestore
+
+            reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+            try:
+                reader.open()
+            except Exception as exc:  # rosbags raises several reader errors
+                raise DataError(f"{self.path}: cannot open as a ROS 1 or ROS 2 bag ({brief(exc, True)})") from exc
+            self._reader = reader
+            self._finalizer = weakref.finalize(self, reader.close)
+        return self._reader
+
+
 class RosbagSource(SequenceSource[RosbagConfig]):
     """ROS 1 and ROS 2 bags without ROS: depth + color + camera_info + tf, or PointCloud2 for LiDAR."""
 
@@ -302,8 +351,14 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                 by_type.setdefault(c.msgtype, []).append(c.topic)
             wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | COMPRESSED | INFO | CLOUD | TF}
             conns = [c for c in reader.connections if c.topic in wanted]
-            for conn, _, raw in reader.messages(connections=conns):
+            index = {id(c): k for k, c in enumerate(reader.connections)}
+            at_time: tuple[int, dict[int, int]] = (-1, {})  # messages so far per connection at one record time
+            for conn, bag_time, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
+                if bag_time != at_time[0]:
+                    at_time = (bag_time, {})
+                number = index[id(conn)]
+                nth = at_time[1][number] = at_time[1].get(number, -1) + 1
                 if conn.msgtype in TF:
                     static = conn.topic.endswith("tf_static")
                     for tf in msg.transforms:
@@ -312,11 +367,12 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                             (0.0 if static else stamp_of(tf), tf.header.frame_id.lstrip("/"), transform_matrix(tf))
                         )
                 elif conn.msgtype in IMAGE | COMPRESSED:
-                    images.append((conn.topic, stamp_of(msg), msg))
+                    ref = MessageRef(number, bag_time, nth, msg.header.frame_id, image_encoding(msg))
+                    images.append((conn.topic, stamp_of(msg), ref))
                 elif conn.msgtype in INFO:
                     infos.append((conn.topic, msg))
                 elif conn.msgtype in CLOUD:
-                    clouds.append((conn.topic, stamp_of(msg), msg))
+                    clouds.append((conn.topic, stamp_of(msg), MessageRef(number, bag_time, nth, msg.header.frame_id)))
         except DataError as exc:
             raise DataError(f"{path}: {brief(exc)}") from exc
         except Exception as exc:  # corrupt chunks, records or messages: rosbags and its deserializers raise many types
@@ -345,7 +401,14 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                     f"{path}: topic {topic!r} ({param}) carries {topics[topic]}, expected "
                     f"{' or '.join(sorted(k for k in kinds if '/msg/' in k))}"
                 )
-        return {"types": by_type, "images": images, "infos": infos, "clouds": clouds, "tf": TfBuffer(edges), "cfg": cfg}
+        return {
+            "types": by_type,
+            "images": images,
+            "infos": infos,
+            "clouds": clouds,
+            "tf": TfBuffer(edges),
+            "messages": BagMessages(path),
+        }
 
     @staticmethod
     def _by_stamp(path: Path, topic: str, msgs: list[tuple[float, Any]]) -> list[tuple[float, Any]]:
@@ -365,8 +428,8 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         bag = self._read_bag(path)
         images = bag["images"]
         encodings: dict[str, str] = {}
-        for topic, _, msg in images:
-            encodings.setdefault(topic, image_encoding(msg))
+        for topic, _, ref in images:
+            encodings.setdefault(topic, ref.encoding)
         depth_topic = cfg.depth_topic or next((t for t, e in encodings.items() if e in DEPTH_ENCODINGS), None)
         color_topic = cfg.color_topic or next((t for t, e in encodings.items() if e in COLOR_ENCODINGS), None)
         tf: TfBuffer = bag["tf"]
@@ -419,8 +482,10 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         times = [depth_msgs[d][0] for d, _ in pairs]
         shape = (intr.height, intr.width)
 
+        messages: BagMessages = bag["messages"]
+
         def read(k: int):
-            d_msg, c_msg = depth_msgs[pairs[k][0]][1], color_msgs[pairs[k][1]][1]
+            d_msg, c_msg = messages.get(depth_msgs[pairs[k][0]][1]), messages.get(color_msgs[pairs[k][1]][1])
             try:
                 depth = image_array(d_msg, depth_topic)
                 rgb = image_array(c_msg, color_topic)
@@ -437,7 +502,7 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         check_depth_scale(
             first_depth, Path(f"{path}:{depth_topic}"), 1000.0 if encodings[depth_topic] != "32FC1" else 1.0
         )
-        frame_id = depth_msgs[0][1].header.frame_id.lstrip("/")
+        frame_id = depth_msgs[0][1].frame_id.lstrip("/")
         poses = [tf.lookup(world, frame_id, t) for t in times] if tf.edges else [None] * len(times)
         frames = PosedFrames(times, read, poses)
         stream = SensorStream(
@@ -465,28 +530,27 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {sorted(bag['types'])})")
         sweeps = self._by_stamp(path, topic, sweeps)  # type: ignore[arg-type]
         sweeps = [sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames)]
-        scans = []
-        for t, msg in sweeps:
-            pose = tf.lookup(world, msg.header.frame_id.lstrip("/"), t) if tf.edges else None
+        messages: BagMessages = bag["messages"]
+
+        def read(k: int) -> np.ndarray:
             try:
-                points = cloud_array(msg, topic)  # type: ignore[arg-type]
+                return cloud_array(messages.get(sweeps[k][1]), topic)  # type: ignore[arg-type]
             except DataError as exc:
                 raise DataError(f"{path}: {exc}") from exc
-            scans.append(LidarScan(t, points, pose))
-        empty = sum(len(s.points) == 0 for s in scans)
+
+        poses = [tf.lookup(world, ref.frame_id.lstrip("/"), t) if tf.edges else None for t, ref in sweeps]
+        scans = LidarSweeps([t for t, _ in sweeps], read, poses)
+        empty = sum(len(read(k)) == 0 for k in range(len(scans)))  # every sweep read once here: bad data fails now
         if empty == len(scans):
             raise DataError(f"{path}: the PointCloud2 messages on {topic!r} hold no finite points")
         if empty:
             self.warn(f"{path}: {empty} of {len(scans)} sweeps on {topic!r} hold no finite points")
-        if any(s.pose is None for s in scans):
+        if any(pose is None for pose in poses):
             if cfg.odometry == "never":
                 raise DataError(f"{path}: LiDAR sweeps without tf poses and odometry is 'never'")
             from stratamap.plugins.sources._odometry import lidar_odometry
 
-            for s, pose in zip(
-                scans, lidar_odometry([s.points for s in scans], [s.timestamp for s in scans]), strict=True
-            ):
-                s.pose = pose
+            scans.poses[:] = lidar_odometry((read(k) for k in range(len(scans))), scans.timestamps)
             self.note("odometry", {"method": "kiss-icp", "sweeps": len(scans)})
         stream = SensorStream(
             name=path.stem,

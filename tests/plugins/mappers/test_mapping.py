@@ -388,3 +388,33 @@ def test_a_clip_whose_surfaces_no_min_frames_frames_saw_is_a_one_line_error():
         run_stages([TSDFMapper(voxel_size=0.02)], data)
     assert "\n" not in str(err.value)
     assert len(run_stages([TSDFMapper(voxel_size=0.02, min_frames=1)], data).map.geometry.points) > 0
+
+
+def test_points_thins_a_long_lidar_recording_as_it_grows(monkeypatch):
+    """With a voxel size, accumulated sweeps are thinned whenever they pass COMPACT_POINTS: the map
+    never holds many points per voxel, and it covers what thinning once at the end covers."""
+    from scipy.spatial import cKDTree
+
+    from stratamap.core.map.sensors import SensorStream
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+    from stratamap.plugins.mappers import points
+
+    spec = {"type": "room", "seed": 2, "trajectory": {"type": "orbit", "frames": 12}}
+    world = SyntheticWorld(SceneSpec.model_validate({**spec, "lidar": {"enabled": True}}))
+    stream = SensorStream(name="lidar", lidar_scans=world.lidar_scans)
+    mapper = points.PointsMapper(voxel_size=0.1, normals_radius=0.0)
+    once = mapper.map(PipelineData(stream=stream))["geometry"].points
+    sweep = len(world.lidar_scans[0].points)
+    monkeypatch.setattr(points, "COMPACT_POINTS", 3 * sweep)
+    seen: list[int] = []
+    original = points.o3d.geometry.PointCloud.voxel_down_sample
+    monkeypatch.setattr(
+        points.o3d.geometry.PointCloud,
+        "voxel_down_sample",
+        lambda self, size: seen.append(len(self.points)) or original(self, size),
+    )
+    grown = mapper.map(PipelineData(stream=stream))["geometry"].points
+    assert len(seen) > 2 and max(seen) < len(world.lidar_scans) * sweep / 2  # thinned as it grew, never the whole pile
+    assert 0.8 * len(once) < len(grown) < 1.5 * len(once)
+    assert cKDTree(once).query(grown)[0].max() < 0.1 * np.sqrt(3)
+    assert cKDTree(grown).query(once)[0].max() < 0.1 * np.sqrt(3)

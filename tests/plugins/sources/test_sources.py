@@ -315,6 +315,42 @@ def test_rosbag_pointcloud2_round_trip(world, tmp_path, ros_version):
         np.testing.assert_allclose(got.pose, truth.pose, atol=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["rgbd", "lidar"])
+def test_rosbag_holds_one_image_or_sweep_at_a_time(world, tmp_path, kind):
+    """A long recording's images and sweeps are read from the bag when used, not held: reading a bag and
+    every frame (or sweep) of it peaks at a fraction of what its images (or points) take."""
+    import tracemalloc
+    from dataclasses import replace
+
+    from stratamap.core.map.sensors import LidarScan
+
+    n = 300
+    if kind == "rgbd":
+        stream = world.stream()
+        frames = [replace(stream.frames[k % 5], timestamp=0.1 * k) for k in range(n)]
+        bag = write_rgbd_bag(tmp_path / "rgbd", replace(stream, frames=frames), ros_version=2)
+        payload = sum(f.depth.nbytes + f.rgb.nbytes for f in frames)
+    else:
+        sweeps = [world.lidar_scans[k % len(world.lidar_scans)] for k in range(n)]
+        sweeps = [LidarScan(0.1 * k, np.tile(s.points, (4, 1)), s.pose) for k, s in enumerate(sweeps)]
+        bag = write_lidar_bag(tmp_path / "lidar.bag", sweeps, ros_version=1)
+        payload = sum(s.points.nbytes for s in sweeps)
+    tracemalloc.start()
+    try:
+        out = read(RosbagSource(path=str(bag), gravity="off"))["frames"]
+        if kind == "rgbd":
+            seen = sum(float(f.depth.sum()) for f in out.frames)
+            truth = sum(float(np.round(f.depth * 1000).sum()) / 1000 for f in frames)
+        else:
+            seen = sum(len(s.points) for s in out.lidar_scans)
+            truth = sum(len(s.points) for s in sweeps)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert seen == pytest.approx(truth, rel=1e-5)
+    assert peak < 0.3 * payload, f"peak {peak / 1e6:.1f} MB reading {payload / 1e6:.1f} MB of {kind}"
+
+
 def test_rosbag_errors(tmp_path):
     with pytest.raises(DataError, match="not found"):
         read(RosbagSource(path=str(tmp_path / "missing.bag")))
