@@ -141,19 +141,48 @@ def rival_floors(stream: Any, chosen: str, planes: ScenePlanes) -> dict[str, int
     return rivals
 
 
-def up_doubt(chosen: str, inliers: int, rivals: dict[str, int]) -> str | None:
+#: A plane along another axis larger than the floor is no doubt when the map spans less than this
+#: share of its extent along the floor's normal than along the plane's: a room is wider than it is tall
+#: (a fused walk's room, 5 x 4.2 m seen to 1.6 m: 0.38; the same room stored on its side: 2.6).
+FLAT_SPAN = 0.75
+
+
+def axis_spans(points: np.ndarray) -> dict[str, float]:
+    """The extent of ``points`` along each convention's up axis, metres (1st to 99th percentile)."""
+    lo, hi = np.percentile(np.asarray(points), [1, 99], axis=0)
+    column = {axis: int(np.abs(UP_AXES[axis]).argmax()) for axis in CONVENTIONS}
+    return {axis: float(hi[column[axis]] - lo[column[axis]]) for axis in CONVENTIONS}
+
+
+def up_doubt(chosen: str, inliers: int, rivals: dict[str, int], spans: dict[str, float] | None = None) -> str | None:
     """Why the floor ``up_axis: auto`` chose may be a wall or the ceiling, or None. Geometry alone cannot
     tell them apart: a room's floor, ceiling and walls all bound it, and any of them may be the largest.
-    A plane along another axis larger than the floor found, or the plane opposite the floor half its
-    size or more (a floor and a ceiling), leaves the choice a guess the user must confirm."""
+    The choice is a guess the user must confirm when a plane along another axis is larger than the floor
+    found, unless the map is much flatter along the floor's normal than along that plane's (``spans``,
+    ``FLAT_SPAN``: rooms are wider than tall); when such a plane holds half the floor's points or more
+    and the map is much flatter along it; or when the plane opposite the floor is half its size or more
+    (a floor and a ceiling)."""
     opposite = chosen[1:] if chosen.startswith("-") else f"-{chosen}"
-    larger = [axis for axis, count in rivals.items() if count > inliers]
+
+    def flatter(a: str, b: str) -> bool:
+        return spans is not None and spans[a] < FLAT_SPAN * spans[b]
+
+    larger = [axis for axis, count in rivals.items() if count > inliers and not flatter(chosen, axis)]
     if larger:
         axis = max(larger, key=lambda a: rivals[a])
         return (
             f"up_axis auto took {chosen} (a floor of {inliers} sampled points), but a plane along {axis} holds "
             f"{rivals[axis]}: if the map lies on its side or upside down, set up_axis {axis} (y for glTF and "
             "phone scans, z for ROS and PCL, -y for a camera's frame)"
+        )
+    flat = [axis for axis, count in rivals.items() if count >= 0.5 * inliers and flatter(axis, chosen)]
+    if flat and spans is not None:
+        axis = max(flat, key=lambda a: rivals[a])
+        return (
+            f"up_axis auto took {chosen} (a floor of {inliers} sampled points), but a plane along {axis} holds "
+            f"{rivals[axis]} and the map spans {spans[axis]:.1f} m along {axis} against {spans[chosen]:.1f} m along "
+            f"{chosen} (rooms are wider than tall): if the map lies on its side, set up_axis {axis} (y for glTF "
+            "and phone scans, z for ROS and PCL, -y for a camera's frame)"
         )
     if rivals.get(opposite, 0) >= 0.5 * inliers:
         return (
@@ -316,8 +345,10 @@ class PointCloudSource(Source[PointCloudConfig]):
                 report["converted_from"] = "glTF y up"
             if from_gltf or (wanted == "auto" and not organized):
                 rivals = rival_floors(stream, up_axis, planes)
+                spans = axis_spans(stream.points)
                 report["other_axes"] = rivals
-                doubt = up_doubt(up_axis, alignment.floor_inliers, rivals)
+                report["spans_m"] = {axis: round(span, 3) for axis, span in spans.items()}
+                doubt = up_doubt(up_axis, alignment.floor_inliers, rivals, spans)
                 if doubt and from_gltf:  # some exporters write glTF z up, against the specification
                     doubt = (
                         f"taken y up, as glTF specifies, but another way up fits as well ({rivals} sampled points "

@@ -576,6 +576,31 @@ def test_a_room_stored_y_up_is_flagged_by_auto_and_read_with_its_up_axis(tmp_pat
     assert not [w for w in data.warnings if "up_axis" in w], data.warnings
 
 
+def test_a_fused_walk_whose_walls_outsize_its_seen_floor_is_not_flagged_z_up(tmp_path):
+    """A walk's fused room: 5 x 4 m, its floor seen on a 1.3 m strip (furniture hides the rest), its
+    walls seen up to 1.6 m, no ceiling; each long wall holds more points than the seen floor. Stored
+    z up it is not flagged (the map spans 1.6 m along z, 4 m along y: rooms are wider than tall);
+    stored on its side it still is."""
+    rng = np.random.default_rng(3)
+    room = np.vstack(
+        [
+            _plane_points((0, 1.0, 0), (1, 0, 0), (0, 1, 0), 5.0, 1.3, 0.05, rng),
+            _plane_points((0, 0, 0), (1, 0, 0), (0, 0, 1), 5.0, 1.6, 0.05, rng),
+            _plane_points((0, 4, 0), (1, 0, 0), (0, 0, 1), 5.0, 1.6, 0.05, rng),
+            _plane_points((0, 0, 0), (0, 1, 0), (0, 0, 1), 4.0, 1.6, 0.05, rng),
+            _plane_points((5, 0, 0), (0, 1, 0), (0, 0, 1), 4.0, 1.6, 0.05, rng),
+        ]
+    )
+    data = PipelineData()
+    PointCloudSource(path=str(cloud_file(tmp_path, "fused.ply", room))).run(data)
+    alignment = data.notes["pointcloud"]["gravity_alignment"]
+    assert alignment["up_axis"] == "z" and alignment["other_axes"]["y"] > alignment["floor_inliers"]
+    assert not [w for w in data.warnings if "up_axis" in w], data.warnings
+    data = PipelineData()
+    PointCloudSource(path=str(cloud_file(tmp_path, "side.ply", np.c_[room[:, 0], room[:, 2], -room[:, 1]]))).run(data)
+    assert [w for w in data.warnings if "side.ply" in w and "set up_axis y" in w], data.warnings
+
+
 def test_a_real_room_scan_stored_y_up_is_flagged(tmp_path):
     """PCL's real 360-degree room scan turned y up: ``auto`` takes a wall for the floor along z, and says
     so (the floor along y is 3.5 times its size); z up as scanned, nothing is flagged."""
