@@ -17,8 +17,10 @@ of the supporting table, 10k..10k+9 parts of object k-1: label // 10 is the obje
 Which way is up (``up_axis``) cannot always be read from the geometry: a room's floor, ceiling and
 walls all bound it, and any of them may hold the most points. ``auto`` follows the conventions (an
 organized cloud is a camera's, y down; any other is z up, else y down) and, on an unorganized cloud,
-looks along the other conventions too: a larger plane there, or a plane opposite the floor half its
-size, is a warning that names the ``up_axis`` to set (``rival_floors``, ``up_doubt``).
+looks along the other conventions too: a larger plane there (unless the map is much flatter along the
+floor's normal: rooms are wider than tall), a plane half the floor's size along which the map is much
+flatter, or a plane opposite the floor half its size, is a warning that names the ``up_axis`` to set
+(``rival_floors``, ``axis_spans``, ``up_doubt``).
 """
 
 from __future__ import annotations
@@ -63,8 +65,10 @@ class PointCloudConfig(StageConfig):
             "Up direction of the input: -y for a cloud in a camera's optical frame (Kinect and stereo scans), z for "
             "a scan or map in a z-up frame; auto: -y for an organized cloud (a PCD with one point per pixel of an "
             "image, so in its camera's frame), else z, then -y if no floor is found along z; on such a cloud a plane "
-            "along z, y or -y larger than the floor taken, or one opposite it half its size or more, is a warning: "
-            "which of a room's bounding planes is its floor is then a guess (y: glTF and phone scans)."
+            "along z, y or -y larger than the floor taken (unless the map is much flatter along the floor's normal), "
+            "one at least half its size along which the map is much flatter (rooms are wider than tall), or one "
+            "opposite it half its size or more, is a warning: which of a room's bounding planes is its floor is then "
+            "a guess (y: glTF and phone scans)."
         ),
     )
     gravity: Literal["auto", "off"] = Field(
