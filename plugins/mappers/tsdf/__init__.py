@@ -279,11 +279,12 @@ class TSDFMapper(Mapper[TSDFConfig]):
         geometry = volume.surface()
         if len(geometry.points) == 0:
             raise DataError(
-                f"tsdf: no surface of {stream.name!r} was seen by {min(cfg.min_frames, integrated)} of its "
+                f"tsdf: no surface of {stream.name!r} was seen by {volume.views_needed} of its "
                 f"{integrated} frames (min_frames); lower min_frames, or give more or larger frames"
             )
         points, colors = geometry.points, geometry.colors
         self.note("frames_integrated", integrated)
+        self.note("surface_views_needed", volume.views_needed)
         out: dict[str, Any] = {"geometry": geometry}
         if labels is None:
             return out

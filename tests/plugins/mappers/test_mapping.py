@@ -375,8 +375,10 @@ def test_a_clip_its_segmenter_labelled_nothing_in_maps_its_geometry(instances):
 
 
 def test_a_clip_whose_surfaces_no_min_frames_frames_saw_is_a_one_line_error():
-    """Four tiny frames of a moving camera see no voxel four times: the map would be empty, and every
-    stage after it would fail on that; tsdf says why instead, naming the setting."""
+    """Four tiny frames of a moving camera see no voxel four times: with min_frames alone
+    (min_view_share 0) the map would be empty, and every stage after it would fail on that; tsdf says
+    why instead, naming the setting. By default no more views are asked of a voxel than the typical
+    surface voxel had, so the same clip makes a map, and the note says how many views it asked."""
     from stratamap.core.errors import DataError
     from stratamap.core.pipeline import run_stages
     from stratamap.plugins.mappers.tsdf import TSDFMapper
@@ -385,9 +387,36 @@ def test_a_clip_whose_surfaces_no_min_frames_frames_saw_is_a_one_line_error():
     scene = {"type": "meeting_room", "camera": {"width": 48, "height": 36}, "trajectory": {"frames": 4}}
     data = run_stages([SyntheticSource(scene=scene)])
     with pytest.raises(DataError, match=r"tsdf: no surface of .* was seen by 4 of its 4 frames \(min_frames\)") as err:
-        run_stages([TSDFMapper(voxel_size=0.02)], data)
+        run_stages([TSDFMapper(voxel_size=0.02, min_view_share=0.0)], data)
     assert "\n" not in str(err.value)
     assert len(run_stages([TSDFMapper(voxel_size=0.02, min_frames=1)], data).map.geometry.points) > 0
+    mapped = run_stages([TSDFMapper(voxel_size=0.02)], data)
+    assert len(mapped.map.geometry.points) > 0 and mapped.notes["tsdf"]["surface_views_needed"] < 4
+
+
+@pytest.mark.slow
+def test_a_sparse_walk_keeps_the_surfaces_its_frames_saw():
+    """A walk of 8 frames through an office sees its typical surface about twice: min_frames (4) alone
+    kept little of its map; asking no more views than the typical surface had keeps most of it. The
+    same walk in 40 frames asks min_frames, and keeps the same map as before."""
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "office", "seed": 4, "camera": {"width": 120, "height": 90}, "trajectory": {"frames": 8}}
+    sparse = run_stages([SyntheticSource(scene=scene)])
+    everything = len(run_stages([TSDFMapper(min_frames=1)], sparse).map.geometry.points)
+    alone = len(run_stages([TSDFMapper(min_view_share=0.0)], sparse).map.geometry.points)
+    mapped = run_stages([TSDFMapper()], sparse)
+    assert alone < 0.3 * everything
+    assert len(mapped.map.geometry.points) > 0.5 * everything
+    assert mapped.notes["tsdf"]["surface_views_needed"] < 4
+    dense = run_stages([SyntheticSource(scene={**scene, "trajectory": {"frames": 40}})])
+    default = run_stages([TSDFMapper()], dense)
+    assert default.notes["tsdf"]["surface_views_needed"] == 4
+    np.testing.assert_array_equal(
+        default.map.geometry.points, run_stages([TSDFMapper(min_view_share=0.0)], dense).map.geometry.points
+    )
 
 
 def test_points_thins_a_long_lidar_recording_as_it_grows(monkeypatch):
