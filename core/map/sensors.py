@@ -95,7 +95,29 @@ class LidarScan:
     intensities: np.ndarray | None = None
 
 
-class LidarSweeps(Sequence):
+class TimedSequence(Sequence):
+    """Items at ``timestamps``, item ``k`` made by ``_item(k)`` each time it is read (a slice: a list),
+    so that a long recording's frames or sweeps are read when used, not held."""
+
+    timestamps: list[float]
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        if k < 0:
+            k += len(self)
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        return self._item(k)
+
+    def _item(self, k: int) -> Any:
+        raise NotImplementedError
+
+
+class LidarSweeps(TimedSequence):
     """LiDAR sweeps read when accessed, not held: a long recording's sweeps outgrow memory (an hour of a
     64-beam LiDAR at 10 Hz is 36,000 sweeps of some 100,000 points). The poses live here, so a source's
     odometry and gravity alignment set them as on a list of scans (``sweeps[k].pose = T``). Each access
@@ -108,16 +130,7 @@ class LidarSweeps(Sequence):
             raise ValueError(f"{len(timestamps)} timestamps for {len(poses)} poses")
         self.timestamps, self.read, self.poses = timestamps, read, poses
 
-    def __len__(self) -> int:
-        return len(self.timestamps)
-
-    def __getitem__(self, k):  # type: ignore[override]
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError(k)
+    def _item(self, k: int) -> LidarScan:
         return _Sweep(self, k)
 
 

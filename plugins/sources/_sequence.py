@@ -15,7 +15,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.evaluation.trajectory import ate, rpe
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.map.groundtruth import GroundTruth
-from stratamap.core.map.sensors import RGBDFrame, SensorStream
+from stratamap.core.map.sensors import RGBDFrame, SensorStream, TimedSequence
 from stratamap.core.stages import Source, StageConfig
 from stratamap.plugins.sources._gravity import (
     GravityAlignment,
@@ -66,7 +66,7 @@ class SequenceConfig(StageConfig):
     )
 
 
-class PosedFrames(Sequence):
+class PosedFrames(TimedSequence):
     """Frames read on access; their poses come from a list the source may update (odometry, gravity)."""
 
     def __init__(
@@ -80,16 +80,7 @@ class PosedFrames(Sequence):
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._cache_size = cache
 
-    def __len__(self) -> int:
-        return len(self.timestamps)
-
-    def __getitem__(self, k):  # type: ignore[override]
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        if k < 0:
-            k += len(self)
-        if not 0 <= k < len(self):
-            raise IndexError(k)
+    def _item(self, k: int) -> RGBDFrame:
         if k not in self._cache:
             self._cache[k] = self._read(k)
             if len(self._cache) > self._cache_size:
