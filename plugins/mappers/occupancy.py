@@ -2,7 +2,9 @@
 
 * ``slam`` -- the laser map. With 2D laser scans: log-odds occupancy by ray casting every beam
   (cells along the beam become freer, the end cell more occupied), as a laser SLAM back end
-  builds it. Without scans: geometry in a thin slice at ``laser_height`` (what a laser would see).
+  builds it. With posed 3D LiDAR sweeps: the same from planar scans of the obstacle band, as ROS's
+  pointcloud_to_laserscan makes them (``lidar_planar_scans``). Without either: geometry in a thin
+  slice at ``laser_height`` (what a laser would see).
 * ``objects`` -- every obstacle in the band [``z_min``, ``robot_height``] projected to the floor:
   from the 3D geometry, or from the object instances (their completions when present). When a
   completer ran before, the geometry is the augmented scene (augmented-representations paper,
@@ -18,6 +20,7 @@ Values follow ``nav_msgs/OccupancyGrid``: -1 unknown, 0 free ... 100 occupied.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -27,7 +30,7 @@ from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
-from stratamap.core.map.sensors import LaserScan
+from stratamap.core.map.sensors import LaserScan, LidarScan
 from stratamap.plugins.mappers._floor import floor_height
 
 o3d = lazy_module("open3d")
@@ -83,6 +86,57 @@ class OccupancyConfig(StageConfig):
         return self
 
 
+#: Horizontal beams of a planar scan made from a LiDAR sweep (0.25 degrees apart, as a 2D laser's).
+LIDAR_BEAMS = 1440
+#: Returns nearer than this to the LiDAR are the robot carrying it, metres (KISS-ICP's min_range here).
+LIDAR_MIN_RANGE = 0.3
+#: A sweep becomes a planar scan once the sensor moved this far (metres) or turned this much (radians)
+#: since the last one, as a SLAM back end keeps keyframes: sweeps at 10 Hz repeat each other.
+LIDAR_KEYFRAME_TRAVEL, LIDAR_KEYFRAME_TURN = 0.2, np.radians(10.0)
+
+
+def lidar_planar_scans(
+    sweeps: Sequence[LidarScan], floor_z: float, cfg: OccupancyConfig
+) -> tuple[list[LaserScan], list[np.ndarray]]:
+    """3D LiDAR sweeps as planar laser scans, as ROS's pointcloud_to_laserscan makes them for a 2D
+    SLAM back end: each beam's range is its nearest return within the obstacle band (``z_min`` to
+    ``robot_height`` above the floor); a beam with none there clears cells as far as its farthest
+    return on the floor (``floor_tolerance``), which a 2D laser could not see. Keyframes only
+    (``LIDAR_KEYFRAME_*``). Returns the scans, posed at the sensor with a level x axis, and each
+    one's per-beam reach for beams without a return."""
+    from stratamap.core.geometry.transforms import apply
+
+    scans: list[LaserScan] = []
+    reaches: list[np.ndarray] = []
+    increment = 2 * np.pi / LIDAR_BEAMS
+    last: np.ndarray | None = None
+    for sweep in sweeps:
+        pose = np.asarray(sweep.pose)
+        if last is not None:
+            moved = np.linalg.norm(pose[:2, 3] - last[:2, 3])
+            turned = abs(np.arctan2(pose[1, 0], pose[0, 0]) - np.arctan2(last[1, 0], last[0, 0]))
+            if moved < LIDAR_KEYFRAME_TRAVEL and min(turned, 2 * np.pi - turned) < LIDAR_KEYFRAME_TURN:
+                continue
+        last = pose
+        world = apply(pose, np.asarray(sweep.points))
+        offset = world[:, :2] - pose[:2, 3]
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        beam = np.floor((np.arctan2(offset[:, 1], offset[:, 0]) + np.pi) / increment).astype(np.int64) % LIDAR_BEAMS
+        height = world[:, 2] - floor_z
+        far = distance >= LIDAR_MIN_RANGE
+        band = far & (height >= cfg.z_min) & (height <= cfg.robot_height)
+        floor = far & (np.abs(height) <= cfg.floor_tolerance)
+        ranges = np.full(LIDAR_BEAMS, np.inf)
+        np.minimum.at(ranges, beam[band], distance[band])
+        reach = np.zeros(LIDAR_BEAMS)
+        np.maximum.at(reach, beam[floor], distance[floor])
+        level = np.eye(4)
+        level[:3, 3] = pose[:3, 3]
+        scans.append(LaserScan(sweep.timestamp, -np.pi + increment / 2, increment, ranges, np.inf, level))
+        reaches.append(reach)
+    return scans, reaches
+
+
 #: The most cells a layer may hold: a 500 x 500 m floor at 5 cm, about 0.8 GB per layer of counts.
 #: A room scanned in millimetres and read as metres spans kilometres (65 GB of counts).
 MAX_CELLS = 100_000_000
@@ -123,9 +177,18 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             z = geom.points[:, 2] - floor_z
             floor_seen = hits(geom.points[np.abs(z) <= cfg.floor_tolerance, :2])
 
+        sweeps = [s for s in (stream.lidar_scans if stream is not None else []) if s.pose is not None]
         if scans:
             slam = self._laser_log_odds(scans, origin, shape, cfg)
             self.note("slam_source", f"{len(scans)} laser scans (log-odds)")
+        elif sweeps:
+            planar, reaches = lidar_planar_scans(sweeps, floor_z, cfg)
+            slam = self._laser_log_odds(planar, origin, shape, cfg, reaches)
+            self.note(
+                "slam_source",
+                f"{len(planar)} of {len(sweeps)} LiDAR sweeps as planar scans of the {cfg.z_min:g}-"
+                f"{cfg.robot_height:g} m band (log-odds)",
+            )
         else:
             z = geom.points[:, 2] - floor_z  # type: ignore[union-attr]
             in_slice = np.abs(z - cfg.laser_height) <= cfg.laser_slice / 2
@@ -194,17 +257,26 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
 
     @staticmethod
     def _laser_log_odds(
-        scans: list[LaserScan], origin: np.ndarray, shape: tuple[int, int], cfg: OccupancyConfig
+        scans: list[LaserScan],
+        origin: np.ndarray,
+        shape: tuple[int, int],
+        cfg: OccupancyConfig,
+        no_return_reach: list[np.ndarray] | None = None,
     ) -> np.ndarray:
+        """Log-odds of the scans, trinary. A beam without a return clears cells to ``max_free_range``,
+        or, where ``no_return_reach`` gives one per beam, to that range (0: none)."""
         logodds = np.zeros(shape, np.float64)
         seen = np.zeros(shape, bool)
         step = cfg.resolution / 2
         lo, hi = cfg.log_odds_clamp
-        for s in scans:
+        for k, s in enumerate(scans):
             yaw = np.arctan2(s.pose[1, 0], s.pose[0, 0])
             ang = s.angles + yaw
             ret = np.isfinite(s.ranges) & (s.ranges <= s.range_max)
-            reach = np.where(ret, s.ranges, min(cfg.max_free_range, s.range_max))
+            missed = min(cfg.max_free_range, s.range_max) if no_return_reach is None else no_return_reach[k]
+            reach = np.where(ret, s.ranges, missed)
+            if not np.any(reach > 0):
+                continue
             n = int(np.ceil(reach.max() / step)) + 1
             t = np.arange(n) * step
             dirs = np.stack([np.cos(ang), np.sin(ang)], 1)

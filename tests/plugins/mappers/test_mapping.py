@@ -447,3 +447,40 @@ def test_points_thins_a_long_lidar_recording_as_it_grows(monkeypatch):
     assert 0.8 * len(once) < len(grown) < 1.5 * len(once)
     assert cKDTree(once).query(grown)[0].max() < 0.1 * np.sqrt(3)
     assert cKDTree(grown).query(once)[0].max() < 0.1 * np.sqrt(3)
+
+
+def test_occupancy_maps_a_lidar_recording_from_its_sweeps():
+    """A 3D LiDAR recording's laser map comes from its sweeps, as planar scans of the obstacle band
+    (pointcloud_to_laserscan): free where the beams crossed, occupied where they ended. It knows most
+    of what the same room's 2D laser knows, and what it calls free the 2D laser does too (the band
+    holds the laser's plane). The geometry's thin slice at the laser height knew little of it."""
+    from stratamap.core.map.sensors import SensorStream
+    from stratamap.core.pipeline import run_stages
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+    from stratamap.plugins.mappers.occupancy import OccupancyMapper
+    from stratamap.plugins.mappers.points import PointsMapper
+
+    spec = {"type": "room", "seed": 2, "trajectory": {"type": "orbit", "frames": 12}}
+    world = SyntheticWorld(SceneSpec.model_validate({**spec, "lidar": {"enabled": True}}))
+    lidar = run_stages(
+        [PointsMapper(voxel_size=0.02, normals_radius=0.0), OccupancyMapper()],
+        PipelineData(stream=SensorStream(name="lidar", lidar_scans=world.lidar_scans)),
+    )
+    assert "LiDAR sweeps as planar scans" in lidar.notes["occupancy"]["slam_source"]
+    laser = run_stages(
+        [OccupancyMapper()], PipelineData(stream=SensorStream(name="laser", laser_scans=world.laser_scans))
+    )
+
+    def cells(data: PipelineData) -> dict[tuple[int, int], int]:
+        grid = data.map.occupancy["slam"]
+        rows, cols = np.nonzero(grid.data >= 0)
+        centres = (np.c_[cols, rows] + 0.5) * grid.resolution + np.asarray(grid.origin[:2])
+        keys = np.floor(centres / grid.resolution)  # cells of both maps on one world grid
+        return {(int(x), int(y)): int(grid.data[r, c]) for (x, y), r, c in zip(keys, rows, cols, strict=True)}
+
+    seen_by_lidar, seen_by_laser = cells(lidar), cells(laser)
+    both = [key for key in seen_by_lidar if key in seen_by_laser]
+    assert len(both) > 0.6 * len(seen_by_laser)
+    lidar_free = [key for key in both if seen_by_lidar[key] == 0]
+    assert len(lidar_free) > 0.5 * len(both)
+    assert np.mean([seen_by_laser[key] == 0 for key in lidar_free]) > 0.95
