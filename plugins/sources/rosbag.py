@@ -83,6 +83,14 @@ def _where(topic: str, msg: Any) -> str:
         return topic
 
 
+def _starts_with(path: Path, magic: bytes) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(len(magic)) == magic
+    except OSError:  # unreadable: the reader says why
+        return False
+
+
 def image_encoding(msg: Any) -> str:
     """A ``sensor_msgs/Image``'s encoding; for a ``CompressedImage``, the encoding its ``format`` names
     ("16UC1; compressedDepth png", "rgb8; jpeg compressed bgr8"), else 16UC1 for compressed depth and
@@ -337,6 +345,9 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         cfg = self.config
         if not path.exists():
             raise DataError(f"{path}: bag not found")
+        if path.is_file() and path.suffix != ".bag" and _starts_with(path, b"#ROSBAG V2.0\n"):
+            # rosbags tells a ROS 1 bag by its name: this one would be "Unrecognized storage format ''"
+            raise DataError(f"{path}: a ROS 1 bag, whose file name must end in .bag to be read: rename it")
         typestore = get_typestore(Stores.ROS2_HUMBLE)
         try:
             reader = AnyReader([path], default_typestore=typestore)

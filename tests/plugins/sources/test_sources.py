@@ -357,6 +357,10 @@ def test_rosbag_errors(tmp_path):
     (tmp_path / "junk.bag").write_bytes(b"not a bag")
     with pytest.raises(DataError, match="cannot open"):
         read(RosbagSource(path=str(tmp_path / "junk.bag")))
+    unnamed = tmp_path / "recording"
+    unnamed.write_bytes(b"#ROSBAG V2.0\n" + bytes(64))
+    with pytest.raises(DataError, match=r"recording: a ROS 1 bag, whose file name must end in \.bag"):
+        read(RosbagSource(path=str(unnamed)))
 
 
 def test_scannet_and_redwood_layouts_read():
