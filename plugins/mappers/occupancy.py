@@ -28,6 +28,7 @@ from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
 from stratamap.core.map.sensors import LaserScan, LidarScan
@@ -104,8 +105,6 @@ def lidar_planar_scans(
     return on the floor (``floor_tolerance``), which a 2D laser could not see. Keyframes only
     (``LIDAR_KEYFRAME_*``). Returns the scans, posed at the sensor with a level x axis, and each
     one's per-beam reach for beams without a return."""
-    from stratamap.core.geometry.transforms import apply
-
     scans: list[LaserScan] = []
     reaches: list[np.ndarray] = []
     increment = 2 * np.pi / LIDAR_BEAMS

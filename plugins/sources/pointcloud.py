@@ -149,6 +149,8 @@ def rival_floors(stream: Any, chosen: str, planes: ScenePlanes) -> dict[str, int
 #: share of its extent along the floor's normal than along the plane's: a room is wider than it is tall
 #: (a fused walk's room, 5 x 4.2 m seen to 1.6 m: 0.38; the same room stored on its side: 2.6).
 FLAT_SPAN = 0.75
+#: Which software writes which up axis, for the warnings that name one to set.
+CONVENTION_AXES = "(y for glTF and phone scans, z for ROS and PCL, -y for a camera's frame)"
 
 
 def axis_spans(points: np.ndarray) -> dict[str, float]:
@@ -176,8 +178,7 @@ def up_doubt(chosen: str, inliers: int, rivals: dict[str, int], spans: dict[str,
         axis = max(larger, key=lambda a: rivals[a])
         return (
             f"up_axis auto took {chosen} (a floor of {inliers} sampled points), but a plane along {axis} holds "
-            f"{rivals[axis]}: if the map lies on its side or upside down, set up_axis {axis} (y for glTF and "
-            "phone scans, z for ROS and PCL, -y for a camera's frame)"
+            f"{rivals[axis]}: if the map lies on its side or upside down, set up_axis {axis} {CONVENTION_AXES}"
         )
     flat = [axis for axis, count in rivals.items() if count >= 0.5 * inliers and flatter(axis, chosen)]
     if flat and spans is not None:
@@ -185,8 +186,7 @@ def up_doubt(chosen: str, inliers: int, rivals: dict[str, int], spans: dict[str,
         return (
             f"up_axis auto took {chosen} (a floor of {inliers} sampled points), but a plane along {axis} holds "
             f"{rivals[axis]} and the map spans {spans[axis]:.1f} m along {axis} against {spans[chosen]:.1f} m along "
-            f"{chosen} (rooms are wider than tall): if the map lies on its side, set up_axis {axis} (y for glTF "
-            "and phone scans, z for ROS and PCL, -y for a camera's frame)"
+            f"{chosen} (rooms are wider than tall): if the map lies on its side, set up_axis {axis} {CONVENTION_AXES}"
         )
     if rivals.get(opposite, 0) >= 0.5 * inliers:
         return (

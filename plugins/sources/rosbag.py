@@ -287,7 +287,8 @@ class MessageRef:
 
 
 class BagMessages:
-    """Reads messages of one bag by :class:`MessageRef`, opening it on the first read and keeping it open."""
+    """One bag's reader, opened on first use and kept open (the source indexes the bag with it, then
+    reads each message again by its :class:`MessageRef`), closed when no longer referenced."""
 
     def __init__(self, path: Path):
         self.path = path
@@ -295,7 +296,7 @@ class BagMessages:
         self._finalizer: Any = None
 
     def get(self, ref: MessageRef) -> Any:
-        reader = self._open()
+        reader = self.reader()
         conn = reader.connections[ref.connection]
         records = reader.messages(connections=[conn], start=ref.bag_time, stop=ref.bag_time + 1)
         try:
@@ -306,7 +307,8 @@ class BagMessages:
             raise DataError(f"{self.path}: corrupt bag: cannot read {conn.topic} again ({brief(exc, True)})") from exc
         raise DataError(f"{self.path}: a message on {conn.topic} has gone from the bag since it was indexed")
 
-    def _open(self) -> Any:
+    def reader(self) -> Any:
+        """The open ``rosbags`` reader; a file it cannot open is a DataError."""
         if self._reader is None:
             import weakref
 
@@ -321,6 +323,14 @@ class BagMessages:
             self._reader = reader
             self._finalizer = weakref.finalize(self, reader.close)
         return self._reader
+
+    def close(self) -> None:
+        if self._finalizer is not None:
+            try:
+                self._finalizer()
+            except Exception:  # closing a half-read corrupt bag may fail again; the first error is the one to report
+                pass
+            self._reader = self._finalizer = None
 
 
 class RosbagSource(SequenceSource[RosbagConfig]):
@@ -339,21 +349,15 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         return {"path": str(folder / "bag"), "world_frame": "map"}
 
     def _read_bag(self, path: Path) -> dict[str, Any]:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
         cfg = self.config
         if not path.exists():
             raise DataError(f"{path}: bag not found")
         if path.is_file() and path.suffix != ".bag" and _starts_with(path, b"#ROSBAG V2.0\n"):
             # rosbags tells a ROS 1 bag by its name: this one would be "Unrecognized storage format ''"
             raise DataError(f"{path}: a ROS 1 bag, whose file name must end in .bag to be read: rename it")
-        typestore = get_typestore(Stores.ROS2_HUMBLE)
-        try:
-            reader = AnyReader([path], default_typestore=typestore)
-            reader.open()
-        except Exception as exc:  # rosbags raises several reader errors
-            raise DataError(f"{path}: cannot open as a ROS 1 or ROS 2 bag ({brief(exc, True)})") from exc
+        messages = BagMessages(path)
+        reader = messages.reader()
+        indexed = False
         by_type: dict[str, list[str]] = {}
         images, infos, clouds = [], [], []
         edges: dict[str, list[tuple[float, str, np.ndarray]]] = {}
@@ -363,13 +367,14 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             wanted = {c.topic for c in reader.connections if c.msgtype in IMAGE | COMPRESSED | INFO | CLOUD | TF}
             conns = [c for c in reader.connections if c.topic in wanted]
             index = {id(c): k for k, c in enumerate(reader.connections)}
-            at_time: tuple[int, dict[int, int]] = (-1, {})  # messages so far per connection at one record time
+            last_time = -1
+            seen_at_time: dict[int, int] = {}  # messages so far per connection at one record time
             for conn, bag_time, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
-                if bag_time != at_time[0]:
-                    at_time = (bag_time, {})
+                if bag_time != last_time:
+                    last_time, seen_at_time = bag_time, {}
                 number = index[id(conn)]
-                nth = at_time[1][number] = at_time[1].get(number, -1) + 1
+                nth = seen_at_time[number] = seen_at_time.get(number, -1) + 1
                 if conn.msgtype in TF:
                     static = conn.topic.endswith("tf_static")
                     for tf in msg.transforms:
@@ -388,11 +393,11 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             raise DataError(f"{path}: {brief(exc)}") from exc
         except Exception as exc:  # corrupt chunks, records or messages: rosbags and its deserializers raise many types
             raise DataError(f"{path}: corrupt bag: cannot read its messages ({brief(exc, True)})") from exc
+        else:
+            indexed = True
         finally:
-            try:
-                reader.close()
-            except Exception:  # closing a half-read corrupt bag may fail again; the first error is the one to report
-                pass
+            if not indexed:
+                messages.close()
         for v in edges.values():
             v.sort(key=lambda e: e[0])
         topics = {t: m for m, ts in by_type.items() for t in ts}
@@ -418,7 +423,7 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             "infos": infos,
             "clouds": clouds,
             "tf": TfBuffer(edges),
-            "messages": BagMessages(path),
+            "messages": messages,
         }
 
     @staticmethod
