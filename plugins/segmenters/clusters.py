@@ -220,6 +220,13 @@ class ClustersConfig(StageConfig):
     class_rules: list[ClassRule] = Field(
         default_factory=list, description="Size rules naming clusters when the map has no class votes."
     )
+    trim_feet: bool = Field(
+        default=True,
+        description=(
+            "Give back the points of the surface a thing stands on that lie outside its body's footprint (the "
+            "ring of table top or floor a detector's mask takes at a cup's foot) to what surrounds them."
+        ),
+    )
     keep_instances: bool = Field(
         default=False,
         description=(
@@ -628,6 +635,68 @@ def grow_supports(
     return np.concatenate(grown) if grown else np.zeros(0, np.int64)
 
 
+def trim_feet(
+    points: np.ndarray,
+    class_ids: np.ndarray,
+    instance_ids: np.ndarray,
+    surface_heights: np.ndarray,
+    voxel: float,
+    standing_tolerance: float,
+) -> int:
+    """Points of a thing standing on a surface (its foot within ``standing_tolerance`` of the floor's or
+    a support's height) that lie in that surface
+    (within half a voxel of the thing's foot) and outside the top-view convex hull of its body (its
+    points more than 1.5 voxels up), by more than half a voxel, take the class and instance of the
+    nearest point of something else, in place; returns how many moved. A detector's mask around a
+    cup takes a ring of the table top with it, which widens the cup's box by a third or more; its
+    own base and a chair's feet lie under their bodies and stay. Things with no body above their
+    base layer (a sheet of paper, a book lying flat) are left as they are."""
+    from scipy.spatial import cKDTree
+
+    n = int(instance_ids.max()) if len(instance_ids) else 0
+    rings = []
+    for k, idx in enumerate(members_of(instance_ids, n + 1)):
+        if k == 0 or len(idx) < 4:
+            continue
+        z = points[idx, 2]
+        foot = float(z.min())
+        if not on_a_support(foot, surface_heights, standing_tolerance):
+            continue
+        body = z > foot + 1.5 * voxel
+        layer = np.flatnonzero(z <= foot + 0.5 * voxel)
+        if body.sum() < 3 or not len(layer):
+            continue
+        a, b = _hull_equations(points[idx[body], :2])
+        beyond = (points[idx[layer], :2] @ a.T + b).max(axis=1)
+        outside = beyond > 0.5 * voxel
+        rings.append((idx[layer[outside]], beyond[outside]))
+    if not rings:
+        return 0
+    ring = np.concatenate([r for r, _ in rings])
+    # Farthest from the body first, so that a ring wider than the search radius moves from outside in.
+    ring = ring[np.argsort(-np.concatenate([d for _, d in rings]), kind="stable")]
+    if not len(ring):
+        return 0
+    tree = cKDTree(points)
+    near_dist, near = tree.query(points[ring], k=16, distance_upper_bound=2.0 * voxel)
+    owner = instance_ids[ring].copy()
+    pending = np.ones(len(ring), bool)
+    while pending.any():
+        moved_now = 0
+        for row in np.flatnonzero(pending):
+            for d, j in zip(near_dist[row], near[row], strict=True):
+                if not np.isfinite(d):
+                    break
+                if instance_ids[j] != owner[row]:
+                    class_ids[ring[row]], instance_ids[ring[row]] = class_ids[j], instance_ids[j]
+                    pending[row] = False
+                    moved_now += 1
+                    break
+        if not moved_now:
+            break
+    return int((~pending).sum())
+
+
 def return_feet(
     cells: np.ndarray, obj: np.ndarray, segment: np.ndarray, grown: np.ndarray, pairs: np.ndarray, supports: Supports
 ) -> None:
@@ -968,10 +1037,23 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 supports.of_cell[cell_of_point],
                 supports.area,
             )
+        feet = (
+            trim_feet(
+                points,
+                class_ids,
+                instance_ids,
+                np.r_[supports.height, base_z],
+                voxel,
+                self._standing_tolerance(voxel),
+            )
+            if cfg.trim_feet
+            else 0
+        )
         self.note(
             "segments",
             {
                 "voxel_size": round(voxel, 5),
+                "foot_points_given_back": feet,
                 "floor_height": None if layout.floor_height is None else round(layout.floor_height, 3),
                 "walls": layout.walls,
                 "supports": len(layout.supports),
