@@ -1024,6 +1024,12 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 things += 1
             else:
                 turned_stuff += 1
+        standing = self._standing_tolerance(voxel)
+        feet = (
+            trim_feet(points, class_ids, instance_ids, np.r_[supports.height, base_z], voxel, standing)
+            if cfg.trim_feet
+            else 0
+        )
         if cfg.recognize:
             class_ids, instance_ids = self._recognize(
                 points,
@@ -1037,18 +1043,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 supports.of_cell[cell_of_point],
                 supports.area,
             )
-        feet = (
-            trim_feet(
-                points,
-                class_ids,
-                instance_ids,
-                np.r_[supports.height, base_z],
-                voxel,
-                self._standing_tolerance(voxel),
-            )
-            if cfg.trim_feet
-            else 0
-        )
         self.note(
             "segments",
             {
