@@ -28,7 +28,7 @@ writing ``centernet_coco80.onnx`` and its sidecar (layout ``centernet``) to ``--
 ``--nanodet`` converts the same package's ``models/nanodet.{json,bin}`` the same way (NanoDet, a
 416 x 416 COCO-80 detector with a Generalized Focal Loss head, layout ``gfl``; the package is MIT and
 names RangiLyu/nanodet, Apache-2.0, as the weights' source) to ``nanodet_coco80.onnx``. Neither
-ships: on stratamap's checks (docs/experiments/2026-11-27-cup-feet-and-a-coco-detector.md) both
+ships: on stratamap's checks (docs/experiments/2026-11-28-cup-feet-and-a-coco-detector.md) both
 find chairs and tables less often than the shipped SSD.
 
     python scripts/build_detector.py                 # npm pack, convert, write models/
