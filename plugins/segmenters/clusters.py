@@ -51,7 +51,7 @@ from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.instances import members_of
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._layout import LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
+from stratamap.plugins.segmenters._layout import FLOOR, LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
     HAND_HELD,
@@ -639,18 +639,20 @@ def trim_feet(
     points: np.ndarray,
     class_ids: np.ndarray,
     instance_ids: np.ndarray,
-    surface_heights: np.ndarray,
+    surface_of_point: np.ndarray,
     voxel: float,
-    standing_tolerance: float,
 ) -> int:
-    """Points of a thing standing on a surface (its foot within ``standing_tolerance`` of the floor's or
-    a support's height) that lie in that surface
-    (within half a voxel of the thing's foot) and outside the top-view convex hull of its body (its
-    points more than 1.5 voxels up), by more than half a voxel, take the class and instance of the
-    nearest point of something else, in place; returns how many moved. A detector's mask around a
-    cup takes a ring of the table top with it, which widens the cup's box by a third or more; its
-    own base and a chair's feet lie under their bodies and stay. Things with no body above their
-    base layer (a sheet of paper, a book lying flat) are left as they are."""
+    """A thing gives back its points at its foot (within half a voxel of its lowest point) outside the
+    top-view convex hull of its body (its points more than 1.5 voxels up) by more than half a voxel,
+    where a surface things stand on goes on beyond them (``surface_of_point``: a support surface's id
+    or the floor's, -1 for none): such a point takes the class and instance of a point of something
+    else in such a surface, level with it (within half a voxel) and within two voxels, or of one of
+    its own that did so first, from the outside in; in place. Returns how many moved.
+
+    A detector's mask around a cup takes a ring of the table top with it, which widens the cup's box
+    by half; its own base and a chair's feet lie under their bodies and stay, and a surface that is
+    the thing's own (a seat's top, under a back) has nothing else in it to give back to. Things with
+    no body above their base layer (a sheet of paper, a book lying flat) are left as they are."""
     from scipy.spatial import cKDTree
 
     n = int(instance_ids.max()) if len(instance_ids) else 0
@@ -660,8 +662,6 @@ def trim_feet(
             continue
         z = points[idx, 2]
         foot = float(z.min())
-        if not on_a_support(foot, surface_heights, standing_tolerance):
-            continue
         body = z > foot + 1.5 * voxel
         layer = np.flatnonzero(z <= foot + 0.5 * voxel)
         if body.sum() < 3 or not len(layer):
@@ -677,9 +677,9 @@ def trim_feet(
     ring = ring[np.argsort(-np.concatenate([d for _, d in rings]), kind="stable")]
     if not len(ring):
         return 0
-    tree = cKDTree(points)
-    near_dist, near = tree.query(points[ring], k=16, distance_upper_bound=2.0 * voxel)
+    near_dist, near = cKDTree(points).query(points[ring], k=16, distance_upper_bound=2.0 * voxel)
     owner = instance_ids[ring].copy()
+    surface_of_point = surface_of_point.copy()
     pending = np.ones(len(ring), bool)
     while pending.any():
         moved_now = 0
@@ -687,8 +687,10 @@ def trim_feet(
             for d, j in zip(near_dist[row], near[row], strict=True):
                 if not np.isfinite(d):
                     break
-                if instance_ids[j] != owner[row]:
+                level = abs(points[j, 2] - points[ring[row], 2]) <= 0.5 * voxel
+                if instance_ids[j] != owner[row] and surface_of_point[j] >= 0 and level:
                     class_ids[ring[row]], instance_ids[ring[row]] = class_ids[j], instance_ids[j]
+                    surface_of_point[ring[row]] = surface_of_point[j]
                     pending[row] = False
                     moved_now += 1
                     break
@@ -1024,12 +1026,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 things += 1
             else:
                 turned_stuff += 1
-        standing = self._standing_tolerance(voxel)
-        feet = (
-            trim_feet(points, class_ids, instance_ids, np.r_[supports.height, base_z], voxel, standing)
-            if cfg.trim_feet
-            else 0
-        )
+        if cfg.trim_feet:
+            surface_of_cell = np.where(layout.labels == FLOOR, len(supports.height), supports.of_cell)
+            feet = trim_feet(points, class_ids, instance_ids, surface_of_cell[cell_of_point], voxel)
+        else:
+            feet = 0
         if cfg.recognize:
             class_ids, instance_ids = self._recognize(
                 points,
