@@ -87,6 +87,8 @@ class CloudData:
     #: array when the file says no position (LAS); None when it says nothing (the file's origin, as a
     #: scanner's or camera's own frame).
     sensor_positions: np.ndarray | None = None
+    #: Per point, which of ``sensor_positions`` saw it (E57: the scan holding it); None when unknown.
+    sensor_ids: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------- headers
@@ -769,8 +771,8 @@ def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
     if path.stat().st_size == 0:
         raise DataError(f"{path}: empty file")
     if suffix == ".e57":
-        points, colors, positions = read_e57(path)
-        cloud = CloudData(points, colors, sensor_positions=positions)
+        points, colors, positions, scan_of_point = read_e57(path)
+        cloud = CloudData(points, colors, sensor_positions=positions, sensor_ids=scan_of_point)
     elif suffix in (".las", ".laz"):
         points, colors = read_las(path)
         cloud = CloudData(points, colors, sensor_positions=np.zeros((0, 3)))

@@ -46,9 +46,9 @@ def _unit_colors(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb / (65535.0 if top > 255.0 else 255.0), 0.0, 1.0)
 
 
-def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """Every scan's valid points in the file's frame, their colours (None unless every scan has them)
-    and each scan's scanner position (K, 3)."""
+def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """Every scan's valid points in the file's frame, their colours (None unless every scan has them),
+    each scan's scanner position (K, 3) and, per point, the index of the scan that holds it."""
     path = Path(path)
     pye57 = _library("pye57", path, "E57 scans")
     try:
@@ -78,7 +78,8 @@ def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
     if len(xyz) == 0:
         raise DataError(f"{path}: its {count} scan(s) hold no valid point")
     rgb = None if any(c is None for c in colors) else _unit_colors(np.concatenate(colors))
-    return xyz, rgb, np.asarray(positions).reshape(-1, 3)
+    scan_of_point = np.repeat(np.arange(len(points)), [len(p) for p in points])
+    return xyz, rgb, np.asarray(positions).reshape(-1, 3), scan_of_point
 
 
 #: The LAS public header block's fields checked before laspy reads the file (ASPRS LAS 1.0-1.4).

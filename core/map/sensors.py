@@ -175,6 +175,9 @@ class SensorStream:
     lidar_scans: Sequence[LidarScan] = field(default_factory=list)
     points: np.ndarray | None = None  # static cloud (N, 3), when the input is a point cloud
     point_colors: np.ndarray | None = None  # (N, 3) float 0..1
+    #: (N,) which of ``metadata['sensor_positions']`` saw each point of ``points`` (a scanner file's
+    #: stations); None when the file does not say.
+    point_sensor_ids: np.ndarray | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:

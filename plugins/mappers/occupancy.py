@@ -21,7 +21,7 @@ Values follow ``nav_msgs/OccupancyGrid``: -1 unknown, 0 free ... 100 occupied.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -31,7 +31,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
-from stratamap.core.map.sensors import LaserScan, LidarScan
+from stratamap.core.map.sensors import LaserScan, LidarScan, SensorStream
 from stratamap.plugins.mappers._floor import floor_height
 
 o3d = lazy_module("open3d")
@@ -136,6 +136,33 @@ def lidar_planar_scans(
     return scans, reaches
 
 
+class _Station(NamedTuple):
+    """A static scan's points seen from one scanner station, as a LiDAR sweep: in a level frame at the
+    station (``points``), placed by ``pose``."""
+
+    timestamp: float
+    points: np.ndarray
+    pose: np.ndarray
+
+
+def scanner_stations(stream: SensorStream | None) -> list[_Station]:
+    """A static cloud's stations (a scanner file's positions and which of them saw each point), each
+    with the points it saw; none unless the file said both."""
+    if stream is None or stream.points is None or stream.point_sensor_ids is None:
+        return []
+    positions = np.asarray(stream.metadata.get("sensor_positions") or [], float).reshape(-1, 3)
+    ids = np.asarray(stream.point_sensor_ids)
+    points = np.asarray(stream.points)
+    stations = []
+    for k, position in enumerate(positions):
+        mine = ids == k
+        if mine.any():
+            pose = np.eye(4)
+            pose[:3, 3] = position
+            stations.append(_Station(float(k), points[mine] - position, pose))
+    return stations
+
+
 #: The most cells a layer may hold: a 500 x 500 m floor at 5 cm, about 0.8 GB per layer of counts.
 #: A room scanned in millimetres and read as metres spans kilometres (65 GB of counts).
 MAX_CELLS = 100_000_000
@@ -177,6 +204,7 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             floor_seen = hits(geom.points[np.abs(z) <= cfg.floor_tolerance, :2])
 
         sweeps = [s for s in (stream.lidar_scans if stream is not None else []) if s.pose is not None]
+        stations = scanner_stations(stream) if not scans and not sweeps else []
         if scans:
             slam = self._laser_log_odds(scans, origin, shape, cfg)
             self.note("slam_source", f"{len(scans)} laser scans (log-odds)")
@@ -186,6 +214,24 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             self.note(
                 "slam_source",
                 f"{len(planar)} of {len(sweeps)} LiDAR sweeps as planar scans of the {cfg.z_min:g}-"
+                f"{cfg.robot_height:g} m band (log-odds)",
+            )
+        elif stations:
+            # Every station is a view of its own: no keyframe skips one that stood near another.
+            planar, reaches = [], []
+            for station in stations:
+                scan, reach = lidar_planar_scans([station], floor_z, cfg)
+                planar += scan
+                reaches += reach
+            # A station's scan is one long look from a tripod, not a pass of a moving laser: what its
+            # beams crossed is free, and where they ended occupied, from that one scan (full log-odds).
+            lo, hi = cfg.log_odds_clamp
+            static = cfg.model_copy(update={"log_odds_miss": lo, "log_odds_hit": hi})
+            slam = self._laser_log_odds(planar, origin, shape, static, reaches)
+            slam[floor_seen & (slam < 0)] = 0
+            self.note(
+                "slam_source",
+                f"{len(planar)} scanner station(s) of a static scan as planar scans of the {cfg.z_min:g}-"
                 f"{cfg.robot_height:g} m band (log-odds)",
             )
         else:

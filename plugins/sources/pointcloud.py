@@ -285,6 +285,7 @@ class PointCloudSource(Source[PointCloudConfig]):
         gltf = path.suffix.lower() in (".glb", ".gltf")
         mesh = is_mesh_file(path)
         positions = None  # where scanners stood, when the file says (E57), in its frame
+        seen_from = None  # per point, which of them saw it
         if mesh:
             pts, colors = self._sample_mesh(path)
             labels, organized = None, False
@@ -293,6 +294,9 @@ class PointCloudSource(Source[PointCloudConfig]):
             pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
             organized = cloud.image_size is not None
             positions = cloud.sensor_positions
+            seen_from = cloud.sensor_ids
+            if seen_from is None and positions is not None and len(positions) == 1:
+                seen_from = np.zeros(len(pts), np.int64)  # one scanner saw every point (a PCD's viewpoint)
         # glTF is y up by its specification: turned z up as read, no guess (an up_axis given is the file's).
         from_gltf = gltf and cfg.up_axis == "auto"
         if from_gltf:
@@ -307,6 +311,7 @@ class PointCloudSource(Source[PointCloudConfig]):
         pts = pts[valid] * cfg.scale
         colors = None if colors is None else np.clip(colors[valid], 0, 1)
         labels = None if labels is None else labels[valid].astype(np.int64)
+        seen_from = None if seen_from is None or positions is None or not len(positions) else seen_from[valid]
         if not np.all(np.isfinite(pts)):
             raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
         metadata: dict[str, Any] = {"path": str(path), "dropped_invalid": dropped}
@@ -316,7 +321,9 @@ class PointCloudSource(Source[PointCloudConfig]):
         elif positions is not None:
             metadata["sensor_positions"] = (np.asarray(positions) * cfg.scale).tolist()
         pts = self._near_origin(path, pts, metadata)
-        stream = SensorStream(name=path.stem, points=pts, point_colors=colors, metadata=metadata)
+        stream = SensorStream(
+            name=path.stem, points=pts, point_colors=colors, point_sensor_ids=seen_from, metadata=metadata
+        )
         self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
         out: dict[str, Any] = {"frames": stream}
         if labels is not None and cfg.label_scheme != "none":

@@ -4,6 +4,8 @@ libraries; a broken file is a one-line error naming it."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -69,6 +71,42 @@ def test_an_e57_of_two_scans_is_one_room_seen_from_its_stations(tmp_path):
     out = tmp_path / "room"
     report = Pipeline(load_pipeline(REPO / "configs" / "scan.yaml", [f"source.params.path={path}"])).run(out)
     check_room(report, out)
+
+
+def test_an_e57s_stations_clear_the_laser_map_where_its_floor_was_too_sparse(tmp_path):
+    """A terrestrial scanner sees the floor at a grazing angle away from its station: past 1.5 m there
+    are too few floor points to call a cell free. The file says which station saw each point, so the
+    laser map is ray cast from the stations, as a LiDAR's sweeps are: free out to the walls and the
+    furniture, and never beyond the walls."""
+    from stratamap.core.map.layers import Geometry
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers.occupancy import OccupancyMapper
+
+    points, colors = room_points()
+    floor = points[:, 2] < 1e-6
+    near = np.min(np.linalg.norm(points[:, None, :2] - STATIONS[None, :, :2], axis=2), axis=1) < 1.5
+    keep = ~floor | near
+    path = tmp_path / "site.e57"
+    write_e57(path, points[keep], colors[keep])
+    stream = PointCloudSource(path=str(path), gravity="off").run(PipelineData())["frames"]
+    assert stream.point_sensor_ids is not None and np.bincount(stream.point_sensor_ids).size == 2
+
+    def slam(ids) -> dict[str, int]:
+        data = PipelineData(stream=dataclasses.replace(stream, point_sensor_ids=ids))
+        data.map.geometry = Geometry(points=stream.points)
+        grid = run_stages([OccupancyMapper(robot_height=1.0)], data).map.occupancy["slam"]
+        rows, cols = np.indices(grid.data.shape)
+        x = np.asarray(grid.origin[0]) + (cols + 0.5) * grid.resolution - SHIFT[0]
+        y = np.asarray(grid.origin[1]) + (rows + 0.5) * grid.resolution - SHIFT[1]
+        inside = (x > 0) & (x < 5) & (y > 0) & (y < 4)
+        beyond = (x < -0.05) | (x > 5.05) | (y < -0.05) | (y > 4.05)  # a cell or more past a wall
+        free = grid.data == 0
+        return {"free": int(free[inside].sum()), "free beyond": int(free[beyond].sum()), "inside": int(inside.sum())}
+
+    stations, floor_only = slam(stream.point_sensor_ids), slam(None)
+    assert stations["free beyond"] == 0, stations
+    assert stations["free"] > 0.85 * stations["inside"], stations
+    assert floor_only["free"] < 0.7 * stations["inside"], floor_only
 
 
 @pytest.mark.parametrize("suffix", [".las", ".laz"])
