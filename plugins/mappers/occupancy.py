@@ -97,13 +97,14 @@ LIDAR_KEYFRAME_TRAVEL, LIDAR_KEYFRAME_TURN = 0.2, np.radians(10.0)
 
 
 def lidar_planar_scans(
-    sweeps: Sequence[LidarScan], floor_z: float, cfg: OccupancyConfig
+    sweeps: Sequence[LidarScan], floor_z: float, cfg: OccupancyConfig, keyframes: bool = True
 ) -> tuple[list[LaserScan], list[np.ndarray]]:
     """3D LiDAR sweeps as planar laser scans, as ROS's pointcloud_to_laserscan makes them for a 2D
     SLAM back end: each beam's range is its nearest return within the obstacle band (``z_min`` to
     ``robot_height`` above the floor); a beam with none there clears cells as far as its farthest
     return on the floor (``floor_tolerance``), which a 2D laser could not see. Keyframes only
-    (``LIDAR_KEYFRAME_*``). Returns the scans, posed at the sensor with a level x axis, and each
+    (``LIDAR_KEYFRAME_*``), unless ``keyframes`` is False (a static scan's stations, each a view of its
+    own). Returns the scans, posed at the sensor with a level x axis, and each
     one's per-beam reach for beams without a return."""
     scans: list[LaserScan] = []
     reaches: list[np.ndarray] = []
@@ -111,7 +112,7 @@ def lidar_planar_scans(
     last: np.ndarray | None = None
     for sweep in sweeps:
         pose = np.asarray(sweep.pose)
-        if last is not None:
+        if keyframes and last is not None:
             moved = np.linalg.norm(pose[:2, 3] - last[:2, 3])
             turned = abs(np.arctan2(pose[1, 0], pose[0, 0]) - np.arctan2(last[1, 0], last[0, 0]))
             if moved < LIDAR_KEYFRAME_TRAVEL and min(turned, 2 * np.pi - turned) < LIDAR_KEYFRAME_TURN:
@@ -217,12 +218,7 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
                 f"{cfg.robot_height:g} m band (log-odds)",
             )
         elif stations:
-            # Every station is a view of its own: no keyframe skips one that stood near another.
-            planar, reaches = [], []
-            for station in stations:
-                scan, reach = lidar_planar_scans([station], floor_z, cfg)
-                planar += scan
-                reaches += reach
+            planar, reaches = lidar_planar_scans(stations, floor_z, cfg, keyframes=False)
             # A station's scan is one long look from a tripod, not a pass of a moving laser: what its
             # beams crossed is free, and where they ended occupied, from that one scan (full log-odds).
             lo, hi = cfg.log_odds_clamp

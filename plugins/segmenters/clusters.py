@@ -223,8 +223,9 @@ class ClustersConfig(StageConfig):
     trim_feet: bool = Field(
         default=True,
         description=(
-            "Give back the points of the surface a thing stands on that lie outside its body's footprint (the "
-            "ring of table top or floor a detector's mask takes at a cup's foot) to what surrounds them."
+            "Give a thing's points at its foot that lie outside its body's footprint, where the floor or a support "
+            "surface goes on beyond them (the ring of table top a detector's mask takes at a cup's foot), back to "
+            "that surface."
         ),
     )
     keep_instances: bool = Field(
@@ -669,14 +670,13 @@ def trim_feet(
         a, b = _hull_equations(points[idx[body], :2])
         beyond = (points[idx[layer], :2] @ a.T + b).max(axis=1)
         outside = beyond > 0.5 * voxel
-        rings.append((idx[layer[outside]], beyond[outside]))
+        if outside.any():
+            rings.append((idx[layer[outside]], beyond[outside]))
     if not rings:
         return 0
     ring = np.concatenate([r for r, _ in rings])
     # Farthest from the body first, so that a ring wider than the search radius moves from outside in.
     ring = ring[np.argsort(-np.concatenate([d for _, d in rings]), kind="stable")]
-    if not len(ring):
-        return 0
     near_dist, near = cKDTree(points).query(points[ring], k=16, distance_upper_bound=2.0 * voxel)
     owner = instance_ids[ring].copy()
     surface_of_point = surface_of_point.copy()

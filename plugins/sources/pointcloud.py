@@ -311,7 +311,7 @@ class PointCloudSource(Source[PointCloudConfig]):
         pts = pts[valid] * cfg.scale
         colors = None if colors is None else np.clip(colors[valid], 0, 1)
         labels = None if labels is None else labels[valid].astype(np.int64)
-        seen_from = None if seen_from is None or positions is None or not len(positions) else seen_from[valid]
+        seen_from = None if seen_from is None else seen_from[valid]
         if not np.all(np.isfinite(pts)):
             raise DataError(f"{path}: coordinates overflow when multiplied by scale {cfg.scale:g}")
         metadata: dict[str, Any] = {"path": str(path), "dropped_invalid": dropped}
