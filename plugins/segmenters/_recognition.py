@@ -25,6 +25,7 @@ class Shape(NamedTuple):
     against_wall: bool  # a wall plane within WALL_GAP of it
     flat_top: bool  # its highest points form a flat top over most of its footprint
     solid: bool  # its body (middle heights) spans most of its length: a front, not legs
+    seat: bool = False  # a third of its top view at sitting height, a back or arms rising above it
 
 
 #: An object this close (m) to a wall plane stands against it (a unit's back edge, a countertop's).
@@ -42,6 +43,11 @@ DEPTH_NOISE = 0.03
 #: The most (m) an object's seen height may exceed its class's plausible heights, for classes whose
 #: objects carry nothing that could join them (a chair, a monitor; not a table or a counter).
 TALLER_BY = 0.15
+#: Seats of chairs, armchairs and sofas lie this high (m) above the floor (seat heights 0.38-0.5 m,
+#: cushions and the map's noise either side).
+SEAT_HEIGHTS = (0.3, 0.6)
+#: A backrest or arms rise at least this far (m) above the seat.
+BACK_ABOVE_SEAT = 0.15
 #: Things the priors name when they stand on a support surface, by size.
 ON_SUPPORTS = ("cup", "bottle", "box")
 #: Things of a hand's size among them (a box may be a microwave's size).
@@ -81,7 +87,25 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
     full = pts[:, :2] @ axis
     bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
     covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
-    return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, covered / bins >= 0.6)
+    solid = covered / bins >= 0.6
+    return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell))
+
+
+def _seat(pts: np.ndarray, cell: float) -> bool:
+    """Whether the object is seating seen from above: the highest point over each ``cell`` of its
+    footprint lies at sitting height (SEAT_HEIGHTS above its foot) over a third of it or more, and over
+    a tenth or more it lies BACK_ABOVE_SEAT or more above the seat (a backrest, arms): a chair's, an
+    armchair's or a sofa's top view, not a table's, a cabinet's or a counter's, whose top view is one
+    level (their top), nor a stool's."""
+    z = pts[:, 2] - float(pts[:, 2].min())
+    cells = np.floor(pts[:, :2] / cell).astype(np.int64)
+    _, owner = np.unique(cells, axis=0, return_inverse=True)
+    tops = np.full(int(owner.max()) + 1, -np.inf)
+    np.maximum.at(tops, owner.ravel(), z)
+    at_seat = (tops >= SEAT_HEIGHTS[0]) & (tops <= SEAT_HEIGHTS[1])
+    if at_seat.mean() < 1.0 / 3.0:
+        return False
+    return bool((tops >= np.median(tops[at_seat]) + BACK_ABOVE_SEAT).mean() >= 0.1)
 
 
 #: Units in a row differ in height by at least this (m) where one ends: a tall unit (a fridge, an oven
@@ -246,6 +270,8 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
     * on a support surface (not the floor; ``on_support``: its foot at a support's height): a cup, a
       bottle or a box by size (a small piece resting on no support, such as a fragment of a chair,
       is none of these); on a wall, off the floor: a (wall) cabinet;
+    * on the floor, seating seen from above (``seat``: a seat with a back or arms above it) without a
+      flat top: a chair of a chair's size, else a sofa;
     * on the floor with a flat top and a solid body (a front, not legs): a counter when long, deep and
       at worktop height, else a cabinet;
     * on the floor with a flat top on legs: a table;
@@ -262,6 +288,10 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
         if shape.against_wall and ok("cabinet"):
             return "cabinet", "on a wall, off the floor"
     else:
+        if shape.seat and not shape.flat_top:
+            for name in ("chair", "sofa"):
+                if ok(name):
+                    return name, "a seat with a back or arms above it"
         if shape.flat_top and shape.solid:
             if ok("counter"):
                 return "counter", "flat top at worktop height, solid body, long and deep"

@@ -1214,6 +1214,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
         self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls)
+        self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, voxel)
         # What an object may stand on: support surfaces and other instances, each by its own key.
         n_supports = len(support_areas) if support_areas is not None else 0
         holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
@@ -1368,6 +1369,63 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             assembled.append({"instance": keep, "pieces": sorted(group)})
         if assembled:
             self.note("chairs_assembled", assembled)
+
+    def _join_seating(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+        voxel: float,
+    ) -> None:
+        """A sofa seen as seats side by side (a detector boxed it as chairs, and the mapper's size
+        prior cut the over-long "chair" in two): floor-standing instances voted chair or sofa, or with
+        no votes seating seen from above (``seat``), that touch (within two voxels) and together are
+        seating too long for one chair that fits a sofa, become one sofa. Two armchairs a hand apart
+        touch nowhere. In place; each join is noted."""
+        from scipy.spatial import cKDTree
+
+        from stratamap.core.map.instances import instance_members
+
+        if "sofa" not in vocab:
+            return
+        seats = {}
+        for iid, sel in instance_members(instance_ids).items():
+            name = vocab.name(int(np.bincount(class_ids[sel]).argmax()))
+            if len(sel) < 4 or name not in ("chair", "sofa", "object"):
+                continue
+            shape = describe_shape(points[sel], base_z, walls)
+            # Seating by its votes or, with none, by its shape.
+            if shape.bottom <= FLOOR_GAP and not shape.flat_top and (shape.seat or name != "object"):
+                seats[iid] = sel
+        joined = []
+        merged = True
+        while merged:
+            merged = False
+            ids = sorted(seats)
+            for a, first in enumerate(ids):
+                tree = cKDTree(points[seats[first]])
+                for second in ids[a + 1 :]:
+                    near, _ = tree.query(points[seats[second]], distance_upper_bound=2.0 * voxel)
+                    if not np.isfinite(near).any():
+                        continue
+                    union = np.concatenate([seats[first], seats[second]])
+                    shape = describe_shape(points[union], base_z, walls)
+                    if not shape.seat or shape.flat_top or fits_class("chair", shape) or not fits_class("sofa", shape):
+                        continue
+                    instance_ids[union] = first
+                    class_ids[union] = vocab.id("sofa")
+                    seats[first] = union
+                    del seats[second]
+                    joined.append({"instance": first, "joined": second})
+                    merged = True
+                    break
+                if merged:
+                    break
+        if joined:
+            self.note("seating_joined", joined)
 
     def _join_parts(
         self,
