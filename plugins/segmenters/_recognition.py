@@ -97,11 +97,12 @@ def _seat(pts: np.ndarray, cell: float) -> bool:
     a tenth or more it lies BACK_ABOVE_SEAT or more above the seat (a backrest, arms): a chair's, an
     armchair's or a sofa's top view, not a table's, a cabinet's or a counter's, whose top view is one
     level (their top), nor a stool's."""
+    from stratamap.core.geometry.points import cell_keys
+
     z = pts[:, 2] - float(pts[:, 2].min())
-    cells = np.floor(pts[:, :2] / cell).astype(np.int64)
-    _, owner = np.unique(cells, axis=0, return_inverse=True)
-    tops = np.full(int(owner.max()) + 1, -np.inf)
-    np.maximum.at(tops, owner.ravel(), z)
+    _, column = np.unique(cell_keys(pts * (1.0, 1.0, 0.0), cell), return_inverse=True)  # heights dropped
+    tops = np.full(int(column.max()) + 1, -np.inf)
+    np.maximum.at(tops, column.reshape(-1), z)
     at_seat = (tops >= SEAT_HEIGHTS[0]) & (tops <= SEAT_HEIGHTS[1])
     if at_seat.mean() < 1.0 / 3.0:
         return False

@@ -1400,10 +1400,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # Seating by its votes or, with none, by its shape.
             if shape.bottom <= FLOOR_GAP and not shape.flat_top and (shape.seat or name != "object"):
                 seats[iid] = sel
-        joined = []
-        merged = True
-        while merged:
-            merged = False
+
+        def sofa_pair() -> tuple[int, int] | None:
+            """The ids of two seats that touch and together are a sofa, not a chair; None: no such two."""
             ids = sorted(seats)
             for a, first in enumerate(ids):
                 tree = cKDTree(points[seats[first]])
@@ -1413,17 +1412,19 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         continue
                     union = np.concatenate([seats[first], seats[second]])
                     shape = describe_shape(points[union], base_z, walls)
-                    if not shape.seat or shape.flat_top or fits_class("chair", shape) or not fits_class("sofa", shape):
-                        continue
-                    instance_ids[union] = first
-                    class_ids[union] = vocab.id("sofa")
-                    seats[first] = union
-                    del seats[second]
-                    joined.append({"instance": first, "joined": second})
-                    merged = True
-                    break
-                if merged:
-                    break
+                    is_sofa = fits_class("sofa", shape) and not fits_class("chair", shape)
+                    if shape.seat and not shape.flat_top and is_sofa:
+                        return first, second
+            return None
+
+        joined = []
+        while (pair := sofa_pair()) is not None:
+            first, second = pair
+            union = np.concatenate([seats[first], seats.pop(second)])
+            instance_ids[union] = first
+            class_ids[union] = vocab.id("sofa")
+            seats[first] = union
+            joined.append({"instance": first, "joined": second})
         if joined:
             self.note("seating_joined", joined)
 
