@@ -228,6 +228,14 @@ class ClustersConfig(StageConfig):
             "that surface."
         ),
     )
+    drop_strays: bool = Field(
+        default=True,
+        description=(
+            "A thing's few cells apart from the rest of it and above everything else it holds (a wall corner's "
+            "cells a metre above a sofa, left when the corner's flush cells went to the walls) are not the object: "
+            "nothing holds them up. They leave the instance before it is named and measured."
+        ),
+    )
     keep_instances: bool = Field(
         default=False,
         description=(
@@ -260,13 +268,15 @@ def working_voxel(points: np.ndarray, map_voxel: float | None, cfg: ClustersConf
     (median nearest-neighbour distance over an evenly strided sample) times ``spacing_factor``."""
     from scipy.spatial import cKDTree
 
+    from stratamap.core.geometry.points import first_of_each_row
+
     if cfg.voxel_size is not None:
         return cfg.voxel_size
     if map_voxel:
         return float(map_voxel)
     # Spacing between distinct points: a cloud may hold every point twice (a scan saved with its
     # copy), and a repeated point's nearest neighbour is itself.
-    points = points[np.sort(np.unique(points, axis=0, return_index=True)[1])]
+    points = points[first_of_each_row(points)]
     if len(points) < 2:
         return 0.01
     sample = points[:: max(1, len(points) // 20000)]
@@ -634,6 +644,43 @@ def grow_supports(
         supports.of_cell[cand[first]] = k[first]
         grown.append(cand[first])
     return np.concatenate(grown) if grown else np.zeros(0, np.int64)
+
+
+#: A small part of an instance this many voxels or more away from the rest of it and as far above all of
+#: it is a stray, not a piece the map saw apart (a chair's back over an unseen joint is no small part).
+STRAY_GAP_VOXELS = 4.0
+
+
+def stray_points(points: np.ndarray, radius: float, gap: float, smallest: int) -> np.ndarray:
+    """Which of one instance's points (z up) are strays: connected parts (neighbours within
+    ``radius``) of fewer than ``smallest`` points, other than its largest part, that lie ``gap`` or
+    more from that largest part and rise ``gap`` or more above the highest of all its other points.
+    Nothing holds such a part up: a few cells of a wall corner a metre above a sofa double its box,
+    and no rule names a 1.7 m sofa. A part beside the rest (a swivel chair's caster past its unseen
+    spoke, on the floor) or within its height (the scraps of a worktop's edge) stays."""
+    from scipy.spatial import cKDTree
+
+    from stratamap.plugins.segmenters._layout import components, neighbour_pairs
+
+    stray = np.zeros(len(points), bool)
+    if len(points) < 2:
+        return stray
+    part = components(len(points), neighbour_pairs(points, radius))
+    size = np.bincount(part)
+    main = int(size.argmax())
+    top = np.full(len(size), -np.inf)
+    np.maximum.at(top, part, points[:, 2])
+    order = np.argsort(-top, kind="stable")
+    # The highest point of all the other parts: the highest part's, or for that part the next one's.
+    others_top = np.where(np.arange(len(size)) == order[0], top[order[min(1, len(order) - 1)]], top[order[0]])
+    candidate = (size < smallest) & (top >= others_top + gap)
+    candidate[main] = False
+    if not candidate.any():
+        return stray
+    apart = np.full(len(size), np.inf)
+    on_candidate = candidate[part]
+    np.minimum.at(apart, part[on_candidate], cKDTree(points[part == main]).query(points[on_candidate])[0])
+    return (candidate & (apart >= gap))[part]
 
 
 def trim_feet(
@@ -1026,6 +1073,17 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 things += 1
             else:
                 turned_stuff += 1
+        strays = 0
+        if cfg.drop_strays:
+            radius, gap = cfg.radius_voxels * voxel, STRAY_GAP_VOXELS * voxel
+            for members in members_of(instance_ids, int(instance_ids.max(initial=0)) + 1)[1:]:
+                # On the working grid's cells: a raw scan holds many points per cell.
+                own, cell_of_member = np.unique(cell_of_point[members], return_inverse=True)
+                if len(own) > 1:
+                    stray_cell = stray_points(cells[own], radius, gap, max(cfg.min_cells, 30))
+                    stray = members[stray_cell[cell_of_member.reshape(-1)]]
+                    class_ids[stray], instance_ids[stray] = stuff_ids[layout.labels[cell_of_point[stray]]], 0
+                    strays += len(stray)
         if cfg.trim_feet:
             surface_of_cell = np.where(layout.labels == FLOOR, len(supports.height), supports.of_cell)
             feet = trim_feet(points, class_ids, instance_ids, surface_of_cell[cell_of_point], voxel)
@@ -1049,6 +1107,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             {
                 "voxel_size": round(voxel, 5),
                 "foot_points_given_back": feet,
+                "stray_points_dropped": strays,
                 "floor_height": None if layout.floor_height is None else round(layout.floor_height, 3),
                 "walls": layout.walls,
                 "supports": len(layout.supports),
@@ -1085,6 +1144,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         cfg = self.config
         vocab = votes.vocabulary
         prev_c, prev_i = votes.class_ids.astype(np.int32), votes.instance_ids.astype(np.int32)
+        smallest = max(cfg.min_cells, 30)
         out_c, out_i = prev_c.copy(), prev_i.copy()
         free = prev_i == 0
         relabel = free & (layout_class > 0)
@@ -1133,7 +1193,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 label = int(np.argmax(on_plane[k]))
                 if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
                     continue
-            if len(rest) < max(cfg.min_cells, 30):
+            if len(rest) < smallest:
                 continue
             # Mostly voted floor, wall or ceiling and thin: that stuff where the map's layout missed it (a
             # floor patch, a poster). Thicker, the votes say nothing: a tall unit's front the frames took
@@ -1167,7 +1227,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             added += 1
         # Scraps (a few points of a mask that missed its object) are no instances.
         sizes = np.bincount(out_i[out_i > 0], minlength=int(out_i.max()) + 1)
-        scrap = (out_i > 0) & (sizes[out_i] < max(cfg.min_cells, 30))
+        scrap = (out_i > 0) & (sizes[out_i] < smallest)
         out_c[scrap], out_i[scrap] = 0, 0
         return out_c, out_i, added
 

@@ -53,3 +53,15 @@ def test_detection_matching_is_one_to_one_and_class_aware():
     matches = match_boxes(pred, gt)
     assert matches == [(0, 0)]
     assert prf(len(matches), len(pred), len(gt)) == pytest.approx({"precision": 1 / 3, "recall": 0.5, "f1": 0.4})
+
+
+def test_first_of_each_row_is_numpys_row_unique():
+    from stratamap.core.geometry.points import first_of_each_row
+
+    rng = np.random.default_rng(0)
+    rows = np.round(rng.uniform(-1, 1, (5000, 3)), 1)  # many repeats
+    rows[7] = [-0.0, 0.5, 0.0]
+    rows[9] = [0.0, 0.5, -0.0]  # the same point as row 7
+    expected = np.sort(np.unique(rows, axis=0, return_index=True)[1])
+    assert np.array_equal(first_of_each_row(rows), expected)
+    assert 9 not in first_of_each_row(rows)

@@ -393,3 +393,26 @@ def test_a_ring_of_table_top_a_cups_mask_took_goes_back_to_the_table(trim):
     chair_id, chair_share = instance_of(names, out, "chair")
     feet = (names == "chair") & (points[:, 2] < 0.01)
     assert chair_share > 0.9 and (out["semantics"].instance_ids[feet] == chair_id).all()
+
+
+def test_a_few_points_floating_far_above_a_thing_are_strays():
+    """A sofa-sized box with three cells of a wall corner 0.8 m above its back: the three leave it.
+    A worktop's front edge seen as scraps and a swivel chair's caster past its unseen spoke stay
+    (beside the rest, not above it), and so does a chair's back seen apart from its seat (a part of
+    its own size)."""
+    from stratamap.plugins.segmenters.clusters import stray_points
+
+    radius, gap, smallest = 0.048, 0.08, 30
+    sofa = box_surface((0.0, 0.0, 0.0), (2.1, 0.9, 0.8), 0.02)
+    corner = np.array([[0.01, 0.01, 1.6], [0.01, 0.02, 1.62], [0.02, 0.01, 1.64]])
+    stray = stray_points(np.concatenate([sofa, corner]), radius, gap, smallest)
+    assert stray[len(sofa) :].all() and not stray[: len(sofa)].any()
+
+    top = box_surface((0.0, 0.0, 0.88), (1.6, 0.6, 0.9), 0.02)
+    edge = np.array([[x, 0.75, 0.9] for x in np.arange(0.0, 1.6, 0.2)])  # eight lone points, 15 cm out
+    assert not stray_points(np.concatenate([top, edge]), radius, gap, smallest).any()
+
+    seat = box_surface((0.0, 0.0, 0.42), (0.45, 0.45, 0.46), 0.02)
+    caster = box_surface((0.6, 0.2, 0.0), (0.64, 0.24, 0.05), 0.02)  # 15 cm out, on the floor
+    back = box_surface((0.0, 0.4, 0.6), (0.45, 0.44, 1.0), 0.02)  # 14 cm above the seat
+    assert not stray_points(np.concatenate([seat, caster, back]), radius, gap, smallest).any()
