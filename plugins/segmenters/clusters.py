@@ -1080,7 +1080,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 # On the working grid's cells: a raw scan holds many points per cell.
                 own, cell_of_member = np.unique(cell_of_point[members], return_inverse=True)
                 if len(own) > 1:
-                    stray_cell = stray_points(cells[own], radius, gap, max(cfg.min_cells, 30))
+                    stray_cell = stray_points(cells[own], radius, gap, self._scrap_size())
                     stray = members[stray_cell[cell_of_member.reshape(-1)]]
                     class_ids[stray], instance_ids[stray] = stuff_ids[layout.labels[cell_of_point[stray]]], 0
                     strays += len(stray)
@@ -1144,7 +1144,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         cfg = self.config
         vocab = votes.vocabulary
         prev_c, prev_i = votes.class_ids.astype(np.int32), votes.instance_ids.astype(np.int32)
-        smallest = max(cfg.min_cells, 30)
+        smallest = self._scrap_size()
         out_c, out_i = prev_c.copy(), prev_i.copy()
         free = prev_i == 0
         relabel = free & (layout_class > 0)
@@ -1230,6 +1230,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         scrap = (out_i > 0) & (sizes[out_i] < smallest)
         out_c[scrap], out_i[scrap] = 0, 0
         return out_c, out_i, added
+
+    def _scrap_size(self) -> int:
+        """Fewer cells than this are a scrap, no object (a few cells of a mask that missed its object)."""
+        return max(self.config.min_cells, 30)
 
     def _standing_tolerance(self, voxel: float) -> float:
         """How close (m) an object's foot lies to a support surface's height when it stands on it."""
