@@ -104,6 +104,7 @@ def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
 
 def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
     from stratamap.core.geometry.boxes import box_iou_3d
+    from stratamap.core.stages import PipelineData
 
     bench_file, variant_name, scene, stages, cache, objects = job
     spec, _, variant = load(bench_file, variant_name)
@@ -114,6 +115,11 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
         data = pickle.load(fh)
     pipe = pipeline(spec, variant, scene)
     pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
+    # The cache keeps the stream without its images; clusters' sightlines read depth frames again, so the
+    # source (deterministic, its frames rendered or read when used) gives its stream back.
+    fresh = PipelineData()
+    pipe._run_stage(pipe.validated.source, -1, fresh)
+    data.stream = fresh.stream
     for i in range(stages, len(pipe.validated.stages)):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.map.vocabulary = data.ground_truth.vocabulary

@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.plugins.segmenters._sightlines import Sightlines
 
 
 class Shape(NamedTuple):
@@ -24,7 +25,7 @@ class Shape(NamedTuple):
     reach: float  # farthest point from the centroid, m
     against_wall: bool  # a wall plane within WALL_GAP of it
     flat_top: bool  # its highest points form a flat top over most of its footprint
-    solid: bool  # its body (middle heights) spans most of its length: a front, not legs
+    solid: bool  # its body (middle heights) spans most of its length and was not seen through: a front, not legs
     seat: bool = False  # a third of its top view at sitting height, a back or arms rising above it
 
 
@@ -48,14 +49,21 @@ TALLER_BY = 0.15
 SEAT_HEIGHTS = (0.3, 0.6)
 #: A backrest or arms rise at least this far (m) above the seat.
 BACK_ABOVE_SEAT = 0.15
+#: A body whose middle heights at least this share of the depth rays crossing them saw through, of
+#: SEEN_THROUGH_RAYS rays or more, is open (a table's space under its top, a low shelf between its legs),
+#: however many points lie there (``_sightlines``). On the tuning walks closed units gave 0.11 at most,
+#: coffee tables with a low shelf 0.34-0.48, tables on legs 0.51-0.97.
+SEEN_THROUGH = 0.25
+SEEN_THROUGH_RAYS = 100
 #: Things the priors name when they stand on a support surface, by size.
 ON_SUPPORTS = ("cup", "bottle", "box")
 #: Things of a hand's size among them (a box may be a microwave's size).
 HAND_HELD = ("cup", "bottle")
 
 
-def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
-    """The size and support context of an object's points (world, z up)."""
+def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sightlines | None = None) -> Shape:
+    """The size and support context of an object's points (world, z up); with ``sight`` (an RGB-D
+    stream's rays), a body the sensor saw through at its middle heights is not solid."""
     from stratamap.core.geometry.boxes import gravity_aligned_box
     from stratamap.plugins.segmenters._layout import footprint_area
 
@@ -88,6 +96,9 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any]) -> Shape:
     bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
     covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
     solid = covered / bins >= 0.6
+    if solid and sight is not None:
+        seen = sight.seen_through(pts)
+        solid = not (seen.through + seen.stopped >= SEEN_THROUGH_RAYS and seen.share >= SEEN_THROUGH)
     return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell))
 
 
@@ -208,6 +219,9 @@ def fits_class(name: str, shape: Shape) -> bool:
     # A table standing on the floor is open below its top; one closed along its length at mid-height
     # is a unit (a bedside cabinet, a sideboard) that a detector without such labels called a table.
     if name in OPEN_BELOW and shape.solid and shape.bottom <= FLOOR_GAP:
+        return False
+    # Nor is seating one: a table's top view is one level, a seat's has a back or arms above it.
+    if name in OPEN_BELOW and shape.seat and not shape.flat_top:
         return False
     heights = plausible_heights(name)
     # Furniture whose objects stand on the floor, not on one another (a chair, a table, a counter),

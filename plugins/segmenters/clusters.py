@@ -66,6 +66,7 @@ from stratamap.plugins.segmenters._recognition import (
     split_at_step,
     typical_rather,
 )
+from stratamap.plugins.segmenters._sightlines import Sightlines
 
 #: Pieces of one chair lie one over another at most this far apart (m): the part of a swivel chair's
 #: post, or of its legs under the seat, that the map lost.
@@ -259,6 +260,14 @@ class ClustersConfig(StageConfig):
             "Name objects with no thing votes, or with a voted class their size rules out (a 1.7 m box, a 12 cm "
             "table), by class size priors (core/map/priors.py) and support context: what stands on a support "
             "surface, whether it stands against a wall, has a flat top, a solid body or legs."
+        ),
+    )
+    sightlines: bool = Field(
+        default=True,
+        description=(
+            "recognize: with an RGB-D stream, a body its frames' depth rays saw through at its middle heights (the "
+            "open space under a table's top, past a low shelf between its legs) is not a closed unit, however many "
+            "points lie there. Reads up to 60 frames' depth again; scans and point clouds have no rays."
         ),
     )
 
@@ -1033,6 +1042,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         on_plane = self._on_layout_planes(cells, obj, layout, n_obj, cfg.layout_voxels * voxel)
         next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
         walls = [plane for plane in layout.planes if plane.label == WALL]
+        sight = Sightlines.from_stream(data.stream) if cfg.recognize and cfg.sightlines else None
         if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():
             class_ids, instance_ids, added = self._complete_instances(
                 points,
@@ -1046,6 +1056,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 supports,
                 base_z,
                 walls,
+                sight,
                 voxel,
             )
             kept = kept[:0]  # the loop below is the clusters-only naming
@@ -1060,9 +1071,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 on_layout += 1
                 continue
             if vote_table is not None:
-                name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls)
+                name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls, sight)
             if name is None and cfg.recognize:
-                shape = describe_shape(points[mask], base_z, walls)
+                shape = describe_shape(points[mask], base_z, walls, sight)
                 name = self._prior(shape, vocab, base_z, supports.height, voxel)[0]
             if name is None:
                 name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
@@ -1097,6 +1108,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 vocab,
                 base_z,
                 walls,
+                sight,
                 supports.height,
                 voxel,
                 supports.of_cell[cell_of_point],
@@ -1133,6 +1145,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         supports: Supports,
         base_z: float,
         walls: list[Any],
+        sight: Sightlines | None,
         voxel: float,
     ) -> tuple[np.ndarray, np.ndarray, int]:
         """keep_instances: the map's instances stay; each geometric object they leave (mostly)
@@ -1174,7 +1187,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     len(mask) < 0.15 * inst_size[owner]
                     or (
                         vocab.name(owner_class) not in HAND_HELD
-                        and _hand_held(describe_shape(points[mask], base_z, walls))
+                        and _hand_held(describe_shape(points[mask], base_z, walls, sight))
                     )
                 )
                 if not own:
@@ -1185,7 +1198,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         out_c[rest] = prev_c[mask[inside][near]]
                     continue
                 rest = mask
-                owner_shape = describe_shape(points[instance_points[owner]], base_z, walls)
+                owner_shape = describe_shape(points[instance_points[owner]], base_z, walls, sight)
                 if not fits_class(vocab.name(owner_class), owner_shape):
                     carried_by = owner_class
             else:
@@ -1206,10 +1219,12 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 members = instance_points[piece]
                 if (point_obj[members] == k).mean() < 0.8:
                     continue
-                if not fits_class(vocab.name(int(inst_class[piece])), describe_shape(points[members], base_z, walls)):
+                if not fits_class(
+                    vocab.name(int(inst_class[piece])), describe_shape(points[members], base_z, walls, sight)
+                ):
                     rest = np.union1d(rest, members)
             thing = [c for c in np.unique(prev_c[rest]) if c > 0 and vocab.is_thing[c]]
-            shape = describe_shape(points[rest], base_z, walls)
+            shape = describe_shape(points[rest], base_z, walls, sight)
             counts = {int(c): int((prev_c[rest] == c).sum()) for c in thing}
             # Leftover votes name it only where they hold most of its points (a vote its size rules
             # out is kept for now: the piece may join an object of that class, else recognition renames it).
@@ -1254,6 +1269,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        sight: Sightlines | None,
         support_heights: np.ndarray,
         voxel: float,
         support_of_point: np.ndarray | None = None,
@@ -1276,9 +1292,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
         self._split_units(points, class_ids, instance_ids, vocab, base_z)
-        self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, support_heights, voxel)
-        self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls)
-        self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, voxel)
+        self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, sight, support_heights, voxel)
+        self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls, sight)
+        self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, sight, voxel)
         # What an object may stand on: support surfaces and other instances, each by its own key.
         n_supports = len(support_areas) if support_areas is not None else 0
         holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
@@ -1292,7 +1308,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             name = vocab.name(cls)
             if len(sel) < 4 or not vocab.is_thing[cls]:
                 continue
-            shape = describe_shape(points[sel], base_z, walls)
+            shape = describe_shape(points[sel], base_z, walls, sight)
             new, why = self._prior(shape, vocab, base_z, support_heights, voxel)
             carried = (
                 top_tree is not None
@@ -1363,6 +1379,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        sight: Sightlines | None,
     ) -> None:
         """A chair seen in pieces stacked one over another (a swivel chair's base under its seat and
         back, the post between them too thin for the map): instances each resting on another's top
@@ -1385,7 +1402,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if len(sel) < 4 or not vocab.is_thing[cls]:
                 continue
             name = vocab.name(cls)
-            shape = describe_shape(points[sel], base_z, walls)
+            shape = describe_shape(points[sel], base_z, walls, sight)
             if name in stands_on_others and fits_class(name, shape):
                 continue
             z = points[sel, 2]
@@ -1422,7 +1439,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if any(pieces[i].whole for i in group):
                 continue
             sel = np.concatenate([pieces[i].points for i in group])
-            shape = describe_shape(points[sel], base_z, walls)
+            shape = describe_shape(points[sel], base_z, walls, sight)
             # Standing on the floor, of a chair's size, its top no flat surface over its footprint (a
             # back rises over one side of the seat). Against a wall or not: chairs stand there too.
             if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class("chair", shape):
@@ -1442,6 +1459,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        sight: Sightlines | None,
         voxel: float,
     ) -> None:
         """A sofa seen as seats side by side (a detector boxed it as chairs, and the mapper's size
@@ -1460,7 +1478,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             name = vocab.name(int(np.bincount(class_ids[sel]).argmax()))
             if len(sel) < 4 or name not in ("chair", "sofa", "object"):
                 continue
-            shape = describe_shape(points[sel], base_z, walls)
+            shape = describe_shape(points[sel], base_z, walls, sight)
             # Seating by its votes or, with none, by its shape.
             if shape.bottom <= FLOOR_GAP and not shape.flat_top and (shape.seat or name != "object"):
                 seats[iid] = sel
@@ -1475,7 +1493,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     if not np.isfinite(near).any():
                         continue
                     union = np.concatenate([seats[first], seats[second]])
-                    shape = describe_shape(points[union], base_z, walls)
+                    shape = describe_shape(points[union], base_z, walls, sight)
                     is_sofa = fits_class("sofa", shape) and not fits_class("chair", shape)
                     if shape.seat and not shape.flat_top and is_sofa:
                         return first, second
@@ -1500,6 +1518,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         vocab: Vocabulary,
         base_z: float,
         walls: list[Any],
+        sight: Sightlines | None,
         support_heights: np.ndarray,
         voxel: float,
     ) -> None:
@@ -1510,7 +1529,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         nothing of its own holds up (off the floor, off the walls, of no floor-standing class: a
         backrest's top voted "monitor"). In place."""
         from stratamap.core.map.instances import instance_members
-        from stratamap.core.map.priors import NOT_STACKED
+        from stratamap.core.map.priors import NOT_STACKED, OPEN_BELOW
 
         members = instance_members(instance_ids)
         if len(members) < 2:
@@ -1521,7 +1540,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             cls = int(np.bincount(class_ids[sel]).argmax())
             if vocab.is_thing[cls]:
-                shape = describe_shape(points[sel], base_z, walls)
+                shape = describe_shape(points[sel], base_z, walls, sight)
                 info[iid] = (vocab.name(cls), shape, sel, self._prior(shape, vocab, base_z, support_heights, voxel)[0])
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
@@ -1571,6 +1590,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 a_name, a_sel = anchors[anchor], info[anchor][2]
                 if anchor == iid or (not floating and not lifted and alone != "object" and a_name != name):
                     continue
+                # A small thing standing at a support's height stands on a table's top, whatever the table's
+                # mask made of it: not a piece of the table.
+                if supported and a_name in OPEN_BELOW:
+                    continue
                 # Within the anchor's height or under it: what rises above its top stands on it (a cup on a table).
                 az = points[a_sel, 2]
                 if z.max() < az.min() - 0.15:
@@ -1589,7 +1612,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     ):
                         continue
                     merged = np.concatenate([sel, a_sel])
-                    if fits_class(name, describe_shape(points[merged], base_z, walls)):
+                    if fits_class(name, describe_shape(points[merged], base_z, walls, sight)):
                         a_name = name
                         anchor_class[anchor] = name
                     join(iid, anchor, a_name, merged)
@@ -1604,7 +1627,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                         and a_name in NOT_STACKED
                         and z.max() - 0.05 <= az.min() <= z.max() + FLOOR_GAP
                         and _share_within(points[a_sel, :2], points[sel, :2]) >= 0.5
-                        and fits_class(a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls))
+                        and fits_class(
+                            a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls, sight)
+                        )
                     ):
                         join(iid, anchor, a_name, sel)
                         break
@@ -1616,7 +1641,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 # Never into an object its class's size then rules out (a strip of floor clutter under a
                 # chair's base would make a 1.4 m "chair").
                 if inside >= 0.5 and fits_class(
-                    a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls)
+                    a_name, describe_shape(points[np.concatenate([sel, a_sel])], base_z, walls, sight)
                 ):
                     join(iid, anchor, a_name, sel)
                     break
@@ -1635,7 +1660,13 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
     @staticmethod
     def _voted_name(
-        votes: np.ndarray, pts: np.ndarray, stuff_ids: np.ndarray, vocab: Vocabulary, base_z: float, walls: list[Any]
+        votes: np.ndarray,
+        pts: np.ndarray,
+        stuff_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+        sight: Sightlines | None,
     ) -> str | None:
         """The class an object's fused votes give it, if any. Floor, wall or ceiling votes make it that
         stuff where they hold most of its points and it is thin (a floor patch the layout missed); else

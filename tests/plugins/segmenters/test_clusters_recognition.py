@@ -295,6 +295,32 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
 
 
+def test_a_mug_voted_table_on_a_tables_top_is_no_piece_of_the_table():
+    """The frames voted a mug on a table's top "table" (a coffee table's box covers what stands on it),
+    and the table's own instance holds something as high as the mug (a second mug its mask took along):
+    the mug lies within the table's height and footprint. Yet it stands at the top's height, of a mug's
+    size: a thing on the table, not a piece of it (``_join_parts``)."""
+    top = 0.75
+    table_points, _ = solids(table(3.0, 2.5) + [("table", (2.6, 2.3, top), (2.7, 2.4, top + 0.12))], 0.02)
+    mug, _ = solids([("mug", (3.1, 2.5, top), (3.18, 2.58, top + 0.1))], 0.02)
+    mug = mug[mug[:, 2] > top + 1e-6]
+    points = np.concatenate([table_points, mug])
+    class_ids = np.full(len(points), VOCAB.id("table"), np.int32)
+    instance_ids = np.r_[np.ones(len(table_points)), np.full(len(mug), 2)].astype(np.int32)
+    segmenter = ClustersSegmenter(keep_instances=True, recognize=True)
+    segmenter._join_parts(points, class_ids, instance_ids, VOCAB, 0.0, [], None, np.array([top]), 0.02)
+    assert (instance_ids[len(table_points) :] == 2).all()
+
+
+def test_seating_is_no_table():
+    """A table's top view is one level; an armchair's is a seat with arms or a back above it. A
+    detector's "table" over an armchair open below its seat does not fit."""
+    armchair = shape(length=0.92, depth=0.81, height=0.72, reach=0.7, seat=True)
+    assert not fits_class("table", armchair)
+    assert fits_class("table", armchair._replace(seat=False, flat_top=True))
+    assert fits_class("chair", armchair)
+
+
 def test_a_mug_a_counter_detection_took_along_is_a_mug():
     """A detector without a 'counter' label framed the counter (with its coffee machine) as a "box",
     and that mask took the mug on the worktop along. A class the counter's own size rules out names
