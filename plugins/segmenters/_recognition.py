@@ -97,7 +97,7 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
     solid = covered / bins >= 0.6
     if solid and sight is not None:
-        seen = sight.seen_through(pts)
+        seen = sight.seen_through(pts, box)
         solid = not (seen.through + seen.stopped >= SEEN_THROUGH_RAYS and seen.share >= SEEN_THROUGH)
     return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell))
 

@@ -10,9 +10,12 @@ unit's front, a sofa's base). ``Sightlines`` holds a sample of an RGB-D stream's
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from stratamap.core.geometry.boxes import OrientedBox
 
 #: At most this many frames, evenly spaced, give rays (a long sequence sees the same furniture many times).
 MAX_FRAMES = 60
@@ -49,6 +52,8 @@ class Sightlines:
         self.origins = np.asarray(origins, float).reshape(-1, 3)  # per ray
         self.ends = np.asarray(ends, float).reshape(-1, 3)
         self.directions = self.ends - self.origins  # unit length = the measured depth
+        # BEYOND in each ray's own length (ray parameter 1 is its measured end).
+        self.noise = BEYOND / np.maximum(np.linalg.norm(self.directions, axis=1), 1e-9)
 
     def __len__(self) -> int:
         return len(self.ends)
@@ -80,44 +85,42 @@ class Sightlines:
             return None
         return cls(np.concatenate(origins), np.concatenate(ends))
 
-    def seen_through(self, pts: np.ndarray) -> Sight:
+    def seen_through(self, pts: np.ndarray, box: OrientedBox | None = None) -> Sight:
         """Of the rays that reached the object made of ``pts`` and crossed its middle heights (BAND)
-        through its gravity-aligned box shrunk by INSET, over its footprint: how many ended beyond its
-        box (by BEYOND) and how many ended on it."""
+        through its gravity-aligned box (``box``, found when not given) shrunk by INSET, over its
+        footprint: how many ended beyond its box (by BEYOND) and how many ended on it."""
         from stratamap.core.geometry.boxes import gravity_aligned_box
 
-        box = gravity_aligned_box(pts)
+        box = gravity_aligned_box(pts) if box is None else box
         half = np.asarray(box.size[:2], float) / 2.0 - INSET
         if (half <= 0.0).any() or not len(self):
             return Sight(0, 0)
         z = pts[:, 2]
         low, high = float(z.min()), float(z.max())
         band = (low + BAND[0] * (high - low), low + BAND[1] * (high - low))
-        turn = np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
-        centre = np.asarray(box.center[:2], float)
-        start = (self.origins[:, :2] - centre) @ turn  # in the box's frame
+        turn = box.pose[:2, :2]
+        start = (self.origins[:, :2] - box.center[:2]) @ turn  # in the box's frame
         step = self.directions[:, :2] @ turn
 
-        def slabs(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def slabs(half: np.ndarray, rays: Any = slice(None)) -> tuple[np.ndarray, np.ndarray]:
             with np.errstate(divide="ignore", invalid="ignore"):
-                a, b = (-half - start) / step, (half - start) / step
+                a, b = (-half - start[rays]) / step[rays], (half - start[rays]) / step[rays]
             return np.nanmax(np.minimum(a, b), axis=1), np.nanmin(np.maximum(a, b), axis=1)
 
         enter, leave = slabs(half)  # the shrunk box: which rays cross the object's middle
-        reach, beyond = slabs(half + INSET)  # the whole box: where the object begins and ends on each ray
-        margin = BEYOND / np.maximum(np.linalg.norm(self.directions, axis=1), 1e-9)
         z_in = self.origins[:, 2] + enter * self.directions[:, 2]
         z_out = self.origins[:, 2] + leave * self.directions[:, 2]
-        # Rays that reach the object (ending no nearer than its box, less the noise; nearer, something in
-        # front hid it) and cross its middle heights.
-        crossing = (
+        rays = np.flatnonzero(
             (enter < leave)
             & (enter > 0.0)
-            & (reach - margin < 1.0)
             & (np.minimum(z_in, z_out) >= band[0])
             & (np.maximum(z_in, z_out) <= band[1])
         )
-        rays = np.flatnonzero(crossing)
+        # The whole box: where the object begins and ends on each of those rays. A ray ending nearer
+        # than its box, less the noise, did not reach it (something in front hid it).
+        reach, beyond = slabs(half + INSET, rays)
+        reached = reach - self.noise[rays] < 1.0
+        rays, beyond = rays[reached], beyond[reached]
         if not len(rays):
             return Sight(0, 0)
         # Over the footprint: some point of the way through the box lies in a cell the object occupies.
@@ -131,6 +134,6 @@ class Sightlines:
         inside = (at >= 0).all(axis=-1) & (at[..., 0] < footprint.shape[0]) & (at[..., 1] < footprint.shape[1])
         over = np.zeros(inside.shape, bool)
         over[inside] = footprint[at[inside][:, 0], at[inside][:, 1]]
-        rays = rays[over.any(axis=1)]
-        through = beyond[rays] + margin[rays] < 1.0
+        kept = over.any(axis=1)
+        through = beyond[kept] + self.noise[rays[kept]] < 1.0
         return Sight(int(through.sum()), int((~through).sum()))
