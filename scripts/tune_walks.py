@@ -61,12 +61,14 @@ def cache_file(cache: Path, scene: dict[str, Any], spec: bench.BenchSpec, varian
 
 
 def light_stream(stream: Any) -> Any:
-    """The stream without its images, which are the bulk of it: the late stages read the map, and of
-    the stream only its metadata and where each frame was taken (clusters turns its normals to the
-    cameras and takes the floor where the source found it)."""
+    """The stream without its colour images and without the depth images of frames no stage reads,
+    which are the bulk of it: the late stages read the map, and of the stream its metadata, where
+    each frame was taken (clusters turns its normals to the cameras and takes the floor where the
+    source found it) and the depth of the frames that give clusters its rays (``_sightlines``)."""
     import dataclasses
 
     from stratamap.core.map.sensors import RGBDFrame
+    from stratamap.plugins.segmenters._sightlines import ray_frames
 
     if stream is None:
         return None
@@ -75,9 +77,18 @@ def light_stream(stream: Any) -> Any:
         poses = [np.asarray(pose).copy() for pose in world.reported_poses]
     else:
         poses = [None if f.pose is None else np.asarray(f.pose).copy() for f in stream.frames]
-    rgb, depth = np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), np.float32)
-    frames = [RGBDFrame(k, 0.0, rgb, depth, pose) for k, pose in enumerate(poses)]
+    rgb, no_depth = np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), np.float32)
+    rays = set(ray_frames(len(poses)).tolist()) if stream.intrinsics is not None else set()
+    frames = [
+        RGBDFrame(k, 0.0, rgb, np.asarray(stream.frames[k].depth).copy() if k in rays else no_depth, pose)
+        for k, pose in enumerate(poses)
+    ]
     return dataclasses.replace(stream, frames=frames)
+
+
+def holds_rays(stream: Any) -> bool:
+    """Whether a cached stream kept the depth of its ray frames (caches written before it did not)."""
+    return stream is not None and any(np.asarray(f.depth).size > 1 for f in stream.frames)
 
 
 def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
@@ -115,11 +126,12 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
         data = pickle.load(fh)
     pipe = pipeline(spec, variant, scene)
     pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
-    # The cache keeps the stream without its images; clusters' sightlines read depth frames again, so the
-    # source (deterministic, its frames rendered or read when used) gives its stream back.
-    fresh = PipelineData()
-    pipe._run_stage(pipe.validated.source, -1, fresh)
-    data.stream = fresh.stream
+    # A cache written before it kept the ray frames' depth: the source (deterministic, its frames
+    # rendered or read when used) gives its stream back for clusters' sightlines.
+    if not holds_rays(data.stream):
+        fresh = PipelineData()
+        pipe._run_stage(pipe.validated.source, -1, fresh)
+        data.stream = fresh.stream
     for i in range(stages, len(pipe.validated.stages)):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.map.vocabulary = data.ground_truth.vocabulary

@@ -34,6 +34,13 @@ CELL = 0.05
 SAMPLES = 24
 
 
+def ray_frames(count: int) -> np.ndarray:
+    """Which of a stream's ``count`` frames give rays: up to MAX_FRAMES, evenly spaced."""
+    if count <= 0:
+        return np.zeros(0, int)
+    return np.unique(np.linspace(0, count - 1, min(MAX_FRAMES, count)).astype(int))
+
+
 class Sight(NamedTuple):
     """Rays crossing an object's middle heights over its footprint: through it, or stopped on it."""
 
@@ -66,9 +73,8 @@ class Sightlines:
             return None
         intr = stream.intrinsics
         stride = max(1, int(round(np.sqrt(intr.width * intr.height / RAYS_PER_FRAME))))
-        chosen = np.unique(np.linspace(0, len(stream.frames) - 1, min(MAX_FRAMES, len(stream.frames))).astype(int))
         origins, ends = [], []
-        for k in chosen:
+        for k in ray_frames(len(stream.frames)):
             frame = stream.frames[int(k)]
             if frame.pose is None or frame.depth is None:
                 continue

@@ -123,10 +123,11 @@ def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_
     assert [float(x) for x in line.split()[1:]] == pytest.approx(expected, abs=5e-4)
 
 
-def test_tune_walks_cache_keeps_where_each_frame_was_taken():
-    """A cached prefix keeps the stream's poses and metadata, not its images: clusters turns its
-    normals to the cameras and reads the source's floor from the stream, so a cache without them
-    (as the script once wrote) scores another pipeline than the benchmark's."""
+def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
+    """A cached prefix keeps the stream's poses and metadata, and of its images only the depth of the
+    frames that give clusters its rays: clusters turns its normals to the cameras, reads the source's
+    floor from the stream and asks the rays what they saw through, so a cache without them (as the
+    script once wrote) scores another pipeline than the benchmark's."""
     import importlib.util
     import pickle
     from pathlib import Path
@@ -134,19 +135,29 @@ def test_tune_walks_cache_keeps_where_each_frame_was_taken():
     from stratamap.core.stages import PipelineData
     from stratamap.core.synthetic import SceneSpec
     from stratamap.core.synthetic.generate import generate_sequence
+    from stratamap.plugins.segmenters._sightlines import Sightlines, ray_frames
     from stratamap.plugins.segmenters.clusters import viewpoints
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
     spec = importlib.util.spec_from_file_location("tune_walks", script)
     tune_walks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tune_walks)
+    from stratamap.plugins.segmenters import _sightlines
+
+    monkeypatch.setattr(_sightlines, "MAX_FRAMES", 5)  # rays from 5 of the 12 frames
     scene = {"type": "office", "camera": {"width": 80, "height": 60}, "trajectory": {"frames": 12}}
     stream = generate_sequence(SceneSpec.model_validate(scene)).stream
     stream.metadata["gravity_alignment"] = {"floor_inliers": 10}
     light = tune_walks.light_stream(stream)
-    assert len(light.frames) == 12 and all(f.depth.size == 1 and f.rgb.size == 3 for f in light.frames)
+    assert len(light.frames) == 12 and all(f.rgb.size == 3 for f in light.frames)
+    kept = [k for k, f in enumerate(light.frames) if f.depth.size > 1]
+    assert kept == ray_frames(12).tolist() and len(kept) == 5
     full, cached = PipelineData(), PipelineData()
     full.stream, cached.stream = stream, pickle.loads(pickle.dumps(light))
     cells = np.random.default_rng(0).uniform(0, 4, (50, 3))
     assert np.array_equal(viewpoints(full, cells), viewpoints(cached, cells))
     assert cached.stream.metadata == stream.metadata
+    assert tune_walks.holds_rays(cached.stream)
+    rays, cached_rays = Sightlines.from_stream(stream), Sightlines.from_stream(cached.stream)
+    assert len(rays) > 0 and np.array_equal(rays.ends, cached_rays.ends)
+    assert np.array_equal(rays.origins, cached_rays.origins)
