@@ -35,7 +35,8 @@ CLASS_SIZES: dict[str, ClassSize] = {
     # One seat: an armchair is under a metre wide (with the map's noise, 1.1 m); wider seating is a sofa
     # or a bench, and a longer "chair" in a mapper's masks is two (tsdf's size prior splits it).
     "chair": ClassSize((0.2, 0.9), max_length=1.1, max_top_area=0.5),
-    "table": ClassSize((0.3, 1.6)),
+    # Coffee tables stand 0.35-0.5 m high, far below dining and desk height.
+    "table": ClassSize((0.3, 1.6), min_height=0.35),
     "desk": ClassSize((0.4, 1.4)),
     "cabinet": ClassSize(
         (0.25, 1.3), max_length=1.3, max_height=2.4, min_height=0.35, min_depth=0.2

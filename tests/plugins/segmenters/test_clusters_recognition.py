@@ -295,6 +295,37 @@ def test_a_mug_voted_table_on_a_worktop_stays_a_mug():
     assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "cup"]
 
 
+def test_a_coffee_table_is_a_table():
+    """A coffee table 0.4 m high, its top on four legs (coffee tables stand 0.35-0.5 m, far below a
+    dining table's 0.72-0.76 m): a table by its shape, not an ``object`` too low for the class."""
+    points, _ = solids(table(3.0, 2.5, size=(1.0, 0.55), height=0.4), 0.02)
+    shape = describe_shape(points[points[:, 2] > 1e-6], 0.0, [])
+    assert fits_class("table", shape)
+    assert prior_class(shape, VOCAB)[0] == "table"
+
+
+def test_a_mug_flush_with_a_tables_edge_is_a_mug():
+    """A mug standing at a table's front edge, its front in the plane of the table's apron: the
+    two meet smoothly, so convexity alone leaves them one segment, and the table's mask took the mug
+    along. What rises above the top within its footprint, far narrower than the top, stands on it: a
+    mug of its own; the table stays one table."""
+    top, x, y, (w, d) = 0.72, 3.0, 2.5, (1.0, 0.6)
+    front = y - d / 2
+    parts = table(x, y, size=(w, d), height=top) + [
+        ("table", (x - w / 2, front, top - 0.1), (x + w / 2, front + 0.02, top))
+    ]
+    table_points, table_names = solids(parts, 0.02)
+    mug, mug_names = solids([("mug", (x + 0.1, front, top), (x + 0.19, front + 0.09, top + 0.1))], 0.02)
+    above = mug[:, 2] > top + 1e-6
+    points, names = in_room((table_points, table_names), (mug[above], mug_names[above]))
+    out = recognized(points, names, [(np.isin(names, ["table", "mug"]), "table")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["cup", "table"]
+    cup = next(inst for inst in out["instances"] if inst.class_name == "cup")
+    # Its lowest centimetres lie within the top's plane tolerance and stay the table's, as on any table.
+    assert (out["semantics"].instance_ids[names == "mug"] == cup.id).mean() > 0.6
+    assert max(cup.box.size[:2]) < 0.15 and cup.box.size[2] > 0.07
+
+
 def test_a_mug_voted_table_on_a_tables_top_is_no_piece_of_the_table():
     """The frames voted a mug on a table's top "table" (a coffee table's box covers what stands on it),
     and the table's own instance holds something as high as the mug (a second mug its mask took along):
