@@ -861,56 +861,6 @@ def split_standing(
             segment[np.union1d(piece, foot)] = next_id
             next_id += 1
     return segment
-    z = cells[:, 2]
-    rise, off_surface = 2.5 * voxel, cfg.layout.plane_voxels * voxel
-    min_cells = max(cfg.min_cells, int(np.ceil(cfg.min_area / voxel**2)))
-    next_id = int(segment.max()) + 1
-    for sup, members in enumerate(members_of(supports.of_cell, n_sup)):
-        if len(members) < 3:
-            continue
-        height = float(supports.height[sup])
-        xy = cells[members, :2]
-        # The surface's narrower side: its extent across its principal axis.
-        centred = xy - xy.mean(axis=0)
-        axes = np.linalg.svd(centred, full_matrices=False)[2]
-        narrow = float(np.ptp(centred @ axes[-1]))
-        on_surface = supports.of_cell[pairs] == sup
-        touching = np.unique(np.concatenate([segment[pairs[on_surface[:, 1], 0]], segment[pairs[on_surface[:, 0], 1]]]))
-        for seg in touching[touching >= 0]:
-            own = np.flatnonzero(segment == seg)
-            if z[own].min() >= height - off_surface:
-                continue  # it stands there as a whole
-            above = own[z[own] > height + off_surface]
-            if len(above) < min_cells:
-                continue
-            # The surface's footprint with its rim: the segment's cells at its height (a top's edge,
-            # whose normals bend, is left out of the surface and clustered with the apron).
-            rim = own[np.abs(z[own] - height) <= off_surface]
-            a, b = _hull_equations(np.concatenate([xy, cells[rim, :2]]))
-            over = ((cells[above, :2] @ a.T + b) <= voxel).all(axis=1)
-            local = np.full(len(cells), -1, np.int64)
-            local[above] = np.arange(len(above))
-            linked = local[pairs]
-            linked = linked[(linked >= 0).all(axis=1)]
-            part = _components(len(above), linked)
-            for k in range(int(part.max()) + 1):
-                # Wholly over the surface: a sofa's back rising behind its seat reaches beyond it.
-                if not over[part == k].all():
-                    continue
-                piece = above[part == k]
-                if len(piece) < min_cells or z[piece].max() < height + rise:
-                    continue
-                if z[piece].min() > height + off_surface + 1.5 * voxel:
-                    continue  # held above the surface, not standing on it
-                span = float(np.ptp(cells[piece, :2] @ axes.T, axis=0).max())
-                if span > STANDING_SHARE * narrow:
-                    continue
-                # Its foot: the segment's cells off the surface by half a voxel, under its top view.
-                pa, pb = _hull_equations(cells[piece, :2])
-                foot = own[(z[own] > height + 0.5 * voxel) & ((cells[own, :2] @ pa.T + pb) <= 0.5 * voxel).all(axis=1)]
-                segment[np.union1d(piece, foot)] = next_id
-                next_id += 1
-    return segment
 
 
 def join_supports(
