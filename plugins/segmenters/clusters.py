@@ -842,6 +842,7 @@ def split_standing(
         links = np.searchsorted(own, inner_pairs[inner_of_segment[seg]])
         links = links[is_above[links].all(axis=1)]
         part = _components(len(above), (np.cumsum(is_above) - 1)[links])
+        lifted = still & (z[own] > height + 0.5 * voxel)  # candidates for a split part's foot
         for k in range(int(part.max()) + 1):
             # Wholly over the surface: a sofa's back rising behind its seat reaches beyond it.
             if not over[part == k].all():
@@ -856,7 +857,6 @@ def split_standing(
                 continue
             # Its foot: the segment's cells off the surface by half a voxel, under its top view.
             pa, pb = _hull_equations(cells[piece, :2])
-            lifted = still & (z[own] > height + 0.5 * voxel)
             foot = own[lifted & ((cells[own, :2] @ pa.T + pb) <= 0.5 * voxel).all(axis=1)]
             segment[np.union1d(piece, foot)] = next_id
             next_id += 1
