@@ -38,6 +38,7 @@ from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.plugins.sources._depth_smoothing import smooth_depth
 from stratamap.plugins.sources._gravity import ScenePlanes, estimate_alignment, stream_planes, transform_stream
 
 #: Farther than this from the origin (metres, x or y), a cloud is moved next to it (a georeferenced frame).
@@ -88,6 +89,14 @@ class PointCloudConfig(StageConfig):
         ),
     )
     scale: float = Field(default=1.0, gt=0, description="Multiply coordinates by this (e.g. 0.001 for millimetres).")
+    smooth_depth: Literal["auto", "off"] = Field(
+        default="auto",
+        description=(
+            "auto: an organized cloud in its camera's frame whose depths come in a structured-light or stereo "
+            "camera's disparity steps is bilaterally filtered in inverse depth (KinectFusion's smoothing), so far "
+            "surfaces are not staircases of slivers; off: the points as read."
+        ),
+    )
     # A scanned room's mesh has few vertices where it is flat (a wall may be two triangles): its points are
     # taken on the surface, evenly by area, not at the vertices.
     mesh_spacing: float = Field(
@@ -294,6 +303,10 @@ class PointCloudSource(Source[PointCloudConfig]):
             pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
             organized = cloud.image_size is not None
             positions = cloud.sensor_positions
+            if organized and positions is None and cfg.smooth_depth == "auto":
+                # Only in the camera's own frame (no VIEWPOINT away from the origin) is z each pixel's depth.
+                pts, smoothing = smooth_depth(pts, cloud.image_size)
+                self.note("depth_smoothing", smoothing.report())
             seen_from = cloud.sensor_ids
             if seen_from is None and positions is not None and len(positions) == 1:
                 seen_from = np.zeros(len(pts), np.int64)  # one scanner saw every point (a PCD's viewpoint)
