@@ -56,6 +56,7 @@ from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
     HAND_HELD,
     ON_SUPPORTS,
+    SEAT_HEIGHTS,
     STANDING_GAP,
     THIN,
     Shape,
@@ -71,6 +72,11 @@ from stratamap.plugins.segmenters._sightlines import Sightlines
 #: Pieces of one chair lie one over another at most this far apart (m): the part of a swivel chair's
 #: post, or of its legs under the seat, that the map lost.
 STACK_GAP = 0.12
+
+
+#: A chair's back, behind its seat, may reach this far (m) below the seat's top (a swivel chair's back
+#: on the bar that holds it).
+BACK_BELOW_SEAT = 0.2
 
 
 class _Piece(NamedTuple):
@@ -1503,8 +1509,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for a, upper_id in enumerate(ids):
             for b, lower_id in enumerate(ids):
                 upper, lower = pieces[upper_id], pieces[lower_id]
-                # ``upper`` rests on ``lower``'s top (a gap of a thin post at most) within its footprint, or over it.
-                if a == b or not -0.05 <= upper.bottom - lower.top <= STACK_GAP:
+                # ``upper`` rests on ``lower``'s top (a gap of a thin post at most) within its footprint, or
+                # over it; a back behind a seat reaches below the seat's top.
+                at_seat = SEAT_HEIGHTS[0] <= lower.top - base_z <= SEAT_HEIGHTS[1]
+                if a == b or not -(BACK_BELOW_SEAT if at_seat else 0.05) <= upper.bottom - lower.top <= STACK_GAP:
                     continue
                 if np.any(upper.lo > lower.hi) or np.any(lower.lo > upper.hi):  # apart in the top view
                     continue
@@ -1522,14 +1530,22 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for group in groups.values():
             if len(group) < 2:
                 continue
-            if any(pieces[i].whole for i in group):
-                continue
             sel = np.concatenate([pieces[i].points for i in group])
             shape = describe_shape(points[sel], base_z, walls, sight)
             # Standing on the floor, of a chair's size, its top no flat surface over its footprint (a
             # back rises over one side of the seat). Against a wall or not: chairs stand there too.
             if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class("chair", shape):
                 continue
+            # A whole object on the floor carries what rests on it (a lamp on a cabinet), unless it is a
+            # seat and the rest its back: its top at sitting height, the rest reaching below that top
+            # (behind the seat, not standing on it), and the two seating seen from above (a swivel
+            # chair's seat and base that a "table" box named, its back apart).
+            wholes = [i for i in group if pieces[i].whole]
+            if wholes:
+                seat_top = min(pieces[i].top for i in wholes)
+                back = all(pieces[i].bottom <= seat_top - 0.05 for i in group if not pieces[i].whole)
+                if not (shape.seat and back and seat_top - base_z <= SEAT_HEIGHTS[1]):
+                    continue
             keep = max(group, key=lambda i: (len(pieces[i].points), -i))
             instance_ids[sel] = keep
             class_ids[sel] = vocab.id("chair")

@@ -597,6 +597,36 @@ def test_a_chair_seen_in_stacked_pieces_is_one_chair():
     assert (out["semantics"].instance_ids[np.isin(names, ["base", "seat", "back"])] == chair.id).mean() > 0.9
 
 
+def test_a_back_behind_a_seat_that_a_table_box_named_makes_one_chair():
+    """A swivel chair seen as two pieces (a tuning office walk's): its seat, 0.5 m high, which a
+    "table" box named and which alone fits a coffee table, and its back at the seat's rear, reaching
+    15 cm below the seat's top, voted "cabinet". A back may reach below its seat's top, and a whole
+    object on the floor takes such a piece when the two are seating seen from above: one chair. A
+    coffee table of the same height with an unnamed thing standing on it (a lamp, a plant: it does not
+    reach below the top) stays a table with a thing on it."""
+    from tests.plugins.segmenters.test_layout_planes import table
+
+    x, y = 2.5, 0.8
+    parts = table(x, y, name="seat", size=(0.5, 0.5), height=0.5)
+    parts.append(("back", (x - 0.23, y + 0.17, 0.35), (x + 0.23, y + 0.22, 1.1)))
+    parts += table(4.3, 0.8, name="coffee_table", size=(0.6, 0.5), height=0.5)
+    parts.append(("thing", (4.15, 0.65, 0.5), (4.45, 0.95, 0.85)))
+    objects, names = solids(parts, 0.02)
+    keep = (objects[:, 2] > 1e-6) & ~((names == "thing") & (objects[:, 2] < 0.5 + 1e-6))
+    points, names = in_room((objects[keep], names[keep]))
+    masks = [(names == "seat", "table"), (names == "back", "cabinet")]
+    masks += [(names == "coffee_table", "table"), (names == "thing", "object")]
+    out = recognized(points, names, masks)
+    chairs = [inst for inst in out["instances"] if inst.class_name == "chair"]
+    assert len(chairs) == 1, sorted(inst.class_name for inst in out["instances"])
+    assert chairs[0].points[:, 2].min() < 0.05 and chairs[0].points[:, 2].max() > 1.0
+    assert (out["semantics"].instance_ids[np.isin(names, ["seat", "back"])] == chairs[0].id).mean() > 0.9
+    ids = out["semantics"].instance_ids
+    table_id, thing_id = np.bincount(ids[names == "coffee_table"]).argmax(), np.bincount(ids[names == "thing"]).argmax()
+    named = {inst.id: inst.class_name for inst in out["instances"]}
+    assert table_id != thing_id and named[table_id] == "table" and named[thing_id] != "chair"
+
+
 def seating(x0: float, length: float, name: str, far_wall: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Upholstered seating 0.85 m deep with its back on the y = 0 wall (the far wall, y = ROOM[1],
     with ``far_wall``): a seat block 0.42 m high, a 0.72 m back along the wall and 0.62 m arms at both
