@@ -63,6 +63,19 @@ def inverse_depth_step(depth: np.ndarray) -> float | None:
     return float(np.median(gaps))
 
 
+def _camera_step(depth: np.ndarray) -> tuple[float | None, str | None]:
+    """The inverse-depth step of a camera's valid depths (m), or why they are no disparity camera's."""
+    if len(depth) < 3:
+        return None, "fewer than 3 valid points"
+    if np.any(depth <= 0):
+        # A lidar sweep or a scan from inside a room has points all around its sensor.
+        return None, "points behind the sensor: not a camera's frame"
+    step = inverse_depth_step(depth)
+    if step is None:
+        return None, "depths do not come in even steps of inverse depth (no disparity camera's)"
+    return step, None
+
+
 def smooth_depth(points: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, Smoothing]:
     """The points of an organized cloud in its camera's optical frame (z forward, one row of points
     per image row, NaN where the camera saw nothing) with their depth bilaterally filtered in
@@ -70,16 +83,11 @@ def smooth_depth(points: np.ndarray, image_size: tuple[int, int]) -> tuple[np.nd
     width, height = image_size
     depth = points[:, 2].reshape(height, width)
     valid = np.isfinite(points).all(axis=1).reshape(height, width)
-    if valid.sum() < 3:
-        return points, Smoothing(None, "fewer than 3 valid pixels")
-    if np.any(depth[valid] <= 0):
-        # An organized lidar sweep (one row per beam) has points all around it: no camera's frame.
-        return points, Smoothing(None, "points behind the sensor: not a camera's frame")
+    step, skipped = _camera_step(depth[valid])
+    if step is None:
+        return points, Smoothing(None, skipped)
     inverse = np.full((height, width), np.nan)
     inverse[valid] = 1.0 / depth[valid]
-    step = inverse_depth_step(depth[valid])
-    if step is None:
-        return points, Smoothing(None, "depths do not come in even steps of inverse depth (no disparity camera's)")
     range_sigma = RANGE_SIGMA_STEPS * step
     spatial_sigma = RADIUS_PX / 2.0
     padded = np.pad(inverse, RADIUS_PX, constant_values=np.nan)
@@ -102,4 +110,47 @@ def smooth_depth(points: np.ndarray, image_size: tuple[int, int]) -> tuple[np.nd
     ratio[valid] = (1.0 / (total[valid] / weight[valid])) / depth[valid]
     smoothed = points.copy()
     smoothed[valid.reshape(-1)] *= ratio[valid][:, None]
+    return smoothed, Smoothing(step)
+
+
+#: Points filtered at once in an unorganized cloud (each with up to NEIGHBOURS neighbours).
+CHUNK = 20_000
+#: Neighbours looked up per point: the pixels of a disc of RADIUS_PX (49) and some slack.
+NEIGHBOURS = 64
+
+
+def smooth_unorganized_depth(points: np.ndarray) -> tuple[np.ndarray, Smoothing]:
+    """The same filter for a camera's cloud stored without its image grid (its invalid pixels dropped,
+    as mOSD's test43.pcd): each point's pixel is its ray ``(x / z, y / z)``, one pixel is the median
+    distance between neighbouring rays, and its neighbours are the points within RADIUS_PX pixels."""
+    from scipy.spatial import cKDTree
+
+    valid = np.flatnonzero(np.isfinite(points).all(axis=1))
+    depth = points[valid, 2].astype(np.float64)
+    step, skipped = _camera_step(depth)
+    if step is None:
+        return points, Smoothing(None, skipped)
+    rays = points[valid, :2] / depth[:, None]
+    tree = cKDTree(rays)
+    gaps = tree.query(rays[:: max(1, len(rays) // 20_000)], k=2)[0][:, 1]
+    gaps = gaps[gaps > 0]
+    if len(gaps) == 0:
+        return points, Smoothing(None, "all points on one ray")
+    pixel = float(np.median(gaps))
+    inverse = 1.0 / depth
+    range_sigma = RANGE_SIGMA_STEPS * step
+    spatial_sigma = RADIUS_PX / 2.0
+    smoothed_inverse = np.empty_like(inverse)
+    for start in range(0, len(rays), CHUNK):
+        part = slice(start, start + CHUNK)
+        distance, index = tree.query(
+            rays[part], k=min(NEIGHBOURS, len(rays)), distance_upper_bound=RADIUS_PX * pixel * 1.001
+        )
+        found = index < len(rays)
+        near = inverse[np.where(found, index, 0)]
+        w = np.exp(-((np.where(found, distance, 0.0) / pixel) ** 2) / (2 * spatial_sigma**2))
+        w *= np.exp(-((near - inverse[part, None]) ** 2) / (2 * range_sigma**2)) * found
+        smoothed_inverse[part] = (w * near).sum(axis=1) / w.sum(axis=1)
+    smoothed = points.copy()
+    smoothed[valid] *= ((1.0 / smoothed_inverse) / depth)[:, None]
     return smoothed, Smoothing(step)

@@ -38,7 +38,7 @@ from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.sources._depth_smoothing import smooth_depth
+from stratamap.plugins.sources._depth_smoothing import smooth_depth, smooth_unorganized_depth
 from stratamap.plugins.sources._gravity import ScenePlanes, estimate_alignment, stream_planes, transform_stream
 
 #: Farther than this from the origin (metres, x or y), a cloud is moved next to it (a georeferenced frame).
@@ -303,9 +303,12 @@ class PointCloudSource(Source[PointCloudConfig]):
             pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
             organized = cloud.image_size is not None
             positions = cloud.sensor_positions
-            if organized and positions is None and cfg.smooth_depth == "auto":
+            if positions is None and cfg.smooth_depth == "auto":
                 # Only in the camera's own frame (no VIEWPOINT away from the origin) is z each pixel's depth.
-                pts, smoothing = smooth_depth(pts, cloud.image_size)
+                if organized:
+                    pts, smoothing = smooth_depth(pts, cloud.image_size)
+                else:
+                    pts, smoothing = smooth_unorganized_depth(pts)
                 self.note("depth_smoothing", smoothing.report())
             seen_from = cloud.sensor_ids
             if seen_from is None and positions is not None and len(positions) == 1:

@@ -122,3 +122,19 @@ def test_a_cloud_whose_depths_do_not_come_in_disparity_steps_is_left_as_read(tmp
     points, note = _read(path)
     assert np.allclose(points, millimetres, atol=1e-5)
     assert "even steps" in note["depth_smoothing"]["reason"]
+
+
+def test_a_camera_cloud_stored_without_its_image_grid_is_smoothed_alike(tmp_path):
+    """The stepped wall's frame stored unorganized, its invalid pixels dropped (as mOSD's test43.pcd):
+    each point's pixel is found from its ray, and it comes out as the organized frame does."""
+    truth = _camera_frame(_scene(((-9.0, 3.2, -1.0), (18.0, 0.1, 4.0))), yaw_deg=20.0)
+    raw = _quantized(truth)
+    keep = np.random.default_rng(1).random(len(raw)) > 0.1  # a tenth of the pixels invalid, dropped
+    unorganized, note = _read(write_pcd(tmp_path / "flat.pcd", raw[keep]))
+    assert note["depth_smoothing"]["applied"] is True
+    reference, _ = _read(
+        write_pcd(tmp_path / "grid_holes.pcd", np.where(keep[:, None], raw, np.nan), organized=(240, 180))
+    )
+    assert reference.shape == unorganized.shape  # the source drops the invalid pixels, in order
+    assert np.abs(unorganized - reference).max() < 1e-4
+    assert np.abs(unorganized - raw[keep]).max() > 0.005  # it did move them
