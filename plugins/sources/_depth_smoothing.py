@@ -1,4 +1,4 @@
-"""Smoothing of one depth camera's organized cloud before mapping, as KinectFusion smooths its raw
+"""Smoothing of one depth camera's cloud before mapping, as KinectFusion smooths its raw
 depth maps (Newcombe et al. 2011, section 3.2: a bilateral filter keeps edges and removes noise).
 
 Structured-light and stereo cameras measure disparity in steps, so depth comes in steps that grow
@@ -8,7 +8,8 @@ one frame falls into dozens of slivers where its far wall is. In inverse depth t
 so the filter works there with one range sigma, taken from the cloud's own step: the median gap
 between the distinct inverse depths the camera reported. A cloud whose depths do not come in steps
 (a time-of-flight camera, a rendered frame) is left as it is. Points move only along their pixel's
-ray, so colours and labels stay with them.
+ray, so colours and labels stay with them. An organized cloud is filtered on its image grid; one
+stored without it finds each point's pixel from its ray.
 """
 
 from __future__ import annotations
@@ -54,11 +55,11 @@ def _spread(values: np.ndarray) -> tuple[float, np.ndarray]:
 def inverse_depth_step(depth: np.ndarray) -> float | None:
     """The camera's inverse-depth step (1/m) from its valid pixels' depths (m), or None when they do
     not come in even steps of inverse depth."""
-    depth = np.round(depth, 6)
-    if len(np.unique(depth)) < 3 or len(np.unique(depth)) > QUANTIZED_SHARE * len(depth):
+    distinct = np.unique(np.round(depth, 6))
+    if len(distinct) < 3 or len(distinct) > QUANTIZED_SHARE * len(depth):
         return None
-    spread, gaps = _spread(np.round(1.0 / depth, 7))
-    if spread > EVEN_STEPS or spread >= _spread(depth)[0]:
+    spread, gaps = _spread(np.round(1.0 / distinct, 7))
+    if spread > EVEN_STEPS or spread >= _spread(distinct)[0]:
         return None
     return float(np.median(gaps))
 
@@ -76,6 +77,16 @@ def _camera_step(depth: np.ndarray) -> tuple[float | None, str | None]:
     return step, None
 
 
+def _weight(distance_px: np.ndarray | float, near: np.ndarray, centre: np.ndarray, step: float) -> np.ndarray:
+    """The bilateral filter's weight of a neighbour ``distance_px`` pixels away whose inverse depth is
+    ``near``, for a point whose inverse depth is ``centre``."""
+    spatial_sigma = RADIUS_PX / 2.0
+    range_sigma = RANGE_SIGMA_STEPS * step
+    return np.exp(-np.square(distance_px) / (2 * spatial_sigma**2)) * np.exp(
+        -np.square(near - centre) / (2 * range_sigma**2)
+    )
+
+
 def smooth_depth(points: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, Smoothing]:
     """The points of an organized cloud in its camera's optical frame (z forward, one row of points
     per image row, NaN where the camera saw nothing) with their depth bilaterally filtered in
@@ -86,24 +97,20 @@ def smooth_depth(points: np.ndarray, image_size: tuple[int, int]) -> tuple[np.nd
     step, skipped = _camera_step(depth[valid])
     if step is None:
         return points, Smoothing(None, skipped)
-    inverse = np.full((height, width), np.nan)
+    inverse = np.zeros((height, width))
     inverse[valid] = 1.0 / depth[valid]
-    range_sigma = RANGE_SIGMA_STEPS * step
-    spatial_sigma = RADIUS_PX / 2.0
-    padded = np.pad(inverse, RADIUS_PX, constant_values=np.nan)
+    padded = np.pad(inverse, RADIUS_PX)
+    padded_valid = np.pad(valid, RADIUS_PX)
     total = np.zeros((height, width))
     weight = np.zeros((height, width))
     for dy in range(-RADIUS_PX, RADIUS_PX + 1):
         for dx in range(-RADIUS_PX, RADIUS_PX + 1):
             if dx * dx + dy * dy > RADIUS_PX * RADIUS_PX:
                 continue
-            near = padded[RADIUS_PX + dy : RADIUS_PX + dy + height, RADIUS_PX + dx : RADIUS_PX + dx + width]
-            seen = np.isfinite(near)
-            w = np.exp(-(dx * dx + dy * dy) / (2 * spatial_sigma**2)) * np.exp(
-                -((np.where(seen, near, 0.0) - np.nan_to_num(inverse)) ** 2) / (2 * range_sigma**2)
-            )
-            w = np.where(seen, w, 0.0)
-            total += w * np.nan_to_num(near)
+            window = (slice(RADIUS_PX + dy, RADIUS_PX + dy + height), slice(RADIUS_PX + dx, RADIUS_PX + dx + width))
+            near = padded[window]
+            w = _weight(np.hypot(dx, dy), near, inverse, step) * padded_valid[window]
+            total += w * near
             weight += w
     # A valid pixel weighs itself by 1, so weight > 0 wherever the depth is valid.
     ratio = np.ones((height, width))
@@ -138,8 +145,6 @@ def smooth_unorganized_depth(points: np.ndarray) -> tuple[np.ndarray, Smoothing]
         return points, Smoothing(None, "all points on one ray")
     pixel = float(np.median(gaps))
     inverse = 1.0 / depth
-    range_sigma = RANGE_SIGMA_STEPS * step
-    spatial_sigma = RADIUS_PX / 2.0
     smoothed_inverse = np.empty_like(inverse)
     for start in range(0, len(rays), CHUNK):
         part = slice(start, start + CHUNK)
@@ -148,8 +153,7 @@ def smooth_unorganized_depth(points: np.ndarray) -> tuple[np.ndarray, Smoothing]
         )
         found = index < len(rays)
         near = inverse[np.where(found, index, 0)]
-        w = np.exp(-((np.where(found, distance, 0.0) / pixel) ** 2) / (2 * spatial_sigma**2))
-        w *= np.exp(-((near - inverse[part, None]) ** 2) / (2 * range_sigma**2)) * found
+        w = _weight(np.where(found, distance, 0.0) / pixel, near, inverse[part, None], step) * found
         smoothed_inverse[part] = (w * near).sum(axis=1) / w.sum(axis=1)
     smoothed = points.copy()
     smoothed[valid] *= ((1.0 / smoothed_inverse) / depth)[:, None]

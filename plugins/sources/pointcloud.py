@@ -92,9 +92,9 @@ class PointCloudConfig(StageConfig):
     smooth_depth: Literal["auto", "off"] = Field(
         default="auto",
         description=(
-            "auto: an organized cloud in its camera's frame whose depths come in a structured-light or stereo "
-            "camera's disparity steps is bilaterally filtered in inverse depth (KinectFusion's smoothing), so far "
-            "surfaces are not staircases of slivers; off: the points as read."
+            "auto: a cloud in its camera's frame (organized, or stored without its image grid) whose depths come "
+            "in a structured-light or stereo camera's disparity steps is bilaterally filtered in inverse depth "
+            "(KinectFusion's smoothing), so far surfaces are not staircases of slivers; off: the points as read."
         ),
     )
     # A scanned room's mesh has few vertices where it is flat (a wall may be two triangles): its points are
