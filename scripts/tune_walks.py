@@ -9,8 +9,9 @@ the rest (for issue 28: `clusters` recognition and `icp_match` after the detecto
 
 `score` prints, per walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and map
 PQ, then the means of the tuning walks and of the validation walks (seeds --validation-seeds, 4-7 by
-default) apart; `--objects` adds each instance with the ground-truth object its box overlaps
-most. The cache holds the prefix as it was computed: after a change to a prefix stage's code, run
+default) apart, and what the tuning walks' true objects were called (the benchmark report's table,
+summed over the tuning walks); `--objects` adds each instance with the ground-truth object its box
+overlaps most. The cache holds the prefix as it was computed: after a change to a prefix stage's code, run
 `prefix --rebuild`. A development tool: reported figures come from `stratamap bench`, which runs
 every stage.
 """
@@ -135,12 +136,13 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
     for i in range(stages, len(pipe.validated.stages)):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.map.vocabulary = data.ground_truth.vocabulary
-    metrics, _ = bench.measure(pipe.hook, data, spec, pipe.out_dir)  # as `stratamap bench` measures a run
+    metrics, details = bench.measure(pipe.hook, data, spec, pipe.out_dir)  # as `stratamap bench` measures a run
     row: dict[str, Any] = {
         "scene": scene["name"],
         "aware": metrics["detection"]["f1_iou25"],
         "agnostic": metrics["detection"]["f1_iou25_agnostic"],
         "pq": metrics.get("panoptic", {}).get("pq", float("nan")),
+        "labels": details.get("labels_iou25"),
     }
     if objects:
         truth = list(data.ground_truth.objects)
@@ -223,7 +225,29 @@ def main(argv: list[str] | None = None) -> int:
             a = np.array([[r["aware"], r["agnostic"], r["pq"]] for r in rows])
             label = f"{name} mean of {len(rows)}"
             print(f"{label:32s} {a[:, 0].mean():.3f} {a[:, 1].mean():.3f} {np.nanmean(a[:, 2]):.3f}")
+    # Where the tuning walks lose class-aware F1 (the validation walks are read as means only).
+    print("tuning walks, what the true objects were called (3D box IoU >= 0.25):")
+    for line in called_lines([r["labels"] for r in groups["tuning"] if r.get("labels")]):
+        print(f"  {line}")
     return 0
+
+
+def called_lines(labels: list[dict[str, Any]]) -> list[str]:
+    """``labels_by_iou`` of many walks summed: per true class, what it was called; then the extras."""
+    called: dict[str, dict[str, int]] = {}
+    extra: dict[str, int] = {}
+    for one in labels:
+        for true, row in one["called"].items():
+            total = called.setdefault(true, {})
+            for name, n in row.items():
+                total[name] = total.get(name, 0) + n
+        for name, n in one["extra"].items():
+            extra[name] = extra.get(name, 0) + n
+
+    def text(counts: dict[str, int]) -> str:
+        return ", ".join(f"{k} {counts[k]}" for k in sorted(counts, key=lambda k: (-counts[k], k))) or "-"
+
+    return [f"{true:10s} {text(called[true])}" for true in sorted(called)] + [f"{'(extra)':10s} {text(extra)}"]
 
 
 if __name__ == "__main__":

@@ -375,9 +375,12 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
     from stratamap.core.pipeline import evaluate
 
     metrics = evaluate(hook, data, details=True)
-    if "detection" in metrics:
-        metrics["detection"].update(detection_by_iou(data.map.instances, data.ground_truth.objects))
     details: dict[str, Any] = {}
+    if "detection" in metrics:
+        from stratamap.core.evaluation.detection import labels_by_iou
+
+        metrics["detection"].update(detection_by_iou(data.map.instances, data.ground_truth.objects))
+        details["labels_iou25"] = labels_by_iou(data.map.instances, data.ground_truth.objects)
     if "completion" in metrics:
         details["completion_objects"] = metrics["completion"].pop("per_object", [])
         details["chairs"] = [o["chamfer_l1"] for o in details["completion_objects"] if o["class"] == "chair"]

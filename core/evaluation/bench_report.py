@@ -171,6 +171,43 @@ def network_lines(records: list[dict[str, Any]], variants: list[str]) -> list[st
     return lines
 
 
+def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTable | None:
+    """What each variant called the true objects of each class, summed over scenes (the class-agnostic
+    matches at 3D box IoU >= 0.25; ``labels_by_iou``), and its predictions that matched nothing."""
+    from stratamap.core.evaluation.detection import MISSED
+
+    called: dict[str, dict[str, dict[str, int]]] = {}
+    extra: dict[str, dict[str, int]] = {}
+    for rec in records:
+        labels = rec.get("details", {}).get("labels_iou25")
+        if not labels:
+            continue
+        for true, row in labels["called"].items():
+            cell = called.setdefault(true, {}).setdefault(rec["variant"], {})
+            for name, n in row.items():
+                cell[name] = cell.get(name, 0) + n
+        cell = extra.setdefault(rec["variant"], {})
+        for name, n in labels["extra"].items():
+            cell[name] = cell.get(name, 0) + n
+    if not called and not any(extra.values()):
+        return None
+
+    def text(counts: dict[str, int], first: str | None) -> str:
+        order = sorted(counts, key=lambda name: (name != first, name == MISSED, -counts[name], name))
+        return ", ".join(f"{name} {counts[name]}" for name in order) if counts else "–"
+
+    shown = [v for v in variants if any(v in row for row in called.values()) or v in extra]
+    table = ResultTable(
+        "detection: what the true objects were called (3D box IoU >= 0.25, summed over scenes)",
+        ["true class", *shown],
+        [],
+    )
+    for true in sorted(called):
+        table.rows.append([true, *(text(called[true].get(v, {}), true) for v in shown)])
+    table.rows.append(["*no true object*", *(text(extra.get(v, {}), None) for v in shown)])
+    return table
+
+
 def result_tables(
     results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str]
 ) -> list[ResultTable]:
@@ -219,6 +256,9 @@ def result_tables(
         means = [np.mean(values[key][v]) if key in values and values[key].get(v) else None for v in variants]
         table.rows.append(["**mean**", *("–" if m is None else f"**{m:.3f}**" for m in means)])
         tables.append(table)
+    labels = labels_table(records, variants)
+    if labels is not None:
+        tables.append(labels)
     scale = scale_table(records)
     if scale is not None:
         tables.append(scale)

@@ -68,6 +68,35 @@ def evaluate_instances(
     return out
 
 
+#: The label of a true object no prediction's box matched.
+MISSED = "(missed)"
+
+
+def labels_by_iou(instances: Iterable[ObjectInstance], gt_objects: Iterable[Any], iou: float = 0.25) -> dict[str, Any]:
+    """What each true object was called: boxes matched one-to-one whatever their class (3D box IoU
+    >= ``iou``, as the class-agnostic F1), then ``called[true class][predicted class]`` counts the
+    matches, ``MISSED`` the true objects no box matched, and ``extra[predicted class]`` the
+    predictions that matched nothing. Class-aware F1 is lost where a true class was called another
+    or missed, and where predictions are extra."""
+    pred = [(i.class_name, i.box) for i in instances]
+    gt = [(o.class_name, o.box()) for o in gt_objects]
+    matches = match_boxes([("", b) for _, b in pred], [("", b) for _, b in gt], 0.0, iou - 1e-9)
+    called: dict[str, dict[str, int]] = {}
+    for pi, gi in matches:
+        row = called.setdefault(gt[gi][0], {})
+        row[pred[pi][0]] = row.get(pred[pi][0], 0) + 1
+    matched_gt, matched_pred = {gi for _, gi in matches}, {pi for pi, _ in matches}
+    for gi, (cls, _) in enumerate(gt):
+        if gi not in matched_gt:
+            row = called.setdefault(cls, {})
+            row[MISSED] = row.get(MISSED, 0) + 1
+    extra: dict[str, int] = {}
+    for pi, (cls, _) in enumerate(pred):
+        if pi not in matched_pred:
+            extra[cls] = extra.get(cls, 0) + 1
+    return {"called": called, "extra": extra}
+
+
 def average_precision(scores: np.ndarray, hits: np.ndarray, n_gt: int) -> float:
     """Area under the interpolated precision-recall curve (all points, as PASCAL VOC 2010+)."""
     if n_gt == 0:

@@ -121,6 +121,13 @@ def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_
     record = json.loads((out / "records" / "office-s3" / "none.json").read_text())["metrics"]
     expected = [record["detection"]["f1_iou25"], record["detection"]["f1_iou25_agnostic"], record["panoptic"]["pq"]]
     assert [float(x) for x in line.split()[1:]] == pytest.approx(expected, abs=5e-4)
+    # What the tuning walk's true objects were called, as the benchmark's record says.
+    labels = json.loads((out / "records" / "office-s3" / "none.json").read_text())["details"]["labels_iou25"]
+    printed = scored.stdout.split("what the true objects were called")[1].splitlines()[1:]
+    for true, row in labels["called"].items():
+        counts = sorted(f"{name} {n}" for name, n in row.items())
+        named = [sorted(p.strip()[len(true) :].strip().split(", ")) for p in printed if p.split()[0] == true]
+        assert named == [counts]
 
 
 def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):

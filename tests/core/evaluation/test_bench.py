@@ -116,3 +116,35 @@ def test_first_report_links_its_figures_and_skips_undefined_metrics(tmp_path):
     csv_rows = (out / "results.csv").read_text().splitlines()
     header = csv_rows[0].split(",")
     assert [row.split(",")[header.index("panoptic.pq_stuff")] for row in csv_rows[1:]] == ["", "0.8", "", "0.8"]
+
+
+def test_the_report_says_what_each_variant_called_the_true_objects(tmp_path):
+    """Summed over scenes, per true class: the variant's names for the objects it found (its own class
+    first), the objects it missed, and its predictions that matched no object."""
+    from stratamap.core.evaluation.bench_report import write_reports
+
+    spec, _ = load_bench(tiny_bench(tmp_path))
+
+    def record(scene: str, variant: str, called: dict, extra: dict) -> dict:
+        return {
+            "scene": scene,
+            "variant": variant,
+            "seconds_total": 1.0,
+            "peak_memory_mb": 100.0,
+            "metrics": {"detection": {"f1_iou25": 0.5}},
+            "details": {"labels_iou25": {"called": called, "extra": extra}},
+        }
+
+    records = [
+        record("a", "none", {"cabinet": {"counter": 1, "cabinet": 1}, "cup": {"(missed)": 2}}, {"object": 1}),
+        record("b", "none", {"cabinet": {"counter": 2}}, {"object": 2, "box": 1}),
+        record("a", "bbox", {"cabinet": {"cabinet": 2}, "cup": {"cup": 2}}, {}),
+    ]
+    out = tmp_path / "out"
+    out.mkdir()
+    write_reports({"name": "tiny", "records": records, "skipped": []}, spec, out)
+    md = (out / "results.md").read_text()
+    assert "## detection: what the true objects were called" in md
+    assert "| cabinet | cabinet 1, counter 3 | cabinet 2 |" in md
+    assert "| cup | (missed) 2 | cup 2 |" in md
+    assert "| *no true object* | object 3, box 1 | – |" in md
