@@ -78,6 +78,7 @@ def test_yaml_off_is_the_word_off(tmp_path):
     assert load_pipeline(tmp_path / "p.yaml").source.config.gravity == "off"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "command", [["synth", "configs/scenes/office.yaml", "--frames", "2"], ["models", "build", "-n", "1"]]
 )

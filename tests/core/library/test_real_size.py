@@ -58,6 +58,7 @@ def partnet_library():
     return ModelLibrary.load(shared_data("partnet_mobility"))
 
 
+@pytest.mark.slow
 def test_partnet_models_load_at_their_class_height(partnet_library):
     for model in partnet_library:
         low, high = TYPICAL_HEIGHTS[model.class_name]
@@ -83,6 +84,7 @@ def observed_chair(partnet_library, height: float) -> tuple[ObjectInstance, trim
     return ObjectInstance(1, "chair", pts, gravity_aligned_box(pts)), mesh
 
 
+@pytest.mark.slow
 def test_a_true_height_chair_is_completed_at_its_height_and_exports(partnet_library, tmp_path):
     from stratamap.plugins.completers._matching import register_library
 

@@ -148,6 +148,7 @@ def test_packed_label_images_read_back_equal_and_take_a_fraction_of_their_size()
     assert [s.frame_index for s in pickle.loads(pickle.dumps(packed))] == [s.frame_index for s in truth]
 
 
+@pytest.mark.slow
 def test_the_detector_keeps_its_label_images_packed():
     """The detector labels every frame before the mapper reads them: 80 frames of 640 x 480 held
     raw were 144 MB, a 2,500-frame sequence's 4.6 GB."""

@@ -112,6 +112,7 @@ def test_user_mesh_folder_and_broken_files(tmp_path):
     assert any("missing.glb" in p for p in lib.problems) and any("broken.obj" in p for p in lib.problems)
 
 
+@pytest.mark.slow
 def test_partnet_mobility_folders_load():
     root = REPO.parent / "shared" / "data" / "partnet_mobility"
     if not root.exists():

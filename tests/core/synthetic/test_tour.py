@@ -72,6 +72,7 @@ def test_tour_stays_in_free_space_and_is_deterministic(rooms_4):
     assert steps.max() < 0.6
 
 
+@pytest.mark.slow
 def test_default_walk_is_unchanged_and_coverage_is_opt_in():
     spec = SceneSpec.model_validate({"type": "office", "camera": {"width": 160, "height": 120}})
     world = SyntheticWorld(spec)

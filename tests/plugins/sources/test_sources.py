@@ -643,6 +643,7 @@ def test_a_scanned_room_mesh_is_read_as_points_on_its_surface(tmp_path):
     assert abs(len(from_obj) - len(points)) <= 1 and abs(np.percentile(from_obj[:, 2], 99) - 2.6) < 0.02
 
 
+@pytest.mark.slow
 def test_a_gltf_room_is_turned_z_up_by_its_specification(tmp_path):
     """glTF is y up by its specification: a GLB room is turned z up as read, levelled without a guess or
     a warning, and its points are the PLY's; an up_axis given says how the file itself is stored."""
