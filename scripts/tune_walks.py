@@ -234,20 +234,17 @@ def main(argv: list[str] | None = None) -> int:
 
 def called_lines(labels: list[dict[str, Any]]) -> list[str]:
     """``labels_by_iou`` of many walks summed: per true class, what it was called; then the extras."""
-    called: dict[str, dict[str, int]] = {}
-    extra: dict[str, int] = {}
-    for one in labels:
-        for true, row in one["called"].items():
-            total = called.setdefault(true, {})
-            for name, n in row.items():
-                total[name] = total.get(name, 0) + n
-        for name, n in one["extra"].items():
-            extra[name] = extra.get(name, 0) + n
+    from stratamap.core.evaluation.detection import sum_labels
+
+    summed = sum_labels(labels)
 
     def text(counts: dict[str, int]) -> str:
         return ", ".join(f"{k} {counts[k]}" for k in sorted(counts, key=lambda k: (-counts[k], k))) or "-"
 
-    return [f"{true:10s} {text(called[true])}" for true in sorted(called)] + [f"{'(extra)':10s} {text(extra)}"]
+    called = summed["called"]
+    return [f"{true:10s} {text(called[true])}" for true in sorted(called)] + [
+        f"{'(extra)':10s} {text(summed['extra'])}"
+    ]
 
 
 if __name__ == "__main__":

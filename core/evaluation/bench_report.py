@@ -174,29 +174,26 @@ def network_lines(records: list[dict[str, Any]], variants: list[str]) -> list[st
 def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTable | None:
     """What each variant called the true objects of each class, summed over scenes (the class-agnostic
     matches at 3D box IoU >= 0.25; ``labels_by_iou``), and its predictions that matched nothing."""
-    from stratamap.core.evaluation.detection import MISSED
+    from stratamap.core.evaluation.detection import MISSED, sum_labels
 
-    called: dict[str, dict[str, dict[str, int]]] = {}
-    extra: dict[str, dict[str, int]] = {}
-    for rec in records:
-        labels = rec.get("details", {}).get("labels_iou25")
-        if not labels:
-            continue
-        for true, row in labels["called"].items():
-            cell = called.setdefault(true, {}).setdefault(rec["variant"], {})
-            for name, n in row.items():
-                cell[name] = cell.get(name, 0) + n
-        cell = extra.setdefault(rec["variant"], {})
-        for name, n in labels["extra"].items():
-            cell[name] = cell.get(name, 0) + n
-    if not called and not any(extra.values()):
+    by_variant = {
+        v: sum_labels(r["details"]["labels_iou25"] for r in records if r["variant"] == v and _labels(r))
+        for v in variants
+        if any(r["variant"] == v and _labels(r) for r in records)
+    }
+    if not any(summed["called"] or summed["extra"] for summed in by_variant.values()):
         return None
+    called = {
+        true: {v: summed["called"][true] for v, summed in by_variant.items() if true in summed["called"]}
+        for true in sorted({t for summed in by_variant.values() for t in summed["called"]})
+    }
+    extra = {v: summed["extra"] for v, summed in by_variant.items()}
 
     def text(counts: dict[str, int], first: str | None) -> str:
         order = sorted(counts, key=lambda name: (name != first, name == MISSED, -counts[name], name))
         return ", ".join(f"{name} {counts[name]}" for name in order) if counts else "–"
 
-    shown = [v for v in variants if any(v in row for row in called.values()) or v in extra]
+    shown = list(by_variant)
     table = ResultTable(
         "detection: what the true objects were called (3D box IoU >= 0.25, summed over scenes)",
         ["true class", *shown],
@@ -206,6 +203,10 @@ def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTa
         table.rows.append([true, *(text(called[true].get(v, {}), true) for v in shown)])
     table.rows.append(["*no true object*", *(text(extra.get(v, {}), None) for v in shown)])
     return table
+
+
+def _labels(record: dict[str, Any]) -> bool:
+    return bool(record.get("details", {}).get("labels_iou25"))
 
 
 def result_tables(

@@ -97,6 +97,20 @@ def labels_by_iou(instances: Iterable[ObjectInstance], gt_objects: Iterable[Any]
     return {"called": called, "extra": extra}
 
 
+def sum_labels(labels: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """``labels_by_iou`` of many runs added up: ``called[true class][name]`` and ``extra[name]``."""
+    called: dict[str, dict[str, int]] = {}
+    extra: dict[str, int] = {}
+    for one in labels:
+        for true, row in one["called"].items():
+            total = called.setdefault(true, {})
+            for name, n in row.items():
+                total[name] = total.get(name, 0) + n
+        for name, n in one["extra"].items():
+            extra[name] = extra.get(name, 0) + n
+    return {"called": called, "extra": extra}
+
+
 def average_precision(scores: np.ndarray, hits: np.ndarray, n_gt: int) -> float:
     """Area under the interpolated precision-recall curve (all points, as PASCAL VOC 2010+)."""
     if n_gt == 0:
