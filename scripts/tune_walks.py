@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def called_lines(labels: list[dict[str, Any]]) -> list[str]:
-    """``labels_by_iou`` of many walks summed: per true class, what it was called; then the extras."""
+    """``labels_of_matches`` of many walks summed: per true class, what it was called; then the extras."""
     from stratamap.core.evaluation.detection import sum_labels
 
     summed = sum_labels(labels)

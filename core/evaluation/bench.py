@@ -377,10 +377,8 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
     metrics = evaluate(hook, data, details=True)
     details: dict[str, Any] = {}
     if "detection" in metrics:
-        from stratamap.core.evaluation.detection import labels_by_iou
-
-        metrics["detection"].update(detection_by_iou(data.map.instances, data.ground_truth.objects))
-        details["labels_iou25"] = labels_by_iou(data.map.instances, data.ground_truth.objects)
+        f1, details["labels_iou25"] = detection_by_iou(data.map.instances, data.ground_truth.objects)
+        metrics["detection"].update(f1)
     if "completion" in metrics:
         details["completion_objects"] = metrics["completion"].pop("per_object", [])
         details["chairs"] = [o["chamfer_l1"] for o in details["completion_objects"] if o["class"] == "chair"]
@@ -427,10 +425,11 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
     return json.loads(json.dumps(metrics, default=_plain)), json.loads(json.dumps(details, default=_plain))
 
 
-def detection_by_iou(instances: Any, gt_objects: Any, iou: float = 0.25) -> dict[str, float]:
+def detection_by_iou(instances: Any, gt_objects: Any, iou: float = 0.25) -> tuple[dict[str, float], dict[str, Any]]:
     """Detection F1 with matches by 3D box IoU >= ``iou`` alone (no center-distance criterion),
-    class-aware (``f1_iou25``) and class-agnostic (``f1_iou25_agnostic``: any class, a box per object)."""
-    from stratamap.core.evaluation.detection import match_boxes, prf
+    class-aware (``f1_iou25``) and class-agnostic (``f1_iou25_agnostic``: any class, a box per object),
+    and what the class-agnostic matches say each true object was called (``labels_of_matches``)."""
+    from stratamap.core.evaluation.detection import labels_of_matches, match_boxes, prf
 
     pred = [(i.class_name, i.box) for i in instances]
     gt = [(o.class_name, o.box()) for o in gt_objects]
@@ -438,10 +437,11 @@ def detection_by_iou(instances: Any, gt_objects: Any, iou: float = 0.25) -> dict
     aware = match_boxes(pred, gt, center_threshold=0.0, iou_threshold=threshold)
     agnostic = match_boxes([("", b) for _, b in pred], [("", b) for _, b in gt], 0.0, threshold)
     tag = f"iou{round(iou * 100)}"
-    return {
+    f1 = {
         f"f1_{tag}": prf(len(aware), len(pred), len(gt))["f1"],
         f"f1_{tag}_agnostic": prf(len(agnostic), len(pred), len(gt))["f1"],
     }
+    return f1, labels_of_matches(pred, gt, agnostic)
 
 
 def _plain(obj: Any) -> Any:

@@ -173,14 +173,15 @@ def network_lines(records: list[dict[str, Any]], variants: list[str]) -> list[st
 
 def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTable | None:
     """What each variant called the true objects of each class, summed over scenes (the class-agnostic
-    matches at 3D box IoU >= 0.25; ``labels_by_iou``), and its predictions that matched nothing."""
+    matches at 3D box IoU >= 0.25; ``labels_of_matches``), and its predictions that matched nothing."""
     from stratamap.core.evaluation.detection import MISSED, sum_labels
 
-    by_variant = {
-        v: sum_labels(r["details"]["labels_iou25"] for r in records if r["variant"] == v and _labels(r))
-        for v in variants
-        if any(r["variant"] == v and _labels(r) for r in records)
-    }
+    runs: dict[str, list[dict[str, Any]]] = {v: [] for v in variants}
+    for rec in records:
+        labels = rec.get("details", {}).get("labels_iou25")
+        if labels and rec["variant"] in runs:
+            runs[rec["variant"]].append(labels)
+    by_variant = {v: sum_labels(labels) for v, labels in runs.items() if labels}
     if not any(summed["called"] or summed["extra"] for summed in by_variant.values()):
         return None
     called = {
@@ -203,10 +204,6 @@ def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTa
         table.rows.append([true, *(text(called[true].get(v, {}), true) for v in shown)])
     table.rows.append(["*no true object*", *(text(extra.get(v, {}), None) for v in shown)])
     return table
-
-
-def _labels(record: dict[str, Any]) -> bool:
-    return bool(record.get("details", {}).get("labels_iou25"))
 
 
 def result_tables(

@@ -8,6 +8,7 @@ distance), so one ground-truth object cannot justify two detections.
 
 from __future__ import annotations
 
+from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -72,43 +73,34 @@ def evaluate_instances(
 MISSED = "(missed)"
 
 
-def labels_by_iou(instances: Iterable[ObjectInstance], gt_objects: Iterable[Any], iou: float = 0.25) -> dict[str, Any]:
-    """What each true object was called: boxes matched one-to-one whatever their class (3D box IoU
-    >= ``iou``, as the class-agnostic F1), then ``called[true class][predicted class]`` counts the
-    matches, ``MISSED`` the true objects no box matched, and ``extra[predicted class]`` the
+def labels_of_matches(
+    pred: Sequence[tuple[str, Any]], gt: Sequence[tuple[str, Any]], matches: Sequence[tuple[int, int]]
+) -> dict[str, Any]:
+    """What each true object was called, from class-agnostic ``matches`` (pred_index, gt_index) of
+    ``(class, box)`` lists (the class-agnostic F1's): ``called[true class][predicted class]`` counts
+    the matches, ``MISSED`` the true objects no box matched, and ``extra[predicted class]`` the
     predictions that matched nothing. Class-aware F1 is lost where a true class was called another
     or missed, and where predictions are extra."""
-    pred = [(i.class_name, i.box) for i in instances]
-    gt = [(o.class_name, o.box()) for o in gt_objects]
-    matches = match_boxes([("", b) for _, b in pred], [("", b) for _, b in gt], 0.0, iou - 1e-9)
-    called: dict[str, dict[str, int]] = {}
+    called: dict[str, Counter[str]] = defaultdict(Counter)
     for pi, gi in matches:
-        row = called.setdefault(gt[gi][0], {})
-        row[pred[pi][0]] = row.get(pred[pi][0], 0) + 1
+        called[gt[gi][0]][pred[pi][0]] += 1
     matched_gt, matched_pred = {gi for _, gi in matches}, {pi for pi, _ in matches}
     for gi, (cls, _) in enumerate(gt):
         if gi not in matched_gt:
-            row = called.setdefault(cls, {})
-            row[MISSED] = row.get(MISSED, 0) + 1
-    extra: dict[str, int] = {}
-    for pi, (cls, _) in enumerate(pred):
-        if pi not in matched_pred:
-            extra[cls] = extra.get(cls, 0) + 1
-    return {"called": called, "extra": extra}
+            called[cls][MISSED] += 1
+    extra = Counter(cls for pi, (cls, _) in enumerate(pred) if pi not in matched_pred)
+    return {"called": dict(called), "extra": extra}
 
 
 def sum_labels(labels: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """``labels_by_iou`` of many runs added up: ``called[true class][name]`` and ``extra[name]``."""
-    called: dict[str, dict[str, int]] = {}
-    extra: dict[str, int] = {}
+    """``labels_of_matches`` of many runs added up: ``called[true class][name]`` and ``extra[name]``."""
+    called: dict[str, Counter[str]] = defaultdict(Counter)
+    extra: Counter[str] = Counter()
     for one in labels:
         for true, row in one["called"].items():
-            total = called.setdefault(true, {})
-            for name, n in row.items():
-                total[name] = total.get(name, 0) + n
-        for name, n in one["extra"].items():
-            extra[name] = extra.get(name, 0) + n
-    return {"called": called, "extra": extra}
+            called[true].update(row)
+        extra.update(one["extra"])
+    return {"called": dict(called), "extra": extra}
 
 
 def average_precision(scores: np.ndarray, hits: np.ndarray, n_gt: int) -> float:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stratamap.core.evaluation.detection import MISSED, average_precision, box_map, labels_by_iou
+from stratamap.core.evaluation.bench import detection_by_iou
+from stratamap.core.evaluation.detection import MISSED, average_precision, box_map
 from stratamap.core.evaluation.panoptic import frame_quality, instance_map, panoptic_quality
 from stratamap.core.map.layers import ObjectInstance, OrientedBox, Semantics
 from stratamap.core.map.sensors import FrameSegmentation
@@ -41,7 +42,7 @@ def test_box_map_uses_3d_iou_and_refined_boxes():
     assert box_map(partial, gts, boxes={2: b}) == pytest.approx(1.0)
 
 
-def test_labels_by_iou_says_what_each_true_object_was_called():
+def test_detection_by_iou_says_what_each_true_object_was_called():
     """A table found as a table, a cabinet found but called a counter, a cup missed, and a stray box
     that matches nothing: the class-aware F1 loses the counter, the cup and the box."""
     table = OrientedBox(np.array([0, 0, 0.4]), 0.0, np.array([1.2, 0.8, 0.75]))
@@ -55,12 +56,12 @@ def test_labels_by_iou_says_what_each_true_object_was_called():
         ObjectInstance(2, "counter", np.zeros((1, 3)), shifted),
         ObjectInstance(3, "box", np.zeros((1, 3)), stray),
     ]
-    labels = labels_by_iou(preds, gts)
+    labels = detection_by_iou(preds, gts)[1]
     assert labels["called"] == {"table": {"table": 1}, "cabinet": {"counter": 1}, "cup": {MISSED: 1}}
     assert labels["extra"] == {"box": 1}
     # A box too far off its object (IoU < 0.25) is no match: the object is missed, the box extra.
     far = OrientedBox(cabinet.center + [0.8, 0, 0], 0.0, cabinet.size)
-    labels = labels_by_iou([ObjectInstance(2, "cabinet", np.zeros((1, 3)), far)], [GT("cabinet", cabinet)])
+    labels = detection_by_iou([ObjectInstance(2, "cabinet", np.zeros((1, 3)), far)], [GT("cabinet", cabinet)])[1]
     assert labels == {"called": {"cabinet": {MISSED: 1}}, "extra": {"cabinet": 1}}
 
 
