@@ -116,6 +116,7 @@ def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
 
 def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
     from stratamap.core.geometry.boxes import box_iou_3d
+    from stratamap.core.map.instances import naming_text
     from stratamap.core.stages import PipelineData
 
     bench_file, variant_name, scene, stages, cache, objects = job
@@ -153,7 +154,9 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
             foot = float(inst.points[:, 2].min())
             matched = f"#{overlap[1]} {truth[overlap[1]].class_name}" if overlap[1] >= 0 else "-"
             seen = f"foot {foot:.2f} {len(inst.points)} pts"
-            lines.append(f"  {inst.class_name:10s} {size} {seen} -> {matched} IoU {overlap[0]:.2f}")
+            lines.append(
+                f"  {inst.class_name:10s} {size} {seen} -> {matched} IoU {overlap[0]:.2f} ({naming_text(inst)})"
+            )
         lines += [
             f"  truth #{k} {o.class_name:10s} {np.round(np.asarray(o.box().size), 2).tolist()}"
             for k, o in enumerate(truth)

@@ -2,7 +2,7 @@
 
 One self-contained file (figures embedded as PNG, no network): the top-down map coloured by class
 and by instance with labelled boxes and the support edges of the contact graph, the occupancy
-layers side by side, a table of objects (class, points, completion model, score, scale, supporter,
+layers side by side, a table of objects (class, how it got it, points, completion model, score, scale, supporter,
 joints), metrics, stage timings and warnings. It is written by the built-in implementation of
 ``stratamap_pipeline_end``, so every ``stratamap run`` with ``output.report`` on writes one.
 """
@@ -18,6 +18,7 @@ import numpy as np
 from stratamap.core.atomic import write_text
 from stratamap.core.evaluation.html_page import dict_table, drawn, figure, page, png_data_uri
 from stratamap.core.hookspecs import hookimpl
+from stratamap.core.map.instances import naming_text
 
 #: Pixels across the longer side of a top-down view: finer than the figure shows adds nothing.
 RASTER_PIXELS = 560
@@ -154,6 +155,7 @@ def object_rows(data: Any) -> list[dict[str, Any]]:
             {
                 "id": inst.id,
                 "class": inst.class_name,
+                "named by": naming_text(inst),
                 "points": len(inst.points),
                 "size (m)": " x ".join(f"{v:.2f}" for v in inst.box.size),
                 "completion": "-" if c is None else (c.model_id or c.completer),

@@ -7,6 +7,32 @@ import numpy as np
 from stratamap.core.geometry.boxes import gravity_aligned_box
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, Semantics
 
+#: ``ObjectInstance.attributes`` key saying how an object got its class: ``{"by": ..., "why": ...}``, ``by``
+#: one of NAMED_BY. The run report and the viewer show it, so a user can see why a unit is a "counter".
+NAMING = "naming"
+NAMED_BY = {
+    "labels": "the previous stage's per-frame labels, fused in the map (a detector's or a network's classes)",
+    "votes": "the fused labels of most of its points, where the segmenter found the object by geometry",
+    "shape": "class size priors and support context (recognition by priors)",
+    "size rules": "the segmenter's own class_rules (extent and height) or a support surface on top",
+    "matching": "the best-fitting library model over every class (recognition by matching)",
+}
+
+
+def set_naming(inst: ObjectInstance, by: str, why: str) -> None:
+    """Record how ``inst`` got its class (``by`` one of NAMED_BY; ``why`` a short sentence)."""
+    if by not in NAMED_BY:
+        raise ValueError(f"naming: {by!r} is none of {sorted(NAMED_BY)}")
+    inst.attributes[NAMING] = {"by": by, "why": why}
+
+
+def naming_text(inst: ObjectInstance) -> str:
+    """``"by: why"`` of how ``inst`` got its class, or ``"-"`` when no stage said."""
+    naming = inst.attributes.get(NAMING)
+    if not isinstance(naming, dict) or "by" not in naming:
+        return "-"
+    return f"{naming['by']}: {naming.get('why', '')}".rstrip(": ")
+
 
 def members_of(ids: np.ndarray, n: int) -> list[np.ndarray]:
     """Member indices of each id 0..n-1 (ids < 0 left out), ascending, found with one sort: selecting
@@ -28,9 +54,14 @@ def instance_members(point_instance: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def instances_from_semantics(
-    points: np.ndarray, colors: np.ndarray | None, sem: Semantics, min_points: int
+    points: np.ndarray,
+    colors: np.ndarray | None,
+    sem: Semantics,
+    min_points: int,
+    naming: tuple[str, str] | None = None,
 ) -> ObjectInstances:
-    """One object per instance id of a thing class, with its points and gravity-aligned box."""
+    """One object per instance id of a thing class, with its points and gravity-aligned box;
+    ``naming`` (``(by, why)``, see ``set_naming``) says how every one of them got its class."""
     out = ObjectInstances()
     ids = sem.instance_ids
     order = np.argsort(ids, kind="stable")
@@ -56,6 +87,8 @@ def instances_from_semantics(
                 score=float((sem.class_ids[sel] == cls).mean()),
             )
         )
+        if naming is not None:
+            set_naming(out[int(iid)], *naming)
     return out
 
 

@@ -22,6 +22,7 @@ from stratamap.core.io.nav2 import costmap_values
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.colors import UNLABELLED_GREY as GREY
 from stratamap.core.map.colors import id_colors
+from stratamap.core.map.instances import naming_text
 from stratamap.core.map.layers import SCENE_NODE, Completion, ContactGraph, Joint, LayeredMap, ObjectInstance
 from stratamap.core.map.vocabulary import Vocabulary
 
@@ -276,7 +277,8 @@ def _node_name(node: object, m: LayeredMap) -> str:
 
 
 def object_info(m: LayeredMap, inst: ObjectInstance) -> str:
-    """Markdown for a clicked object: class, points, model, fit score, scale, supporter, what it supports, joints."""
+    """Markdown for a clicked object: class, how it got its class, points, model, fit score, scale, supporter,
+    what it supports, joints."""
     below = supporters(m.contact_graph)
     on_top = sorted(
         (_node_name(child, m) for child, parent in below.items() if parent == inst.id and child != inst.id), key=str
@@ -284,6 +286,7 @@ def object_info(m: LayeredMap, inst: ObjectInstance) -> str:
     c = inst.completion
     rows = [
         ("class", inst.class_name),
+        ("named by", naming_text(inst)),
         ("points", f"{len(inst.points)} observed"),
         ("box", " x ".join(f"{v:.2f}" for v in inst.box.size) + " m"),
         ("detection score", f"{inst.score:.3g}"),

@@ -23,7 +23,7 @@ from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
 from stratamap.core.library.models import LibraryModel, ModelLibrary, model_to_library
 from stratamap.core.map.augmented import augmented_scene
-from stratamap.core.map.instances import plausible
+from stratamap.core.map.instances import plausible, set_naming
 from stratamap.core.map.layers import Completion, Joint, ObjectInstance, ObjectInstances, Part
 from stratamap.core.map.priors import plausible_heights
 from stratamap.core.parallel import ExecutorConfig, map_tasks
@@ -466,6 +466,12 @@ class MatchingCompleter(Completer[MatcherConfigT]):
                 record.update({"best_class": name, "model": match.model_id, "fit_m": round(fit, 4)})
                 if fit <= cfg.recognize_fit and name != inst.class_name:
                     record["class"] = name
+                    set_naming(
+                        inst,
+                        "matching",
+                        f"model {match.model_id} fits at {fit * 100:.1f} cm mean distance, the best of every class "
+                        f"(at most {cfg.recognize_fit * 100:g} cm; was {inst.class_name})",
+                    )
                     inst.class_name = name
                     recognized += 1
             inst.attributes["recognition"] = record

@@ -116,7 +116,9 @@ class InstanceClustersMapper(Mapper[InstanceClustersConfig]):
         semantics = Semantics(cls, inst, vocab)
         return {
             "semantics": semantics,
-            "instances": instances_from_semantics(pts, geom.colors, semantics, cfg.min_points),
+            "instances": instances_from_semantics(
+                pts, geom.colors, semantics, cfg.min_points, naming=("labels", "the map's labels, clustered")
+            ),
         }
 
     @staticmethod

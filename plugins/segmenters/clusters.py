@@ -48,7 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
-from stratamap.core.map.instances import members_of
+from stratamap.core.map.instances import NAMING, members_of, set_naming
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters._layout import FLOOR, LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
@@ -1135,8 +1135,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
         walls = [plane for plane in layout.planes if plane.label == WALL]
         sight = Sightlines.from_stream(data.stream) if cfg.recognize and cfg.sightlines else None
+        why: dict[int, tuple[str, str]] = {}  # how each instance got its class (NAMED_BY), where this stage named it
         if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():
-            class_ids, instance_ids, added = self._complete_instances(
+            class_ids, instance_ids, added, why = self._complete_instances(
                 points,
                 point_obj,
                 kept,
@@ -1157,6 +1158,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for k in kept:
             mask = points_of[k]
             name = None
+            reason = ("labels", "")
             label = int(np.argmax(on_plane[k]))
             if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
                 class_ids[mask] = stuff_ids[label]
@@ -1164,13 +1166,19 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             if vote_table is not None:
                 name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls, sight)
+                if name is not None:
+                    share = vote_table[k, vocab.id(name)] / len(mask)
+                    reason = ("votes", f"{share:.0%} of its points were voted {name}")
             if name is None and cfg.recognize:
                 shape = describe_shape(points[mask], base_z, walls, sight)
-                name = self._prior(shape, vocab, base_z, supports.height, voxel)[0]
+                name, rule = self._prior(shape, vocab, base_z, supports.height, voxel)
+                reason = ("shape", rule)
             if name is None:
-                name = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
+                name, rule = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
+                reason = ("size rules", rule)
             class_ids[mask] = vocab.id(name)
             if vocab.is_thing[vocab.id(name)]:
+                why[next_id] = reason
                 instance_ids[mask] = next_id
                 next_id += 1
                 things += 1
@@ -1205,6 +1213,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 voxel,
                 supports.of_cell[cell_of_point],
                 supports.area,
+                why,
             )
         self.note(
             "segments",
@@ -1222,7 +1231,16 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             },
         )
         semantics = Semantics(class_ids, instance_ids, vocab)
-        return {"semantics": semantics, "instances": instances_from_semantics(points, geometry.colors, semantics, 1)}
+        instances = instances_from_semantics(points, geometry.colors, semantics, 1)
+        before = data.map.instances if cfg.keep_instances else None
+        for inst in instances:
+            if inst.id in why:
+                set_naming(inst, *why[inst.id])
+            elif before is not None and inst.id in before and NAMING in before[inst.id].attributes:
+                inst.attributes[NAMING] = dict(before[inst.id].attributes[NAMING])
+            else:
+                set_naming(inst, "labels", "kept from the previous stage's objects with their class")
+        return {"semantics": semantics, "instances": instances}
 
     def _complete_instances(
         self,
@@ -1239,11 +1257,12 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         walls: list[Any],
         sight: Sightlines | None,
         voxel: float,
-    ) -> tuple[np.ndarray, np.ndarray, int]:
+    ) -> tuple[np.ndarray, np.ndarray, int, dict[int, tuple[str, str]]]:
         """keep_instances: the map's instances stay; each geometric object they leave (mostly)
         uncovered becomes an instance; the unmasked points of a covered one join the nearest
         instance. Stuff is where the fused map's own layout puts it (not each frame's guess).
-        Returns point classes, point instances and how many instances were added."""
+        Returns point classes, point instances, how many instances were added and how each added
+        one got its class (``(by, why)`` by instance id)."""
         from scipy.spatial import cKDTree
 
         cfg = self.config
@@ -1262,6 +1281,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         np.add.at(votes_by_instance, (prev_i, prev_c), 1)
         inst_class = votes_by_instance.argmax(axis=1)
         next_id, added = int(prev_i.max()) + 1, 0
+        why: dict[int, tuple[str, str]] = {}
         points_of = members_of(point_obj, int(point_obj.max(initial=-1)) + 1)
         instance_points = members_of(prev_i, int(prev_i.max(initial=0)) + 1)
         for k in kept:
@@ -1326,8 +1346,14 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if carried_by is not None:
                 counts.pop(carried_by, None)
             voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= 0.5 * len(rest)]
-            prior = self._prior(shape, vocab, base_z, supports.height, voxel)[0] if cfg.recognize else "object"
+            prior, rule = self._prior(shape, vocab, base_z, supports.height, voxel) if cfg.recognize else ("object", "")
             name = voted[0] if voted else prior
+            if voted:
+                why[next_id] = ("votes", f"{counts[vocab.id(name)] / len(rest):.0%} of its points were voted {name}")
+            elif cfg.recognize:
+                why[next_id] = ("shape", rule)
+            else:
+                why[next_id] = ("size rules", "no vote named it and recognize is off")
             out_i[rest] = next_id
             out_c[rest] = vocab.id(name) if name in vocab else 0
             next_id += 1
@@ -1336,7 +1362,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         sizes = np.bincount(out_i[out_i > 0], minlength=int(out_i.max()) + 1)
         scrap = (out_i > 0) & (sizes[out_i] < smallest)
         out_c[scrap], out_i[scrap] = 0, 0
-        return out_c, out_i, added
+        return out_c, out_i, added, why
 
     def _scrap_size(self) -> int:
         """Fewer cells than this are a scrap, no object (a few cells of a mask that missed its object)."""
@@ -1366,6 +1392,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         voxel: float,
         support_of_point: np.ndarray | None = None,
         support_areas: np.ndarray | None = None,
+        why: dict[int, tuple[str, str]] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Instances named ``object`` or by a class their size rules out take the class the priors
         and their support context give (``prior_class``), after pieces joined the object they belong
@@ -1375,7 +1402,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         surface (``support_of_point``: the support index of each point, -1 none) is none of that
         class: a unit on a desk that a weak "chair" box framed. Nor is one holding a level surface
         larger than its class's ``max_top_area`` (``support_areas``: each support's area; a desk top
-        in a "chair"). Returns the point classes and instances."""
+        in a "chair"). Returns the point classes and instances; ``why`` (instance id -> ``(by, why)``)
+        takes each renamed instance's reason."""
         from scipy.spatial import cKDTree
 
         from stratamap.core.map.instances import instance_members
@@ -1383,10 +1411,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
 
         class_ids = class_ids.copy()
         instance_ids = instance_ids.copy()
-        self._split_units(points, class_ids, instance_ids, vocab, base_z)
+        why = {} if why is None else why
+        self._split_units(points, class_ids, instance_ids, vocab, base_z, why)
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, sight, support_heights, voxel)
-        self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls, sight)
-        self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, sight, voxel)
+        self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls, sight, why)
+        self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, sight, voxel, why)
         # What an object may stand on: support surfaces and other instances, each by its own key.
         n_supports = len(support_areas) if support_areas is not None else 0
         holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
@@ -1401,7 +1430,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if len(sel) < 4 or not vocab.is_thing[cls]:
                 continue
             shape = describe_shape(points[sel], base_z, walls, sight)
-            new, why = self._prior(shape, vocab, base_z, support_heights, voxel)
+            new, reason = self._prior(shape, vocab, base_z, support_heights, voxel)
             carried = (
                 top_tree is not None
                 and name in NOT_STACKED
@@ -1431,21 +1460,29 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             ):
                 continue
             if carried:
-                why = f"stands on another object's top, which a {name} does not; {why}"
+                reason = f"stands on another object's top, which a {name} does not; {reason}"
             elif too_large_top:
-                why = f"holds a level surface larger than a {name}'s; {why}"
+                reason = f"holds a level surface larger than a {name}'s; {reason}"
             if new != name:
                 class_ids[sel] = vocab.id(new)
-                changes.append({"instance": iid, "from": name, "to": new, "why": why})
+                changes.append({"instance": iid, "from": name, "to": new, "why": reason})
+                why[iid] = ("shape", f"{reason} (was {name})")
         if changes:
             self.note("recognition", changes)
         return class_ids, instance_ids
 
     def _split_units(
-        self, points: np.ndarray, class_ids: np.ndarray, instance_ids: np.ndarray, vocab: Vocabulary, base_z: float
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        why: dict[int, tuple[str, str]],
     ) -> None:
         """Units side by side that came out as one instance (``split_at_step``) become two; the taller
-        one takes a new instance id. In place; each split is noted."""
+        one takes a new instance id (and the reason for its class, ``why``). In place; each split is
+        noted."""
         from stratamap.core.map.instances import instance_members
 
         splits = []
@@ -1459,6 +1496,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 continue
             instance_ids[sel[tall]] = next_id
             splits.append({"instance": iid, "taller_unit": next_id, "points": int(tall.sum())})
+            if iid in why:
+                by, reason = why[iid]
+                why[next_id] = (by, f"{reason} (split from object {iid} where their tops step)")
             next_id += 1
         if splits:
             self.note("units_split", splits)
@@ -1472,6 +1512,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         base_z: float,
         walls: list[Any],
         sight: Sightlines | None,
+        why: dict[int, tuple[str, str]],
     ) -> None:
         """A chair seen in pieces stacked one over another (a swivel chair's base under its seat and
         back, the post between them too thin for the map): instances each resting on another's top
@@ -1550,6 +1591,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             instance_ids[sel] = keep
             class_ids[sel] = vocab.id("chair")
             assembled.append({"instance": keep, "pieces": sorted(group)})
+            why[keep] = ("shape", f"{len(group)} pieces stacked into a seat with a back, of a chair's size")
         if assembled:
             self.note("chairs_assembled", assembled)
 
@@ -1563,6 +1605,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         walls: list[Any],
         sight: Sightlines | None,
         voxel: float,
+        why: dict[int, tuple[str, str]],
     ) -> None:
         """A sofa seen as seats side by side (a detector boxed it as chairs, and the mapper's size
         prior cut the over-long "chair" in two): floor-standing instances voted chair or sofa, or with
@@ -1609,6 +1652,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             class_ids[union] = vocab.id("sofa")
             seats[first] = union
             joined.append({"instance": first, "joined": second})
+            why[first] = ("shape", "seating side by side, too long for one chair: a sofa")
         if joined:
             self.note("seating_joined", joined)
 
@@ -1789,15 +1833,22 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         return np.bincount(key, minlength=n_obj * n_classes).reshape(n_obj, n_classes)
 
     @staticmethod
-    def _class_of(pts: np.ndarray, top_area: float, base_z: float, vocab: Vocabulary, cfg: ClustersConfig) -> str:
+    def _class_of(
+        pts: np.ndarray, top_area: float, base_z: float, vocab: Vocabulary, cfg: ClustersConfig
+    ) -> tuple[str, str]:
+        """The class clusters' own rules give an object without votes (and why)."""
         if top_area >= cfg.table_min_area and "table" in vocab and vocab.is_thing[vocab.id("table")]:
-            return "table"
+            return "table", f"a support surface of {top_area:.2f} m^2 on it (table_min_area {cfg.table_min_area:g})"
         extent = float(np.max(pts.max(axis=0) - pts.min(axis=0)))
         top = float(pts[:, 2].max() - base_z)
         for rule in cfg.class_rules:
             if rule.min_extent <= extent <= rule.max_extent and top <= rule.max_height:
-                return rule.class_name
-        return "object" if "object" in vocab else next(vocab.name(i) for i in vocab.thing_ids())
+                return rule.class_name, (
+                    f"extent {extent:.2f} m in {rule.min_extent:g}-{rule.max_extent:g}, top {top:.2f} m "
+                    f"<= {rule.max_height:g} (class_rules)"
+                )
+        fallback = "object" if "object" in vocab else next(vocab.name(i) for i in vocab.thing_ids())
+        return fallback, "no class rule fits"
 
 
 @hookimpl

@@ -11,6 +11,7 @@ import pytest
 
 from stratamap.core.config import load_pipeline
 from stratamap.core.io.nav2 import read_map
+from stratamap.core.map.instances import naming_text
 from stratamap.core.map.layers import LayeredMap
 from stratamap.core.pipeline import Pipeline
 from stratamap.core.registry import build_registry
@@ -171,6 +172,9 @@ def test_report_html_is_self_contained_and_lists_every_object(demo_run):
     assert sorted(by_id) == sorted(inst.id for inst in saved.instances)
     for inst in saved.instances:
         assert by_id[inst.id][header.index("class")] == inst.class_name
+        # How it got its class: the oracle's labels, fused by the TSDF, said in the saved map and the page.
+        assert by_id[inst.id][header.index("named by")] == naming_text(inst)
+        assert naming_text(inst) == "labels: the oracle segmenter's labels of each frame, fused in the TSDF"
     assert {r[header.index("supporter")] for r in rows} >= {"floor"}
     stage_rows = parser.tables["stages"][1:]
     assert [r[1] for r in stage_rows] == [s["plugin"] for s in report["stages"]]

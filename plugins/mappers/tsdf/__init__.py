@@ -333,7 +333,9 @@ class TSDFMapper(Mapper[TSDFConfig]):
             },
         )
         out["semantics"] = semantics
-        out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points)
+        kind = "masks" if cfg.instances == "masks" else "labels"
+        naming = ("labels", f"the {labels.segmenter} segmenter's {kind} of each frame, fused in the TSDF")
+        out["instances"] = instances_from_semantics(points, colors, semantics, cfg.min_instance_points, naming=naming)
         return out
 
     @staticmethod

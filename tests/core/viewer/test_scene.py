@@ -3,11 +3,14 @@ articulated models, floor textures, the contact graph and the text shown for a c
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.map.instances import set_naming
 from stratamap.core.map.layers import Joint
 from stratamap.core.viewer.scene import (
     COSTMAP_TEXTURE,
@@ -151,6 +154,10 @@ def test_object_info_tells_class_points_model_fit_scale_supporter_and_joints(sma
         assert expected in text, (expected, text)
     box = object_info(small_map, small_map.instances[2])
     assert "| supporter | table 1 |" in box and "| model | not completed |" in box and "| joints | none |" in box
+    assert "| named by | - |" in box  # no stage said
+    named = dataclasses.replace(small_map.instances[2], attributes={})
+    set_naming(named, "shape", "on a support, its size")
+    assert "| named by | shape: on a support, its size |" in object_info(small_map, named)
     assert "| supports | box 2 |" in object_info(small_map, small_map.instances[1])
 
 

@@ -278,7 +278,10 @@ def test_an_object_with_no_class_is_recognized_by_matching():
     assert out[1].class_name == "chair" and out[1].completion is not None
     record = out[1].attributes["recognition"]
     assert record["from"] == "object" and record["class"] == "chair" and record["fit_m"] <= 0.03
+    naming = out[1].attributes["naming"]
+    assert naming["by"] == "matching" and record["model"] in naming["why"] and "was object" in naming["why"]
     assert out[2].class_name == "object" and "class" not in out[2].attributes["recognition"]
+    assert "naming" not in out[2].attributes  # it kept what it had
     assert data.notes["icp_match"]["recognition"] == {"attempted": 2, "recognized": 1}
 
 

@@ -689,3 +689,54 @@ def test_a_sofa_boxed_as_two_chairs_is_one_sofa_and_two_armchairs_stay_two(seati
     far = [i for i in instances if i.box.center[1] > ROOM[1] / 2]
     by_x = sorted((round(float(i.box.center[0]), 1), i.class_name) for i in far)
     assert [name for _, name in by_x] == ["sofa", "chair", "chair"], by_x
+
+
+def test_every_object_says_how_it_got_its_class():
+    """Each instance records how it was named (``attributes['naming']``), as the run report and the
+    viewer show it: the previous stage's objects kept as they were say what that stage said; an
+    object no mask covered is named by its votes, else by the rule of the priors that named it; a
+    renamed one says what it was."""
+    from stratamap.core.map.instances import NAMED_BY, instances_from_semantics, naming_text
+
+    points, names = kitchen_room(0.02)
+    classes = np.zeros(len(points), np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for name in ("floor", "wall", "ceiling"):
+        classes[names == name] = VOCAB.id(name)
+    masked = ((names == "table") & (points[:, 2] > 0.7)) | (names == "cup")
+    classes[masked], instances[masked] = VOCAB.id("table"), 1
+    classes[names == "chair"], instances[names == "chair"] = VOCAB.id("chair"), 2
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    data.map.instances = instances_from_semantics(
+        points, None, data.map.semantics, 1, naming=("labels", "the test's masks")
+    )
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)["instances"]
+    by_class = {inst.class_name: inst for inst in out}
+    assert sorted(by_class) == ["chair", "counter", "cup", "table"]
+    assert all(inst.attributes["naming"]["by"] in NAMED_BY for inst in out)
+    assert naming_text(by_class["chair"]) == "labels: the test's masks"
+    assert naming_text(by_class["table"]) == "labels: the test's masks"
+    # No mask of its own: the priors' rule that named the counter.
+    rule = prior_class(describe_shape(by_class["counter"].points, 0.0, []), VOCAB)
+    assert rule[0] == "counter" and by_class["counter"].attributes["naming"] == {"by": "shape", "why": rule[1]}
+    # The cup came with the table's mask, so its votes said table; recognition renamed it.
+    naming = by_class["cup"].attributes["naming"]
+    assert naming["by"] == "shape" and naming["why"].endswith("on a support, its size (was table)"), naming
+
+    # Renamed by recognition: a solid unit the frames called a table says what it was.
+    points, names = in_room(unit_row(0.02, with_tall_unit=False))
+    out = recognized(points, names, [(names == "counter", "table")])["instances"]
+    assert [inst.class_name for inst in out] == ["counter"]
+    naming = next(iter(out)).attributes["naming"]
+    assert naming["by"] == "shape" and naming["why"].endswith("(was table)"), naming
+
+    # clusters alone, with no votes: its own rules.
+    points, names = kitchen_room(0.02)
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    out = ClustersSegmenter().run(data)["instances"]
+    assert len(out) >= 3 and {inst.attributes["naming"]["by"] for inst in out} == {"size rules"}
+    table_top = next(inst for inst in out if inst.class_name == "table")
+    assert "support surface" in table_top.attributes["naming"]["why"]
