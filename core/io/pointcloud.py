@@ -771,11 +771,13 @@ def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
     if path.stat().st_size == 0:
         raise DataError(f"{path}: empty file")
     if suffix == ".e57":
-        points, colors, positions, scan_of_point = read_e57(path)
-        cloud = CloudData(points, colors, sensor_positions=positions, sensor_ids=scan_of_point)
+        points, colors, positions, scan_of_point, intensity = read_e57(path)
+        fields = {} if intensity is None else {"intensity": intensity}
+        cloud = CloudData(points, colors, fields, sensor_positions=positions, sensor_ids=scan_of_point)
     elif suffix in (".las", ".laz"):
-        points, colors = read_las(path)
-        cloud = CloudData(points, colors, sensor_positions=np.zeros((0, 3)))
+        points, colors, intensity = read_las(path)
+        fields = {} if intensity is None else {"intensity": intensity}
+        cloud = CloudData(points, colors, fields, sensor_positions=np.zeros((0, 3)))
     elif suffix == ".npy":
         cloud = _read_npy(path, label_field)
     elif suffix in TEXT_SUFFIXES:

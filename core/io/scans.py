@@ -46,9 +46,12 @@ def _unit_colors(rgb: np.ndarray) -> np.ndarray:
     return np.clip(rgb / (65535.0 if top > 255.0 else 255.0), 0.0, 1.0)
 
 
-def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+def read_e57(
+    path: str | Path,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None]:
     """Every scan's valid points in the file's frame, their colours (None unless every scan has them),
-    each scan's scanner position (K, 3) and, per point, the index of the scan that holds it."""
+    each scan's scanner position (K, 3), per point the index of the scan that holds it, and the
+    points' intensities as stored (None unless every scan has them)."""
     path = Path(path)
     pye57 = _library("pye57", path, "E57 scans")
     try:
@@ -58,16 +61,20 @@ def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
         raise DataError(f"{path}: cannot be read as E57 ({_e57_reason(exc)})") from exc
     if count == 0:
         raise DataError(f"{path}: the E57 file holds no scan")
-    points, colors, positions = [], [], []
+    points, colors, intensities, positions = [], [], [], []
     try:
         for k in range(count):
             header = e57.get_header(k)
             fields = set(header.point_fields)
             has_color = {"colorRed", "colorGreen", "colorBlue"} <= fields
-            data = e57.read_scan(k, colors=has_color, transform=True, ignore_missing_fields=True)
+            has_intensity = "intensity" in fields
+            data = e57.read_scan(
+                k, colors=has_color, intensity=has_intensity, transform=True, ignore_missing_fields=True
+            )
             xyz = np.c_[data["cartesianX"], data["cartesianY"], data["cartesianZ"]].astype(np.float64)
             points.append(xyz)
             colors.append(np.c_[data["colorRed"], data["colorGreen"], data["colorBlue"]] if has_color else None)
+            intensities.append(np.asarray(data["intensity"], np.float64) if has_intensity else None)
             # A scan without a pose is in the file's frame already, its scanner at the origin.
             positions.append(np.asarray(header.translation, np.float64) if header.has_pose() else np.zeros(3))
     except Exception as exc:
@@ -78,8 +85,9 @@ def read_e57(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
     if len(xyz) == 0:
         raise DataError(f"{path}: its {count} scan(s) hold no valid point")
     rgb = None if any(c is None for c in colors) else _unit_colors(np.concatenate(colors))
+    intensity = None if any(i is None for i in intensities) else np.concatenate(intensities)
     scan_of_point = np.repeat(np.arange(len(points)), [len(p) for p in points])
-    return xyz, rgb, np.asarray(positions).reshape(-1, 3), scan_of_point
+    return xyz, rgb, np.asarray(positions).reshape(-1, 3), scan_of_point, intensity
 
 
 #: The LAS public header block's fields checked before laspy reads the file (ASPRS LAS 1.0-1.4).
@@ -178,9 +186,10 @@ def _check_chunk_table(path: Path, fh: Any, size: int, offset: int, points: int)
         )
 
 
-def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """The points of a LAS or LAZ file (scaled and offset as its header says) and their colours, if
-    its point format has them; the header is checked against the file first."""
+def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The points of a LAS or LAZ file (scaled and offset as its header says), their colours, if its
+    point format has them, and their intensities, unless all are equal (every point format has the
+    field; a file that records none holds zeros); the header is checked against the file first."""
     path = Path(path)
     laspy = _library("laspy", path, "LAS/LAZ")
     check_las_header(path)
@@ -191,6 +200,9 @@ def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
         rgb = None
         if {"red", "green", "blue"} <= names:
             rgb = _unit_colors(np.c_[np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)])
+        intensity = np.asarray(las.intensity, np.float64) if "intensity" in names else None
+        if intensity is not None and (len(intensity) == 0 or np.ptp(intensity) == 0):
+            intensity = None
     except Exception as exc:  # laspy raises LaspyException, ValueError, struct.error, ... on damage
         hint = ""
         if path.suffix.lower() == ".laz" and "backend" in str(exc).lower():
@@ -198,4 +210,4 @@ def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
         raise DataError(f"{path}: cannot be read as LAS ({brief(exc, True)}){hint}") from exc
     if len(xyz) == 0:
         raise DataError(f"{path}: the LAS file holds no point")
-    return xyz, rgb
+    return xyz, rgb, intensity

@@ -46,6 +46,21 @@ FAR_COORDINATES = 10_000.0
 UP_AXES = {"z": (0.0, 0.0, 1.0), "-y": (0.0, -1.0, 0.0), "y": (0.0, 1.0, 0.0), "-z": (0.0, 0.0, -1.0)}
 
 
+def intensity_grey(intensity: np.ndarray) -> tuple[np.ndarray | None, dict[str, float]]:
+    """(N, 3) grey levels in [0, 1] from a scanner's per-point intensity, its 1st to 99th percentile
+    (of the finite values) stretched to black to white, or None when it does not vary; and the stretch.
+    Percentiles, not the extremes: a few specular returns would leave the rest of the scan dark."""
+    values = np.asarray(intensity, np.float64).reshape(len(intensity), -1)[:, 0]
+    finite = np.isfinite(values)
+    if not finite.any():
+        return None, {}
+    low, high = (float(v) for v in np.percentile(values[finite], [1.0, 99.0]))
+    if high <= low:
+        return None, {}
+    grey = np.clip((np.where(finite, values, low) - low) / (high - low), 0.0, 1.0)
+    return np.repeat(grey[:, None], 3, axis=1), {"low": round(low, 6), "high": round(high, 6)}
+
+
 class PointCloudConfig(StageConfig):
     path_fields = ("path",)
 
@@ -89,6 +104,14 @@ class PointCloudConfig(StageConfig):
         ),
     )
     scale: float = Field(default=1.0, gt=0, description="Multiply coordinates by this (e.g. 0.001 for millimetres).")
+    intensity_as_color: bool = Field(
+        default=True,
+        description=(
+            "A cloud with no colours but an `intensity` field (a laser scanner's E57, LAS or PCD) is shown in grey "
+            "levels of its intensity (1st to 99th percentile stretched to black to white), so views, meshes and "
+            "GLB exports show its surfaces' reflectance instead of one flat grey; false: no colours."
+        ),
+    )
     smooth_depth: Literal["auto", "off"] = Field(
         default="auto",
         description=(
@@ -301,6 +324,10 @@ class PointCloudSource(Source[PointCloudConfig]):
         else:
             cloud = read_point_cloud(path, cfg.label_field)
             pts, colors, labels = cloud.points, cloud.colors, _labels(cloud, path, cfg.label_field)
+            if colors is None and cfg.intensity_as_color and "intensity" in cloud.fields:
+                colors, stretch = intensity_grey(cloud.fields["intensity"])
+                if colors is not None:
+                    self.note("colors_from_intensity", stretch)
             organized = cloud.image_size is not None
             positions = cloud.sensor_positions
             if positions is None and cfg.smooth_depth == "auto":

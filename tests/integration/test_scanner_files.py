@@ -137,6 +137,53 @@ def test_a_georeferenced_las_is_moved_next_to_the_origin(tmp_path, suffix):
     assert np.allclose(report["notes"]["pointcloud"]["origin_offset"], east, atol=1.0)
 
 
+@pytest.mark.parametrize("suffix", [".e57", ".las", ".pcd"])
+def test_a_scan_with_intensity_and_no_colours_is_shown_in_its_grey_levels(tmp_path, suffix):
+    """Terrestrial scanners often store each return's intensity and no colour: the points take grey
+    levels of it (1st to 99th percentile stretched; the outliers clipped), so the walls' reflectance
+    shows in views and exports; the stretch is noted, and `intensity_as_color: false` keeps no colours.
+    A LAS file that records no intensity (all zeros) has no colours."""
+    from stratamap.plugins.sources.pointcloud import intensity_grey
+
+    points, colors = room_points()
+    rng = np.random.default_rng(0)
+    intensity = (colors.mean(axis=1) * 4 + rng.uniform(0, 5, len(points))).astype(np.uint16)  # 0-1025
+    intensity[:10] = 60000  # specular returns: clipped, not the scale
+    path = tmp_path / f"site{suffix}"
+    if suffix == ".e57":
+        e57 = pye57.E57(str(path), mode="w")
+        data = {f"cartesian{a}": points[:, k] for k, a in enumerate("XYZ")} | {"intensity": intensity.astype(float)}
+        e57.write_scan_raw(data)
+        e57.close()
+    elif suffix == ".las":
+        las = laspy.LasData(laspy.LasHeader(point_format=1, version="1.2"))
+        las.header.scales = [0.001, 0.001, 0.001]
+        las.x, las.y, las.z = points.T
+        las.intensity = intensity
+        las.write(str(path))
+    else:
+        rows = "\n".join(f"{x:.5f} {y:.5f} {z:.5f} {i}" for (x, y, z), i in zip(points, intensity, strict=True))
+        path.write_text(
+            "VERSION .7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+            f"WIDTH {len(points)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(points)}\nDATA ascii\n{rows}\n"
+        )
+    data = PipelineData()
+    stream = PointCloudSource(path=str(path), gravity="off").run(data)["frames"]
+    grey = stream.point_colors
+    assert grey is not None and np.allclose(grey[:, 0], grey[:, 2])
+    expected, stretch = intensity_grey(intensity)
+    assert np.allclose(np.sort(grey[:, 0]), np.sort(expected[:, 0]), atol=1e-3)
+    assert stretch["high"] < 1100 and data.notes["pointcloud"]["colors_from_intensity"] == stretch
+    assert np.percentile(grey[:, 0], 95) - np.percentile(grey[:, 0], 5) > 0.5  # the scan is not left dark
+    off = PointCloudSource(path=str(path), gravity="off", intensity_as_color=False).run(PipelineData())["frames"]
+    assert off.point_colors is None
+    if suffix == ".las":
+        las = laspy.read(str(path))
+        las.intensity = np.zeros(len(points), np.uint16)
+        las.write(str(path))
+        assert PointCloudSource(path=str(path), gravity="off").run(PipelineData())["frames"].point_colors is None
+
+
 @pytest.mark.parametrize("name", ["broken.e57", "broken.las", "broken.laz"])
 def test_a_broken_scanner_file_is_a_one_line_error_naming_it(tmp_path, name):
     path = tmp_path / name
