@@ -1003,6 +1003,11 @@ def _thin(pts: np.ndarray, base_z: float, walls: list[Any]) -> bool:
     return min(float(high - low), describe_shape(pts, base_z, walls).depth) < THIN
 
 
+def _voted(name: str, share: float) -> tuple[str, str]:
+    """The naming (``set_naming``'s by, why) of an object its fused votes named."""
+    return "votes", f"{share:.0%} of its points were voted {name}"
+
+
 def _hand_held(shape: Shape) -> bool:
     """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
     return any(fits_class(name, shape) for name in HAND_HELD)
@@ -1158,7 +1163,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         for k in kept:
             mask = points_of[k]
             name = None
-            reason = ("labels", "")
             label = int(np.argmax(on_plane[k]))
             if top_area[k] == 0 and on_plane[k, label] >= cfg.layout_share * cell_count[k]:
                 class_ids[mask] = stuff_ids[label]
@@ -1167,8 +1171,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if vote_table is not None:
                 name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls, sight)
                 if name is not None:
-                    share = vote_table[k, vocab.id(name)] / len(mask)
-                    reason = ("votes", f"{share:.0%} of its points were voted {name}")
+                    reason = _voted(name, vote_table[k, vocab.id(name)] / len(mask))
             if name is None and cfg.recognize:
                 shape = describe_shape(points[mask], base_z, walls, sight)
                 name, rule = self._prior(shape, vocab, base_z, supports.height, voxel)
@@ -1349,7 +1352,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             prior, rule = self._prior(shape, vocab, base_z, supports.height, voxel) if cfg.recognize else ("object", "")
             name = voted[0] if voted else prior
             if voted:
-                why[next_id] = ("votes", f"{counts[vocab.id(name)] / len(rest):.0%} of its points were voted {name}")
+                why[next_id] = _voted(name, counts[vocab.id(name)] / len(rest))
             elif cfg.recognize:
                 why[next_id] = ("shape", rule)
             else:
