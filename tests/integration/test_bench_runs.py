@@ -1,4 +1,4 @@
-"""`stratamap bench` runs: records, tables, figures, resuming after a kill, and the Ray executor."""
+"""`stratamap bench` runs: records, tables, figures and resuming after a kill (Ray: test_ray_completion.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from stratamap.core.evaluation.bench import run_bench, safe
-from stratamap.core.evaluation.bench_report import records_equal
 from tests.core.evaluation.test_bench import tiny_bench
 
 
@@ -86,16 +85,6 @@ def test_killed_benchmark_resumes_without_redoing_runs(tmp_path):
     summary = run_bench(config, out, progress=False)
     assert summary["records"] == 4 and summary["ran"] == 4 - len(done)
     assert all(p.stat().st_mtime_ns == t for p, t in done.items())
-
-
-def test_ray_executor_gives_the_local_records(local_run, tmp_path):
-    pytest.importorskip("ray")
-    config, out, local = local_run
-    remote = run_bench(config, tmp_path / "ray", executor="ray", workers=2, progress=False)
-    assert local["records"] == remote["records"] == 2
-    a = json.loads((out / "results.json").read_text())["records"]
-    b = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
-    assert records_equal(a, b)
 
 
 def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_path):

@@ -1,6 +1,7 @@
 """Completion on Ray (``executor: ray``) gives byte for byte the completions of the local run, and
-``stratamap bench --executor ray --address`` joins an existing Ray cluster. One local Ray instance
-(two CPUs) serves the whole module."""
+``stratamap bench --executor ray --address`` joins an existing Ray cluster and gives the local run's
+records. One local Ray instance (two CPUs) serves the whole module: each Ray start costs the suite
+a set of worker processes importing stratamap, so the Ray tests live here together."""
 
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ import pytest
 import yaml
 
 from stratamap.core.config import load_pipeline
+from stratamap.core.evaluation.bench import run_bench
+from stratamap.core.evaluation.bench_report import records_equal
 from stratamap.core.map.layers import LayeredMap
 from stratamap.core.parallel import map_tasks
 from stratamap.core.pipeline import Pipeline, run_stages
@@ -128,7 +131,7 @@ def test_ray_tasks_keep_input_order_and_fetch_the_shared_state_once_per_worker(r
     assert mapped.shipped["shared"] > 0 and mapped.shipped["items"] > 0 and len(mapped.seconds) == len(items)
 
 
-def test_bench_forwards_the_ray_address_to_an_existing_cluster(ray_instance, tmp_path):
+def test_bench_on_an_existing_ray_cluster_gives_the_local_records(ray_instance, tmp_path):
     config = tiny_bench(tmp_path)
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     cmd = [sys.executable, "-m", "stratamap.core.cli", "bench", str(config), "--out", str(tmp_path / "ray")]
@@ -136,7 +139,10 @@ def test_bench_forwards_the_ray_address_to_an_existing_cluster(ray_instance, tmp
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "2 records (2 run now)" in done.stdout
-    records = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
-    assert len(records) == 2 and all(r["metrics"]["detection"]["recall"] > 0 for r in records)
     # The bench joined this module's instance rather than starting one of its own.
     assert f"Connecting to existing Ray cluster at address: {ray_instance}" in done.stderr, done.stderr[-3000:]
+    remote = json.loads((tmp_path / "ray" / "results.json").read_text())["records"]
+    assert len(remote) == 2 and all(r["metrics"]["detection"]["recall"] > 0 for r in remote)
+    local = run_bench(config, tmp_path / "local", progress=False)
+    assert local["records"] == 2
+    assert records_equal(json.loads((tmp_path / "local" / "results.json").read_text())["records"], remote)
