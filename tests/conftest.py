@@ -22,12 +22,33 @@ def repo() -> Path:
     return REPO
 
 
+#: The files that take longest in `make test` (pytest --durations, 2026-11-28), longest first: they
+#: start first, so that none of them is left running alone at the end while the other processes idle.
+LONGEST_FILES = (
+    "integration/test_ray_completion.py",
+    "integration/test_scenes.py",
+    "plugins/mappers/test_mapping.py",
+    "integration/test_bench_runs.py",
+    "plugins/segmenters/test_clusters.py",
+    "plugins/completers/test_completion.py",
+    "integration/test_exports_at_rest.py",
+    "integration/test_browser.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Files holding slow tests first: with the files spread over processes (`make test`,
-    pytest-xdist's `--dist loadfile`), a long file started last would leave the other processes
-    idle at the end."""
+    """The longest files first, then the other files holding slow tests, then the rest: with the
+    files spread over processes (`make test`, pytest-xdist's `--dist loadfile`), a long file started
+    last would leave the other processes idle at the end."""
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.path not in slow_files)  # stable: file order kept within each group
+    tests_dir = Path(__file__).resolve().parent
+
+    def rank(item) -> tuple[int, int]:
+        name = item.path.relative_to(tests_dir).as_posix() if item.path.is_relative_to(tests_dir) else ""
+        longest = LONGEST_FILES.index(name) if name in LONGEST_FILES else len(LONGEST_FILES)
+        return longest, item.path not in slow_files
+
+    items.sort(key=rank)  # stable: the order of tests within each file is kept
 
 
 def low_poly_room():
