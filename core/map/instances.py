@@ -16,6 +16,7 @@ NAMED_BY = {
     "shape": "class size priors and support context (recognition by priors)",
     "size rules": "the segmenter's own class_rules (extent and height) or a support surface on top",
     "matching": "the best-fitting library model over every class (recognition by matching)",
+    "unnamed": "nothing named it: no label, vote or rule fitted, so it keeps the catch-all class (object)",
 }
 
 

@@ -277,6 +277,10 @@ def on_a_support(foot: float, support_heights: np.ndarray, tolerance: float) -> 
     return bool(np.any(np.abs(np.asarray(support_heights) - foot) <= tolerance))
 
 
+#: prior_class's reason when none of its rules names an object.
+NO_RULE_FITS = "no rule fits"
+
+
 def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tuple[str, str]:
     """The class an object's shape and support context make most likely (and why), among the
     vocabulary's thing classes; ``object`` when no rule fits. General rules of indoor objects, each
@@ -318,4 +322,4 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
             return "cabinet", "solid unit against a wall"
         if not shape.flat_top and not shape.against_wall and ok("chair"):
             return "chair", "free-standing, no flat top, a chair's size"
-    return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), "no rule fits"
+    return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), NO_RULE_FITS

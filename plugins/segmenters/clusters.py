@@ -55,6 +55,7 @@ from stratamap.plugins.segmenters._layout import FLOOR, LAYOUT_NAMES, NONE, WALL
 from stratamap.plugins.segmenters._recognition import (
     FLOOR_GAP,
     HAND_HELD,
+    NO_RULE_FITS,
     ON_SUPPORTS,
     SEAT_HEIGHTS,
     STANDING_GAP,
@@ -1008,6 +1009,15 @@ def _voted(name: str, share: float) -> tuple[str, str]:
     return "votes", f"{share:.0%} of its points were voted {name}"
 
 
+#: _class_of's reason when none of the class rules names an object.
+NO_CLASS_RULE_FITS = "no class rule fits"
+
+
+def _ruled(by: str, rule: str) -> tuple[str, str]:
+    """The naming of an object a rule named (``by``, the rule), or ``unnamed`` where no rule fitted it."""
+    return ("unnamed", rule) if rule in (NO_RULE_FITS, NO_CLASS_RULE_FITS) else (by, rule)
+
+
 def _hand_held(shape: Shape) -> bool:
     """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
     return any(fits_class(name, shape) for name in HAND_HELD)
@@ -1175,10 +1185,10 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if name is None and cfg.recognize:
                 shape = describe_shape(points[mask], base_z, walls, sight)
                 name, rule = self._prior(shape, vocab, base_z, supports.height, voxel)
-                reason = ("shape", rule)
+                reason = _ruled("shape", rule)
             if name is None:
                 name, rule = self._class_of(points[mask], top_area[k], base_z, vocab, cfg)
-                reason = ("size rules", rule)
+                reason = _ruled("size rules", rule)
             class_ids[mask] = vocab.id(name)
             if vocab.is_thing[vocab.id(name)]:
                 why[next_id] = reason
@@ -1354,9 +1364,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             if voted:
                 why[next_id] = _voted(name, counts[vocab.id(name)] / len(rest))
             elif cfg.recognize:
-                why[next_id] = ("shape", rule)
+                why[next_id] = _ruled("shape", rule)
             else:
-                why[next_id] = ("size rules", "no vote named it and recognize is off")
+                why[next_id] = ("unnamed", "no vote named it, and recognize is off")
             out_i[rest] = next_id
             out_c[rest] = vocab.id(name) if name in vocab else 0
             next_id += 1
@@ -1851,7 +1861,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     f"<= {rule.max_height:g} (class_rules)"
                 )
         fallback = "object" if "object" in vocab else next(vocab.name(i) for i in vocab.thing_ids())
-        return fallback, "no class rule fits"
+        return fallback, NO_CLASS_RULE_FITS
 
 
 @hookimpl

@@ -706,13 +706,17 @@ def test_every_object_says_how_it_got_its_class():
     masked = ((names == "table") & (points[:, 2] > 0.7)) | (names == "cup")
     classes[masked], instances[masked] = VOCAB.id("table"), 1
     classes[names == "chair"], instances[names == "chair"] = VOCAB.id("chair"), 2
-    data = PipelineData()
-    data.map.geometry = Geometry(points=points, voxel_size=0.02)
-    data.map.semantics = Semantics(classes, instances, VOCAB)
-    data.map.instances = instances_from_semantics(
-        points, None, data.map.semantics, 1, naming=("labels", "the test's masks")
-    )
-    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)["instances"]
+
+    def masked_map() -> PipelineData:
+        data = PipelineData()
+        data.map.geometry = Geometry(points=points, voxel_size=0.02)
+        data.map.semantics = Semantics(classes, instances, VOCAB)
+        data.map.instances = instances_from_semantics(
+            points, None, data.map.semantics, 1, naming=("labels", "the test's masks")
+        )
+        return data
+
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(masked_map())["instances"]
     by_class = {inst.class_name: inst for inst in out}
     assert sorted(by_class) == ["chair", "counter", "cup", "table"]
     assert all(inst.attributes["naming"]["by"] in NAMED_BY for inst in out)
@@ -737,6 +741,12 @@ def test_every_object_says_how_it_got_its_class():
     data = PipelineData()
     data.map.geometry = Geometry(points=points, voxel_size=0.02)
     out = ClustersSegmenter().run(data)["instances"]
-    assert len(out) >= 3 and {inst.attributes["naming"]["by"] for inst in out} == {"size rules"}
+    assert len(out) >= 3 and {inst.attributes["naming"]["by"] for inst in out} <= {"size rules", "unnamed"}
+    assert all((inst.attributes["naming"]["by"] == "unnamed") == (inst.class_name == "object") for inst in out)
     table_top = next(inst for inst in out if inst.class_name == "table")
     assert "support surface" in table_top.attributes["naming"]["why"]
+
+    # No mask, no vote and recognition off: nothing named the counter, it stays `object`, and says so.
+    out = ClustersSegmenter(keep_instances=True, recognize=False).run(masked_map())["instances"]
+    (unnamed,) = [inst for inst in out if inst.class_name == "object"]
+    assert unnamed.attributes["naming"] == {"by": "unnamed", "why": "no vote named it, and recognize is off"}
