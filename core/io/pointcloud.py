@@ -775,8 +775,7 @@ def read_point_cloud(path: str | Path, label_field: str = "label") -> CloudData:
         fields = {} if intensity is None else {"intensity": intensity}
         cloud = CloudData(points, colors, fields, sensor_positions=positions, sensor_ids=scan_of_point)
     elif suffix in (".las", ".laz"):
-        points, colors, intensity = read_las(path)
-        fields = {} if intensity is None else {"intensity": intensity}
+        points, colors, fields = read_las(path)
         cloud = CloudData(points, colors, fields, sensor_positions=np.zeros((0, 3)))
     elif suffix == ".npy":
         cloud = _read_npy(path, label_field)

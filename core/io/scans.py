@@ -186,10 +186,16 @@ def _check_chunk_table(path: Path, fh: Any, size: int, offset: int, points: int)
         )
 
 
-def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+#: ASPRS classification codes (LAS 1.4, table 17) of points a scanner's software marked as noise.
+LAS_NOISE_CLASSES = {7: "low point (noise)", 18: "high noise"}
+
+
+def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, dict[str, np.ndarray]]:
     """The points of a LAS or LAZ file (scaled and offset as its header says), their colours, if its
-    point format has them, and their intensities, unless all are equal (every point format has the
-    field; a file that records none holds zeros); the header is checked against the file first."""
+    point format has them, and per-point fields: ``intensity`` unless all are equal (every point
+    format has the field; a file that records none holds zeros), ``classification`` (ASPRS codes)
+    unless no point is classified (all 0 or 1), ``withheld`` where any point is flagged so. The
+    header is checked against the file first."""
     path = Path(path)
     laspy = _library("laspy", path, "LAS/LAZ")
     check_las_header(path)
@@ -200,9 +206,13 @@ def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
         rgb = None
         if {"red", "green", "blue"} <= names:
             rgb = _unit_colors(np.c_[np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)])
-        intensity = np.asarray(las.intensity, np.float64) if "intensity" in names else None
-        if intensity is not None and (len(intensity) == 0 or np.ptp(intensity) == 0):
-            intensity = None
+        fields: dict[str, np.ndarray] = {}
+        if "intensity" in names and len(las.points) and np.ptp(np.asarray(las.intensity)) > 0:
+            fields["intensity"] = np.asarray(las.intensity, np.float64)
+        if "classification" in names and np.any(np.asarray(las.classification) > 1):
+            fields["classification"] = np.asarray(las.classification, np.uint8)
+        if "withheld" in names and np.any(np.asarray(las.withheld)):
+            fields["withheld"] = np.asarray(las.withheld, bool)
     except Exception as exc:  # laspy raises LaspyException, ValueError, struct.error, ... on damage
         hint = ""
         if path.suffix.lower() == ".laz" and "backend" in str(exc).lower():
@@ -210,4 +220,4 @@ def read_las(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
         raise DataError(f"{path}: cannot be read as LAS ({brief(exc, True)}){hint}") from exc
     if len(xyz) == 0:
         raise DataError(f"{path}: the LAS file holds no point")
-    return xyz, rgb, intensity
+    return xyz, rgb, fields

@@ -35,6 +35,7 @@ from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.io.mesh import is_mesh_file, read_mesh, read_vertices_only, sample_surface
 from stratamap.core.io.pointcloud import read_point_cloud
+from stratamap.core.io.scans import LAS_NOISE_CLASSES
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
 from stratamap.core.map.vocabulary import Vocabulary
@@ -110,6 +111,14 @@ class PointCloudConfig(StageConfig):
             "A cloud with no colours but an `intensity` field (a laser scanner's E57, LAS or PCD) is shown in grey "
             "levels of its intensity (1st to 99th percentile stretched to black to white), so views, meshes and "
             "GLB exports show its surfaces' reflectance instead of one flat grey; false: no colours."
+        ),
+    )
+    drop_noise: bool = Field(
+        default=True,
+        description=(
+            "Leave out the points a scanner's software marked as noise in a LAS/LAZ file (ASPRS classification 7, "
+            "low point, and 18, high noise) or flagged withheld; false: keep them. The classes found are noted "
+            "(las_classes)."
         ),
     )
     smooth_depth: Literal["auto", "off"] = Field(
@@ -292,6 +301,22 @@ class PointCloudSource(Source[PointCloudConfig]):
         self.note("mesh", {"triangles": len(mesh.faces), "area_m2": round(area, 3), "spacing_m": round(used, 4)})
         return pts, colors
 
+    def _marked_noise(self, fields: dict[str, np.ndarray]) -> np.ndarray | None:
+        """Which points the file marked as noise (LAS classification 7 or 18, or withheld), with
+        ``drop_noise`` on; None where it marks none. Notes the classes the file holds."""
+        classes, withheld = fields.get("classification"), fields.get("withheld")
+        if classes is not None:
+            codes, counts = np.unique(classes, return_counts=True)
+            self.note("las_classes", {str(int(c)): int(n) for c, n in zip(codes, counts, strict=True)})
+        if not self.config.drop_noise or (classes is None and withheld is None):
+            return None
+        noise = np.zeros(len(classes if classes is not None else withheld), bool)
+        if classes is not None:
+            noise |= np.isin(classes, list(LAS_NOISE_CLASSES))
+        if withheld is not None:
+            noise |= withheld
+        return noise if noise.any() else None
+
     def _near_origin(self, path: Path, pts: np.ndarray, metadata: dict[str, Any]) -> np.ndarray:
         """A cloud in a georeferenced frame (UTM eastings of 500 km) moved next to the origin: maps and
         exports keep coordinates in 32-bit floats, which hold centimetres only within a few kilometres."""
@@ -318,6 +343,7 @@ class PointCloudSource(Source[PointCloudConfig]):
         mesh = is_mesh_file(path)
         positions = None  # where scanners stood, when the file says (E57), in its frame
         seen_from = None  # per point, which of them saw it
+        noise = None  # per point, whether the file marked it noise (LAS classification, withheld)
         if mesh:
             pts, colors = self._sample_mesh(path)
             labels, organized = None, False
@@ -328,6 +354,7 @@ class PointCloudSource(Source[PointCloudConfig]):
                 colors, stretch = intensity_grey(cloud.fields["intensity"])
                 if colors is not None:
                     self.note("colors_from_intensity", stretch)
+            noise = self._marked_noise(cloud.fields)
             organized = cloud.image_size is not None
             positions = cloud.sensor_positions
             if positions is None and cfg.smooth_depth == "auto":
@@ -350,6 +377,13 @@ class PointCloudSource(Source[PointCloudConfig]):
         dropped = int((~valid).sum())
         if not valid.any():
             raise DataError(f"{path}: none of its {len(pts)} points has finite coordinates (all NaN or infinite)")
+        if noise is not None:
+            if noise[valid].all():
+                raise DataError(
+                    f"{path}: every point is marked noise or withheld (LAS classification 7 or 18, or the withheld "
+                    "flag); set source.params.drop_noise=false to keep them"
+                )
+            valid &= ~noise
         _check_values(path, valid, colors, labels)
         pts = pts[valid] * cfg.scale
         colors = None if colors is None else np.clip(colors[valid], 0, 1)
@@ -367,7 +401,10 @@ class PointCloudSource(Source[PointCloudConfig]):
         stream = SensorStream(
             name=path.stem, points=pts, point_colors=colors, point_sensor_ids=seen_from, metadata=metadata
         )
-        self.note("points", {"valid": len(pts), "dropped_invalid": dropped})
+        points_note = {"valid": len(pts), "dropped_invalid": dropped}
+        if noise is not None:
+            points_note["dropped_noise"] = int(noise.sum())
+        self.note("points", points_note)
         out: dict[str, Any] = {"frames": stream}
         if labels is not None and cfg.label_scheme != "none":
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)

@@ -184,6 +184,44 @@ def test_a_scan_with_intensity_and_no_colours_is_shown_in_its_grey_levels(tmp_pa
         assert PointCloudSource(path=str(path), gravity="off").run(PipelineData())["frames"].point_colors is None
 
 
+def test_points_a_las_file_marks_as_noise_or_withheld_are_left_out(tmp_path):
+    """Survey software classifies LAS points (ASPRS codes): returns from below the floor (7, low
+    point) and from the air (18, high noise), and points flagged withheld, are not the room. They are
+    left out and counted; the classes the file holds are noted; `drop_noise: false` keeps them; a
+    file of noise only is a one-line error naming it."""
+    points, _ = room_points()
+    rng = np.random.default_rng(1)
+    low = np.c_[rng.uniform(0, 5, (2000, 2)), rng.uniform(-3.0, -1.0, 2000)]  # multipath below the floor
+    high = np.c_[rng.uniform(0, 5, (500, 2)), rng.uniform(5.0, 10.0, 500)]
+    everything = np.vstack([points, low, high])
+    classes = np.r_[np.where(points[:, 2] < 0.01, 2, 6), np.full(len(low), 7), np.full(len(high), 18)]
+    withheld = np.zeros(len(everything), bool)
+    withheld[rng.choice(len(points), 300, replace=False)] = True
+    las = laspy.LasData(laspy.LasHeader(point_format=1, version="1.4"))
+    las.header.scales = [0.001, 0.001, 0.001]
+    las.x, las.y, las.z = everything.T
+    las.classification, las.withheld = classes.astype(np.uint8), withheld
+    path = tmp_path / "site.las"
+    las.write(str(path))
+
+    data = PipelineData()
+    stream = PointCloudSource(path=str(path), gravity="off").run(data)["frames"]
+    kept = (classes < 7) & ~withheld
+    assert len(stream.points) == kept.sum() and np.allclose(stream.points, everything[kept], atol=2e-3)
+    notes = data.notes["pointcloud"]
+    assert notes["points"]["dropped_noise"] == len(low) + len(high) + 300
+    counts = {"2": int((classes == 2).sum()), "6": int((classes == 6).sum()), "7": 2000, "18": 500}
+    assert notes["las_classes"] == counts
+    every = PointCloudSource(path=str(path), gravity="off", drop_noise=False).run(PipelineData())["frames"]
+    assert len(every.points) == len(everything)
+
+    las.classification = np.full(len(everything), 7, np.uint8)
+    las.write(str(path))
+    with pytest.raises(DataError) as err:
+        PointCloudSource(path=str(path), gravity="off").run(PipelineData())
+    assert str(path) in str(err.value) and "drop_noise" in str(err.value) and "\n" not in str(err.value)
+
+
 @pytest.mark.parametrize("name", ["broken.e57", "broken.las", "broken.laz"])
 def test_a_broken_scanner_file_is_a_one_line_error_naming_it(tmp_path, name):
     path = tmp_path / name
