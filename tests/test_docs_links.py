@@ -4,6 +4,7 @@ examples/ names a file of the repository and, where it names a heading, a headin
 from __future__ import annotations
 
 import re
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -19,7 +20,8 @@ def documents() -> list[Path]:
     return pages + sorted((REPO / "docs").rglob("*.md")) + sorted((REPO / "examples").rglob("*.md"))
 
 
-def anchors(page: Path) -> set[str]:
+@cache  # a page many links point to is read once
+def anchors(page: Path) -> frozenset[str]:
     """The heading anchors GitHub gives a page: lower case, punctuation dropped, spaces to
     hyphens, a repeated heading suffixed -1, -2, ..."""
     found: set[str] = set()
@@ -28,7 +30,7 @@ def anchors(page: Path) -> set[str]:
         slug = re.sub(r"[^\w\- ]", "", heading.replace("`", "").strip().lower()).replace(" ", "-")
         found.add(slug if slug not in seen else f"{slug}-{seen[slug]}")
         seen[slug] = seen.get(slug, 0) + 1
-    return found
+    return frozenset(found)
 
 
 def test_anchors_follow_githubs_rules():

@@ -310,9 +310,7 @@ class PointCloudSource(Source[PointCloudConfig]):
             self.note("las_classes", {str(int(c)): int(n) for c, n in zip(codes, counts, strict=True)})
         if not self.config.drop_noise or (classes is None and withheld is None):
             return None
-        noise = np.zeros(len(classes if classes is not None else withheld), bool)
-        if classes is not None:
-            noise |= np.isin(classes, list(LAS_NOISE_CLASSES))
+        noise = np.isin(classes, list(LAS_NOISE_CLASSES)) if classes is not None else np.zeros(len(withheld), bool)
         if withheld is not None:
             noise |= withheld
         return noise if noise.any() else None
@@ -379,8 +377,9 @@ class PointCloudSource(Source[PointCloudConfig]):
             raise DataError(f"{path}: none of its {len(pts)} points has finite coordinates (all NaN or infinite)")
         if noise is not None:
             if noise[valid].all():
+                codes = " or ".join(map(str, LAS_NOISE_CLASSES))
                 raise DataError(
-                    f"{path}: every point is marked noise or withheld (LAS classification 7 or 18, or the withheld "
+                    f"{path}: every point is marked noise or withheld (LAS classification {codes}, or the withheld "
                     "flag); set source.params.drop_noise=false to keep them"
                 )
             valid &= ~noise
