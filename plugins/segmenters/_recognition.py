@@ -39,8 +39,6 @@ STANDING_GAP = 0.3
 THIN = 0.15
 #: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
 SIZE_MARGIN = 1.3
-#: How much shallower (m) than its class's shallowest objects a unit may seem: the map's noise.
-DEPTH_NOISE = 0.03
 #: The most (m) an object's seen height may exceed its class's plausible heights, for classes whose
 #: objects carry nothing that could join them (a chair, a monitor; not a table or a counter).
 TALLER_BY = 0.15
@@ -214,7 +212,7 @@ def fits_class(name: str, shape: Shape) -> bool:
             return False
         if size.min_length is not None and shape.length < size.min_length / SIZE_MARGIN:
             return False
-        if size.min_depth is not None and shape.depth < size.min_depth - DEPTH_NOISE:
+        if size.min_depth is not None and shape.depth < size.min_depth:
             return False
     # A table standing on the floor is open below its top; one closed along its length at mid-height
     # is a unit (a bedside cabinet, a sideboard) that a detector without such labels called a table.
