@@ -449,7 +449,6 @@ def test_seating_and_worktops_have_their_sizes():
     assert prior_class(shape(length=1.4, depth=0.62, height=0.9, reach=0.85, **unit), VOCAB)[0] == "counter"
 
 
-
 def test_a_long_sideboard_as_the_map_measures_it_is_a_cabinet():
     """The map makes a unit deeper and longer than it is: a 1.7 x 0.49 m sideboard at worktop height
     measured 1.83 x 0.53 m on a tuning walk. It is one cabinet (sideboards reach 2 m), not a counter
@@ -459,6 +458,7 @@ def test_a_long_sideboard_as_the_map_measures_it_is_a_cabinet():
     assert prior_class(sideboard, VOCAB)[0] == "cabinet"
     assert prior_class(sideboard._replace(depth=0.56), VOCAB)[0] == "counter"
     assert not fits_class("cabinet", sideboard._replace(length=2.7, reach=1.4))  # a run of units
+
 
 def test_a_sliver_within_a_cabinet_joins_it():
     """The frames' masks took a sliver of a sideboard's top for an object of its own: off the floor and
