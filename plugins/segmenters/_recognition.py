@@ -37,6 +37,8 @@ FLOOR_GAP = 0.1
 STANDING_GAP = 0.3
 #: Thinner than this (m), a geometric object that frames called floor, wall or ceiling is that stuff.
 THIN = 0.15
+#: A thin piece is also at most this share as thick as it is broad (a floor patch, a poster; not a cup by a wall).
+FLAT = 0.5
 #: Sizes are priors of whole objects; a partly seen or noisy one may exceed them by this factor.
 SIZE_MARGIN = 1.3
 #: The most (m) an object's seen height may exceed its class's plausible heights, for classes whose

@@ -53,6 +53,7 @@ from stratamap.core.map.layers import Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters._layout import FLOOR, LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 from stratamap.plugins.segmenters._recognition import (
+    FLAT,
     FLOOR_GAP,
     HAND_HELD,
     NO_RULE_FITS,
@@ -998,10 +999,13 @@ def _largest_top(
 
 
 def _thin(pts: np.ndarray, base_z: float, walls: list[Any]) -> bool:
-    """Thinner than THIN across: in height (2-98 % of its points: a single frame's floor bends by
-    centimetres at range) or in depth (a poster on a wall)."""
+    """Thinner than THIN across, in height (2-98 % of its points: a single frame's floor bends by
+    centimetres at range) or in depth (a poster on a wall), and flat: at most FLAT times as thick as
+    it is broad. A cup standing against a wall, 10 cm every way, is no piece of that wall."""
     low, high = np.percentile(pts[:, 2], [2.0, 98.0])
-    return min(float(high - low), describe_shape(pts, base_z, walls).depth) < THIN
+    shape = describe_shape(pts, base_z, walls)
+    sides = sorted((float(high - low), shape.length, shape.depth))
+    return sides[0] < THIN and sides[0] <= FLAT * sides[1]
 
 
 def _voted(name: str, share: float) -> tuple[str, str]:

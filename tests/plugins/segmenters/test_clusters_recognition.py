@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stratamap.core.map.instances import naming_text
 from stratamap.core.map.layers import Geometry, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
@@ -761,3 +762,29 @@ def test_every_object_says_how_it_got_its_class():
     out = ClustersSegmenter(keep_instances=True, recognize=False).run(masked_map())["instances"]
     (unnamed,) = [inst for inst in out if inst.class_name == "object"]
     assert unnamed.attributes["naming"] == {"by": "unnamed", "why": "no vote named it, and recognize is off"}
+
+
+def test_a_mug_against_the_wall_that_frames_voted_wall_is_a_mug():
+    """A mug on a worktop, 2 cm off the wall behind it, whose frames took it for the wall (a plane
+    fit's band): 10 cm every way, it is no thin piece of the wall but a thing on a support. A framed
+    picture on the wall, as thin but half a metre broad, stays wall."""
+    layout = room_shell(0.02)
+    parts = [
+        ("counter", (0.02, 1.0, 0.0), (0.62, 2.6, 0.9)),
+        ("mug", (0.04, 1.5, 0.9), (0.14, 1.6, 1.0)),
+        ("picture", (5.94, 2.0, 1.2), (6.0, 2.5, 1.6)),
+    ]
+    objects, names = solids(parts, 0.02)
+    keep = (objects[:, 2] > 1e-6) & ~((names == "counter") & (objects[:, 0] < 0.03))
+    keep &= ~((names == "mug") & (objects[:, 2] < 0.9 + 1e-6)) & ~((names == "picture") & (objects[:, 0] > 5.99))
+    points = np.concatenate([p for _, p in layout] + [objects[keep]])
+    names = np.concatenate([np.full(len(p), n) for n, p in layout] + [names[keep]])
+    mug, picture = names == "mug", names == "picture"
+    names_voted = np.where(mug | picture, "wall", names)
+    out = recognized(points, names_voted, [])
+    sem = out["semantics"]
+    owner = np.bincount(sem.instance_ids[mug][sem.instance_ids[mug] > 0], minlength=1)
+    assert owner.sum() > 0.7 * mug.sum(), "the mug went to the wall"
+    inst = next(i for i in out["instances"] if i.id == int(np.argmax(owner)))
+    assert inst.class_name == "cup", naming_text(inst)
+    assert (sem.class_ids[picture] == VOCAB.id("wall")).mean() > 0.9
