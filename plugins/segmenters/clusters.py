@@ -998,13 +998,14 @@ def _largest_top(
     return float(support_areas[held].max()) if len(held) else 0.0
 
 
-def _thin(pts: np.ndarray, base_z: float, walls: list[Any]) -> bool:
+def _thin(pts: np.ndarray) -> bool:
     """Thinner than THIN across, in height (2-98 % of its points: a single frame's floor bends by
     centimetres at range) or in depth (a poster on a wall), and flat: at most FLAT times as thick as
     it is broad. A cup standing against a wall, 10 cm every way, is no piece of that wall."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
     low, high = np.percentile(pts[:, 2], [2.0, 98.0])
-    shape = describe_shape(pts, base_z, walls)
-    sides = sorted((float(high - low), shape.length, shape.depth))
+    sides = sorted((float(high - low), *map(float, gravity_aligned_box(pts).size[:2])))
     return sides[0] < THIN and sides[0] <= FLAT * sides[1]
 
 
@@ -1183,7 +1184,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 on_layout += 1
                 continue
             if vote_table is not None:
-                name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab, base_z, walls, sight)
+                name = self._voted_name(vote_table[k], points[mask], stuff_ids, vocab)
                 if name is not None:
                     reason = _voted(name, vote_table[k, vocab.id(name)] / len(mask))
             if name is None and cfg.recognize:
@@ -1340,7 +1341,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             # Mostly voted floor, wall or ceiling and thin: that stuff where the map's layout missed it (a
             # floor patch, a poster). Thicker, the votes say nothing: a tall unit's front the frames took
             # for a wall.
-            if np.isin(prev_c[rest], stuff_ids).mean() > 0.5 and _thin(points[rest], base_z, walls):
+            if np.isin(prev_c[rest], stuff_ids).mean() > 0.5 and _thin(points[rest]):
                 continue
             # Instances lying within this object whose own class their shape rules out (a detector box
             # that framed one side of a unit) are pieces of it.
@@ -1827,9 +1828,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         pts: np.ndarray,
         stuff_ids: np.ndarray,
         vocab: Vocabulary,
-        base_z: float,
-        walls: list[Any],
-        sight: Sightlines | None,
     ) -> str | None:
         """The class an object's fused votes give it, if any. Floor, wall or ceiling votes make it that
         stuff where they hold most of its points and it is thin (a floor patch the layout missed); else
@@ -1837,7 +1835,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         in a frame where the detector boxed nothing) is no floor."""
         stuff = np.zeros(len(votes), bool)
         stuff[stuff_ids[stuff_ids > 0]] = True
-        if votes[stuff].sum() > 0.5 * len(pts) and _thin(pts, base_z, walls):
+        if votes[stuff].sum() > 0.5 * len(pts) and _thin(pts):
             return vocab.name(int(np.argmax(np.where(stuff, votes, 0))))
         things = np.where(stuff, 0, votes)
         return vocab.name(int(np.argmax(things))) if things.sum() > 0 else None
