@@ -95,13 +95,17 @@ def map_tasks(
     if executor == "processes":
         import multiprocessing as mp
 
+        processes = max(1, min(workers, len(items)))
         # spawn, not fork: Open3D and OpenMP threads do not survive a fork.
-        with ProcessPoolExecutor(
-            max_workers=max(1, min(workers, len(items))),
-            mp_context=mp.get_context("spawn"),
-            initializer=_set_process_shared,
-            initargs=(pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL),),
-        ) as pool:
+        with (
+            worker_blas_threads(processes),
+            ProcessPoolExecutor(
+                max_workers=processes,
+                mp_context=mp.get_context("spawn"),
+                initializer=_set_process_shared,
+                initargs=(pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL),),
+            ) as pool,
+        ):
             timed = list(pool.map(_process_task, [fn] * len(items), items))
     elif executor == "local":
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
@@ -120,6 +124,27 @@ def _timed(fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> tuple[Any, 
 # ------------------------------------------------------------------------------- worker processes
 
 _PROCESS_SHARED: list[Any] = []
+
+#: Environment variables that set a BLAS library's threads (OpenBLAS, as numpy and scipy ship it;
+#: OpenMP builds; MKL), read once when the library loads.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextmanager
+def worker_blas_threads(workers: int) -> Iterator[None]:
+    """Worker processes started inside the block share the cores: each runs its BLAS on
+    ``cores // workers`` threads (at least one), as Ray does for its workers. Without it, each of
+    ``workers`` processes starts one BLAS thread per core, and OpenBLAS's threads spin between the
+    many small matrix calls of the stages. A variable the user set is left as it is; the others
+    are restored when the block ends."""
+    threads = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
+    added = [name for name in BLAS_THREAD_VARIABLES if name not in os.environ]
+    os.environ.update(dict.fromkeys(added, threads))
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)
 
 
 def _set_process_shared(payload: bytes) -> None:

@@ -464,8 +464,13 @@ def run_jobs_local(jobs: list[dict[str, Any]], workers: int, on_done) -> None:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from stratamap.core.parallel import worker_blas_threads
+
     ctx = mp.get_context("spawn")  # Open3D and OpenMP threads do not survive fork
-    with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, max_tasks_per_child=1) as pool:
+    with (
+        worker_blas_threads(workers),
+        ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, max_tasks_per_child=1) as pool,
+    ):
         futures = {pool.submit(_local_worker, job): job for job in jobs}
         for fut in as_completed(futures):
             on_done(futures[fut], fut.result())

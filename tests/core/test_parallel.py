@@ -50,6 +50,48 @@ def test_processes_get_the_shared_state_once_each_and_give_the_same_bytes(work):
     assert all(len(ids) == 1 for ids in by_process.values())
 
 
+def openblas_threads(shared: None, item: int) -> int | None:
+    """The threads numpy's OpenBLAS runs in this process (None where it is not found)."""
+    import ctypes
+
+    libraries = {line.split()[-1] for line in open("/proc/self/maps") if "openblas" in line and "numpy" in line}
+    for path in sorted(libraries):
+        lib = ctypes.CDLL(path)
+        for symbol in ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads64_", "openblas_get_num_threads"):
+            if hasattr(lib, symbol):
+                return int(getattr(lib, symbol)())
+    return None
+
+
+def blas_variables() -> dict[str, str]:
+    return {k: os.environ[k] for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or (os.cpu_count() or 1) < 2, reason="Linux, 2+ cores")
+def test_worker_processes_share_the_cores_between_their_blas_threads(monkeypatch):
+    """Two workers on N cores run numpy's BLAS on N // 2 threads each, not N each (OpenBLAS's
+    threads spin between small calls); the parent's environment is as it was afterwards."""
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    threads = map_tasks(openblas_threads, [0, 1], None, executor="processes", workers=2).results
+    if None in threads:
+        pytest.skip("numpy's OpenBLAS not found in the worker")
+    assert threads == [max(1, os.cpu_count() // 2)] * 2
+    assert blas_variables() == {}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or (os.cpu_count() or 1) < 2, reason="Linux, 2+ cores")
+def test_a_blas_thread_count_the_user_set_is_kept(monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
+    threads = map_tasks(openblas_threads, [0], None, executor="processes", workers=1).results
+    if None in threads:
+        pytest.skip("numpy's OpenBLAS not found in the worker")
+    assert threads == [1]  # one worker alone would get every core
+    assert blas_variables() == {"OPENBLAS_NUM_THREADS": "1"}
+
+
 def test_unknown_executor_is_a_config_error(work):
     shared, items = work
     with pytest.raises(ConfigError, match="executor: expected 'local', 'processes' or 'ray', got 'dask'"):
