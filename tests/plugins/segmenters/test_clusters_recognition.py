@@ -703,6 +703,7 @@ def test_a_sofa_boxed_as_two_chairs_is_one_sofa_and_two_armchairs_stay_two(seati
     assert [name for _, name in by_x] == ["sofa", "chair", "chair"], by_x
 
 
+@pytest.mark.slow  # a whole kitchen through clusters twice: the longest test make test-fast ran (11 s)
 def test_every_object_says_how_it_got_its_class():
     """Each instance records how it was named (``attributes['naming']``), as the run report and the
     viewer show it: the previous stage's objects kept as they were say what that stage said; an
