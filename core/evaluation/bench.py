@@ -419,7 +419,9 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
 
             path = write_mjcf(instances, run_dir / "physics")[0]
             settled = settle(path, spec.physics_seconds)
-            phys["max_displacement_m"] = settled["max_displacement_m"]
+            # A diverged simulation restarted from the initial pose: no displacement to report.
+            phys["diverged"] = bool(settled["diverged"])
+            phys["max_displacement_m"] = None if settled["diverged"] else settled["max_displacement_m"]
             phys["free_bodies"] = settled["free_bodies"]
         metrics["physics"] = phys
     return json.loads(json.dumps(metrics, default=_plain)), json.loads(json.dumps(details, default=_plain))

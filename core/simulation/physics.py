@@ -475,10 +475,19 @@ def penetration_volume(instances: ObjectInstances) -> float:
     return total
 
 
+#: MuJoCo's warnings that the simulation diverged. On each, MuJoCo resets the state to the model's
+#: initial pose and goes on, so the poses at the end say nothing of what happened before.
+DIVERGENCE_WARNINGS = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC")
+
+
 def settle(mjcf_path: str | Path, seconds: float = 2.0) -> dict[str, Any]:
     """Simulate the exported MJCF under gravity; how far each free body moved (needs ``mujoco``): the
     farther of its frame's origin and its centre of mass (a body framed at its base that tips over
-    an edge of it moves its centre of mass far more than its origin)."""
+    an edge of it moves its centre of mass far more than its origin).
+
+    A simulation that diverged (``diverged``: MuJoCo's warning -> times, else empty) has every
+    displacement infinite: MuJoCo restarted it from the initial pose, so a scene that exploded would
+    otherwise look at rest. MuJoCo's own printout of the warnings is held back while it runs."""
     import mujoco
 
     model = mujoco.MjModel.from_xml_path(str(mjcf_path))
@@ -486,12 +495,27 @@ def settle(mjcf_path: str | Path, seconds: float = 2.0) -> dict[str, Any]:
     mujoco.mj_forward(model, data)
     bodies = [int(model.jnt_bodyid[j]) for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
     start = {b: (data.xpos[b].copy(), data.xipos[b].copy()) for b in bodies}
-    for _ in range(int(round(seconds / model.opt.timestep))):
-        mujoco.mj_step(model, data)
+    printer = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda message: None)  # counted in data.warning below
+    try:
+        for _ in range(int(round(seconds / model.opt.timestep))):
+            mujoco.mj_step(model, data)
+    finally:
+        mujoco.set_mju_user_warning(printer)
+    diverged = {
+        name: int(data.warning[getattr(mujoco.mjtWarning, name)].number)
+        for name in DIVERGENCE_WARNINGS
+        if data.warning[getattr(mujoco.mjtWarning, name)].number
+    }
     moved = {
-        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): max(
-            float(np.linalg.norm(data.xpos[b] - start[b][0])), float(np.linalg.norm(data.xipos[b] - start[b][1]))
-        )
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): np.inf
+        if diverged
+        else max(float(np.linalg.norm(data.xpos[b] - start[b][0])), float(np.linalg.norm(data.xipos[b] - start[b][1])))
         for b in bodies
     }
-    return {"free_bodies": len(bodies), "max_displacement_m": max(moved.values(), default=0.0), "displacement_m": moved}
+    return {
+        "free_bodies": len(bodies),
+        "max_displacement_m": max(moved.values(), default=0.0),
+        "displacement_m": moved,
+        "diverged": diverged,
+    }

@@ -169,6 +169,28 @@ def test_settle_sees_a_body_tip_over_its_base_edge(tmp_path):
     assert result["free_bodies"] == 1 and result["max_displacement_m"] > 0.3, result
 
 
+def test_a_simulation_that_diverges_is_never_at_rest(tmp_path, capfd):
+    """MuJoCo restarts a diverged simulation from the initial pose, so the end poses alone could
+    show an exploded scene at rest: ``settle`` reports the divergence and an infinite displacement,
+    and MuJoCo's printout of it stays out of the terminal."""
+    mujoco = pytest.importorskip("mujoco")
+    from stratamap.core.simulation.physics import settle
+
+    path = tmp_path / "diverges.xml"
+    path.write_text(
+        """<mujoco><option timestep="0.002" gravity="0 0 -1e12"/><worldbody>
+        <geom name="floor" type="plane" size="5 5 0.1"/>
+        <body name="crate" pos="0 0 0.2"><freejoint/><geom type="box" size="0.1 0.1 0.1"/></body>
+        </worldbody></mujoco>"""
+    )
+    result = settle(path, seconds=0.2)
+    assert "mjWARN_BADQACC" in result["diverged"], result
+    assert result["max_displacement_m"] == np.inf and not result["max_displacement_m"] < 0.02
+    printed = capfd.readouterr()
+    assert "QACC" not in printed.out + printed.err
+    assert mujoco.get_mju_user_warning() is None  # MuJoCo's own printer is back
+
+
 def test_near_is_depth_within_the_margin_face_by_face():
     """``Shell.near`` drops a point at the first face it lies beyond: the same points as testing
     every face's depth, for points inside, at the margin and far away, whatever the chunk."""
