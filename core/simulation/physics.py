@@ -502,11 +502,8 @@ def settle(mjcf_path: str | Path, seconds: float = 2.0) -> dict[str, Any]:
             mujoco.mj_step(model, data)
     finally:
         mujoco.set_mju_user_warning(printer)
-    diverged = {
-        name: int(data.warning[getattr(mujoco.mjtWarning, name)].number)
-        for name in DIVERGENCE_WARNINGS
-        if data.warning[getattr(mujoco.mjtWarning, name)].number
-    }
+    counts = {name: int(data.warning[getattr(mujoco.mjtWarning, name)].number) for name in DIVERGENCE_WARNINGS}
+    diverged = {name: n for name, n in counts.items() if n}
     moved = {
         mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): np.inf
         if diverged

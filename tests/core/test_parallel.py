@@ -13,7 +13,7 @@ import yaml
 
 from stratamap.core.config import load_pipeline
 from stratamap.core.errors import ConfigError
-from stratamap.core.parallel import ExecutorConfig, ensure_ray, map_tasks
+from stratamap.core.parallel import BLAS_THREAD_VARIABLES, ExecutorConfig, ensure_ray, map_tasks
 from stratamap.plugins.completers.bbox import BBoxCompleter
 from stratamap.plugins.completers.icp_match import ICPMatchCompleter
 from tests.conftest import REPO
@@ -64,14 +64,14 @@ def openblas_threads(shared: None, item: int) -> int | None:
 
 
 def blas_variables() -> dict[str, str]:
-    return {k: os.environ[k] for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ}
+    return {k: os.environ[k] for k in BLAS_THREAD_VARIABLES if k in os.environ}
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or (os.cpu_count() or 1) < 2, reason="Linux, 2+ cores")
 def test_worker_processes_share_the_cores_between_their_blas_threads(monkeypatch):
     """Two workers on N cores run numpy's BLAS on N // 2 threads each, not N each (OpenBLAS's
     threads spin between small calls); the parent's environment is as it was afterwards."""
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    for name in BLAS_THREAD_VARIABLES:
         monkeypatch.delenv(name, raising=False)
     threads = map_tasks(openblas_threads, [0, 1], None, executor="processes", workers=2).results
     if None in threads:
