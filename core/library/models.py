@@ -632,7 +632,8 @@ def mean_color(mesh: trimesh.Trimesh, face_colors: np.ndarray) -> tuple[float, f
 
 def mesh_face_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
     """(F, 3) colours in [0, 1] that a loaded mesh carries (face or vertex colours, a texture sampled
-    at each face's UV centroid, a material's diffuse colour), or None when it carries none."""
+    at each face's UV centroid, a material's diffuse colour), or None when it carries none. A glTF
+    (PBR) material's base colour is its texture times its base colour factor, as glTF defines it."""
     visual = getattr(mesh, "visual", None)
     kind = getattr(visual, "kind", None)
     n = len(mesh.faces)
@@ -643,10 +644,17 @@ def mesh_face_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
     if kind != "texture":
         return None
     material = getattr(visual, "material", None)
+    # SimpleMaterial (OBJ/MTL) holds its texture as `image`, PBRMaterial (glTF, COLLADA) as `baseColorTexture`.
     image = getattr(material, "image", None)
+    if image is None:
+        image = getattr(material, "baseColorTexture", None)
     uv = getattr(visual, "uv", None)
     if image is not None and uv is not None and len(uv) == len(mesh.vertices):
-        return sample_texture(image, np.asarray(uv, float), np.asarray(mesh.faces))
+        colors = sample_texture(image, np.asarray(uv, float), np.asarray(mesh.faces))
+        factor = getattr(material, "baseColorFactor", None)
+        if factor is not None:
+            colors = colors * np.asarray(trimesh.visual.color.to_rgba(factor), float)[:3] / 255.0
+        return colors
     color = getattr(material, "main_color", None)
     if color is None:
         return None

@@ -114,9 +114,10 @@ def plausible(class_name: str, points: np.ndarray, margin: float = 1.3, whole: b
     reach = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
     if reach > margin * size.extent[1]:
         return False
-    if size.max_length is not None:
+    longest = size.longest(float(np.ptp(pts[:, 2])))
+    if longest is not None:
         box = gravity_aligned_box(pts)
-        if float(np.max(box.size[:2])) > margin * size.max_length:
+        if float(np.max(box.size[:2])) > margin * longest:
             return False
     return True
 

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+#: Objects lower than this (m) are low units for ClassSize.low_max_length.
+LOW_UNIT_HEIGHT = 0.6
+
 
 @dataclass(frozen=True)
 class ClassSize:
@@ -28,9 +31,18 @@ class ClassSize:
     #: never shallower (on the tuning walks each of the 20 counters 0.63-0.69 m deep measured 1.5-5 cm
     #: deeper than it is, and a 0.49 m sideboard 0.53 m), so no allowance is made below it.
     min_depth: float | None = None
+    #: Longest horizontal side one low object has (under LOW_UNIT_HEIGHT: a TV bench, a lowboard),
+    #: where the class's low objects come longer than its max_length; None: max_length for any height.
+    low_max_length: float | None = None
     #: Largest level surface (m^2) one object holds, where the class has a small one (a chair's seat,
     #: about 0.5 x 0.5 m, an armchair's up to 0.7 x 0.7 m): a desk top in a "chair" is a desk's; None: any.
     max_top_area: float | None = None
+
+    def longest(self, height: float) -> float | None:
+        """The longest horizontal side one object of this height may have (None: any)."""
+        if self.low_max_length is not None and height < LOW_UNIT_HEIGHT:
+            return self.low_max_length
+        return self.max_length
 
 
 CLASS_SIZES: dict[str, ClassSize] = {
@@ -41,8 +53,10 @@ CLASS_SIZES: dict[str, ClassSize] = {
     "table": ClassSize((0.3, 1.6), min_height=0.35),
     "desk": ClassSize((0.4, 1.4)),
     # One unit: a sideboard, a credenza or a wardrobe reaches 2 m as one object; a longer run of
-    # cabinets is several units.
-    "cabinet": ClassSize((0.25, 1.3), max_length=2.0, max_height=2.4, min_height=0.35, min_depth=0.2),
+    # cabinets is several units. Low ones (TV benches, lowboards) come up to 3 m long as one piece.
+    "cabinet": ClassSize(
+        (0.25, 1.3), max_length=2.0, max_height=2.4, min_height=0.35, min_depth=0.2, low_max_length=3.0
+    ),
     "shelf": ClassSize((0.3, 1.4), max_height=2.4),
     # Worktops stand 0.85-0.95 m high (low ones for children or wheelchair users about 0.75 m) and
     # reach 0.6 m or more from the wall (base units are 0.56-0.6 m deep): a long low or shallow unit is
@@ -68,6 +82,11 @@ ANY_LENGTH: tuple[str, ...] = ("table", "desk", "shelf", "counter", "sofa", "ben
 #: Classes whose objects do not stand on one another: two of them one above the other are one
 #: object (a swivel chair's base and seat, a table's legs and top).
 NOT_STACKED: tuple[str, ...] = ("chair", "table", "desk", "sofa", "bench", "counter", "fridge", "oven")
+
+#: Classes whose objects stand on a support (a worktop, a table, a shelf), not on a room's floor:
+#: recognition by matching does not give them to an object standing on the floor (a table's pedestal
+#: foot fits a microwave's model as well as a microwave does).
+ON_A_SUPPORT: tuple[str, ...] = ("cup", "bottle", "book", "laptop", "monitor", "microwave")
 
 #: Classes whose objects stand on legs or a pedestal, open below their top (knees go under a table):
 #: a body closed from side to side at mid-height is a unit, not one of these. Desks are not here: a

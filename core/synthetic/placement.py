@@ -269,8 +269,12 @@ class Placer:
         slots = []
         for host in self.objects:
             c, p = host.model.class_name, host.model.params
-            if c == "desk":
+            if c == "desk" and "knee_center_x" in p:
                 slots.append((host, np.array([p["knee_center_x"], -p["width"] / 2]), np.pi, 1.0))
+            elif c == "desk":
+                # A desk from a model library has no knee-space parameters, and its parts' boxes may fill
+                # the space under its top: one seat at the middle of its front (-y), 10 cm out, not pushed in.
+                slots.append((host, np.array([0.0, -host.model.size[1] / 2 - 0.1]), np.pi, 0.0))
             elif c == "table" and host.model.family == "round_table":
                 n = 4 if p["radius"] > 0.45 else 3
                 for k in range(n):

@@ -33,6 +33,9 @@ o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
 trimesh = lazy_module("trimesh")
 
+#: An object whose lowest point is this close (m) to the floor (z = 0 in a gravity-aligned map) stands on it.
+FLOOR_FOOT = 0.1
+
 
 class MatcherConfig(StageConfig, ExecutorConfig):
     path_fields = ("library", "cache_dir")
@@ -480,10 +483,15 @@ class MatchingCompleter(Completer[MatcherConfigT]):
     def best_class(
         self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, classes: list[str]
     ) -> tuple[str, Match] | None:
-        """The class (of ``classes`` the object's size allows) whose best model fits the object best."""
+        """The class (of ``classes`` the object's size and footing allow) whose best model fits the
+        object best. An object standing on the floor is none of the classes that stand on a support
+        (ON_A_SUPPORT)."""
+        from stratamap.core.map.priors import ON_A_SUPPORT
+
+        on_floor = base[2] == 0.0 and inst.box.bottom_z < FLOOR_FOOT
         best = None
         for name in classes:
-            if not plausible(name, inst.points, whole=True):
+            if not plausible(name, inst.points, whole=True) or (on_floor and name in ON_A_SUPPORT):
                 continue
             match = self.match(dataclasses.replace(inst, class_name=name), base, index, None)
             if match is not None and (best is None or (match.score, name) < (best[1].score, best[0])):

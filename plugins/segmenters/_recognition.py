@@ -27,8 +27,13 @@ class Shape(NamedTuple):
     flat_top: bool  # its highest points form a flat top over most of its footprint
     solid: bool  # its body (middle heights) spans most of its length and was not seen through: a front, not legs
     seat: bool = False  # a third of its top view at sitting height, a back or arms rising above it
+    knee_space: bool = False  # nothing below KNEE_HEIGHT across the middle of its length: legs or pedestals at its ends
 
 
+#: A desk's knee space is clear of its body up to at least this height (m) across the middle third of
+#: its length (office desks: about 0.6 m; a writing desk's drawers may hang to 0.45 m); a sideboard's or
+#: a night stand's body, on legs or not, comes lower.
+KNEE_HEIGHT = 0.4
 #: An object this close (m) to a wall plane stands against it (a unit's back edge, a countertop's).
 WALL_GAP = 0.12
 #: An object whose foot is this close (m) to the floor stands on it.
@@ -99,7 +104,19 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     if solid and sight is not None:
         seen = sight.seen_through(pts, box)
         solid = not (seen.through + seen.stopped >= SEEN_THROUGH_RAYS and seen.share >= SEEN_THROUGH)
-    return Shape(length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell))
+    # Knee space: below KNEE_HEIGHT, the middle third of its length holds points in under a quarter of
+    # its 5 cm cells (stray points of the map's noise), where its ends hold legs or pedestals.
+    low, high = float(full.min()), float(full.max())
+    third = (high - low) / 3.0
+    knee_space = False
+    if height > KNEE_HEIGHT + 0.2 and third >= 2 * cell:
+        centre = (full >= low + third) & (full <= high - third) & (z < zmin + KNEE_HEIGHT)
+        cells = max(1, int(round(third / cell)))
+        taken = len(np.unique(((full[centre] - low - third) / cell).astype(np.int64)))
+        knee_space = taken < 0.25 * cells
+    return Shape(
+        length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell), knee_space
+    )
 
 
 def _seat(pts: np.ndarray, cell: float) -> bool:
@@ -210,7 +227,8 @@ def fits_class(name: str, shape: Shape) -> bool:
     if size is not None:
         if not size.extent[0] / SIZE_MARGIN <= shape.reach <= size.extent[1] * SIZE_MARGIN:
             return False
-        if size.max_length is not None and shape.length > size.max_length * SIZE_MARGIN:
+        longest = size.longest(shape.height)
+        if longest is not None and shape.length > longest * SIZE_MARGIN:
             return False
         if size.min_length is not None and shape.length < size.min_length / SIZE_MARGIN:
             return False
@@ -291,8 +309,9 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
       is none of these); on a wall, off the floor: a (wall) cabinet;
     * on the floor, seating seen from above (``seat``: a seat with a back or arms above it) without a
       flat top: a chair of a chair's size, else a sofa;
-    * on the floor with a flat top and a solid body (a front, not legs): a counter when long, deep and
-      at worktop height, else a cabinet;
+    * on the floor with a flat top and a solid body (a front, not legs): a desk over knee space (legs
+      or pedestals at its ends, drawers above), a counter when long, deep and at worktop height, else
+      a cabinet;
     * on the floor with a flat top on legs: a table;
     * on the floor against a wall, solid, its top unseen (a tall unit): a cabinet;
     * on the floor, free-standing, no flat top, of a chair's size: a chair."""
@@ -311,6 +330,8 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
             for name in ("chair", "sofa"):
                 if ok(name):
                     return name, "a seat with a back or arms above it"
+        if shape.flat_top and shape.solid and shape.knee_space and ok("desk"):
+            return "desk", "flat top over knee space, its body closed above it (drawers, a modesty panel)"
         if shape.flat_top and shape.solid:
             if ok("counter"):
                 return "counter", "flat top at worktop height, solid body, long and deep"

@@ -167,3 +167,22 @@ def test_partnet_chair_is_sized_to_metres_and_rendered_in_its_colours(tmp_path):
     brightness = rgb.astype(float).mean(1)
     assert len(rgb) > 100
     assert (brightness < 40).mean() > 0.05 and (brightness > 120).mean() > 0.05
+
+
+def test_an_office_seats_a_chair_at_a_desk_from_a_model_library(tmp_path, mesh_library):
+    """A library desk has none of the generated desks' knee-space parameters: an office that seats
+    chairs at desks raised a KeyError on it. The chair now stands at the middle of the desk's front."""
+    (mesh_library / "classes.csv").write_text("file,class,id\ntable.obj,desk,writing_desk\n")
+    doc = {
+        "type": "office",
+        "seed": 0,
+        "objects": {"desk": {"count": 1, "library": {"path": str(mesh_library)}}, "chair": 1},
+    }
+    world = SyntheticWorld(SceneSpec.from_yaml(_spec_file(tmp_path, doc)))
+    objects = {o.class_name: o for o in world.scene.objects}
+    assert set(objects) == {"desk", "chair"}, world.scene.skipped
+    # In the desk's frame (front -y): the chair stands at the middle of the front, in front of it.
+    desk = objects["desk"]
+    chair = np.linalg.inv(desk.pose) @ np.append(objects["chair"].to_ground_truth().box().center, 1.0)
+    assert abs(chair[0]) < 0.1, chair
+    assert -0.35 - 0.7 < chair[1] < -0.35, chair

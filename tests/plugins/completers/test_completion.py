@@ -300,3 +300,26 @@ def test_recognition_takes_no_class_the_shape_is_too_flat_for():
     data.map.instances = ObjectInstances([ObjectInstance(1, "object", sliver, gravity_aligned_box(sliver))])
     out = ICPMatchCompleter(library=name).run(data)["instances"]
     assert out[1].class_name == "object" and "best_class" not in out[1].attributes["recognition"]
+
+
+def test_recognition_gives_no_class_that_stands_on_a_support_to_an_object_on_the_floor():
+    """A microwave stands on a worktop or a shelf, never on a room's floor: a microwave's shape on the
+    floor (a table's pedestal foot, a crate) is not recognized as one, the same shape on a worktop is."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.map.priors import ON_A_SUPPORT
+
+    assert "microwave" in ON_A_SUPPORT
+    microwave = make_model("microwave", 0, 2)
+    name = register_library("recognition-footing", ModelLibrary([model_to_library(microwave)]))
+    pts = trimesh.sample.sample_surface(microwave.mesh(), 3000, seed=0)[0]
+    on_floor, on_worktop = pts + [2.0, 1.0, 0.0], pts + [4.0, 1.0, 0.9]
+    data = PipelineData()
+    data.map.instances = ObjectInstances(
+        [
+            ObjectInstance(1, "object", on_floor, gravity_aligned_box(on_floor)),
+            ObjectInstance(2, "object", on_worktop, gravity_aligned_box(on_worktop)),
+        ]
+    )
+    out = ICPMatchCompleter(library=name).run(data)["instances"]
+    assert out[1].class_name == "object" and "best_class" not in out[1].attributes["recognition"]
+    assert out[2].class_name == "microwave"

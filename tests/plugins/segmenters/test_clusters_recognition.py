@@ -66,6 +66,16 @@ def test_support_context_names_units_tables_and_cups():
     assert not typical_rather("counter", "table", shape(length=1.6, depth=0.8, height=0.74, reach=0.9, **unit))
 
 
+def test_a_long_low_unit_is_a_cabinet_and_a_long_tall_one_is_several():
+    """A TV bench or a lowboard comes up to 3 m long as one piece; a 2.9 m unit of worktop height is
+    a run of units (a counter) and of a sideboard's height several cabinets, not one."""
+    unit = dict(bottom=0.0, against_wall=True, flat_top=True, solid=True)
+    bench = shape(length=2.9, depth=0.62, height=0.52, reach=1.5, **unit)
+    assert fits_class("cabinet", bench) and prior_class(bench, VOCAB)[0] == "cabinet"
+    assert not fits_class("cabinet", shape(length=2.9, depth=0.45, height=0.8, reach=1.55, **unit))
+    assert not fits_class("cabinet", shape(length=3.5, depth=0.62, height=0.52, reach=1.8, **unit))
+
+
 def test_a_small_piece_on_no_support_is_no_cup():
     """A cup, a bottle or a box stands on a support surface: a small piece off the floor resting on
     none (a fragment of a chair's base in a real floor scan) is named by no rule."""
@@ -83,6 +93,34 @@ def test_shape_tells_a_solid_unit_from_a_table_on_legs():
     s_unit, s_table = describe_shape(unit, 0.0, []), describe_shape(legs, 0.0, [])
     assert s_unit.solid and s_unit.flat_top and abs(s_unit.height - 0.9) < 0.03
     assert s_table.flat_top and not s_table.solid
+
+
+def writing_desk(pedestals: bool = False) -> list:
+    """A 1.2 x 0.6 m top at 0.75 m on four legs, drawers hanging under the top from 0.45 m along its
+    whole length, or two drawer pedestals down to the floor at its ends (knee space between)."""
+    parts = [("desk", (0.0, 0.0, 0.72), (1.2, 0.6, 0.75))]
+    if pedestals:
+        return parts + [("desk", (0.0, 0.02, 0.0), (0.4, 0.58, 0.72)), ("desk", (0.8, 0.02, 0.0), (1.2, 0.58, 0.72))]
+    parts.append(("desk", (0.03, 0.02, 0.45), (1.17, 0.58, 0.72)))
+    return parts + [("desk", (x, y, 0.0), (x + 0.04, y + 0.04, 0.45)) for x in (0.03, 1.13) for y in (0.02, 0.54)]
+
+
+def test_a_unit_over_knee_space_is_a_desk_and_one_closed_to_the_floor_is_not():
+    """Knee space: nothing of a desk's body below 0.4 m across the middle of its length (legs or
+    pedestals at its ends, drawers above). A sideboard's front reaches the floor, and a night stand's
+    body on short legs comes down to 0.2 m: units, not desks."""
+    for desk in (writing_desk(), writing_desk(pedestals=True)):
+        points, _ = solids(desk, 0.02)
+        found = describe_shape(points, 0.0, [])
+        assert found.knee_space and found.flat_top, found
+        assert prior_class(found._replace(solid=True), VOCAB)[0] == "desk"
+    sideboard, _ = solids([("cabinet", (0.0, 0.0, 0.0), (1.2, 0.6, 0.75))], 0.02)
+    assert not describe_shape(sideboard, 0.0, []).knee_space
+    legs = [("cabinet", (x, y, 0.0), (x + 0.04, y + 0.04, 0.2)) for x in (0.0, 1.16) for y in (0.0, 0.56)]
+    on_legs, _ = solids([("cabinet", (0.0, 0.0, 0.2), (1.2, 0.6, 0.75))] + legs, 0.02)
+    shape_on_legs = describe_shape(on_legs, 0.0, [])
+    assert not shape_on_legs.knee_space
+    assert prior_class(shape_on_legs._replace(solid=True), VOCAB)[0] != "desk"
 
 
 def kitchen_room(spacing: float) -> tuple[np.ndarray, np.ndarray]:
