@@ -28,8 +28,8 @@ import trimesh
 from stratamap.core.library.models import NEUTRAL_ALBEDO, mesh_face_colors
 
 #: stratamap class -> the worlds' model names (folder ``models/<prefix><name>``). Chosen for what the
-#: tuning scenes lack: other chairs and an armchair, tables and a desk,
-#: low and tall storage, a bookcase and a fridge.
+#: tuning scenes lack: other chairs and an armchair, tables and a desk, low and tall storage, a
+#: display cube, a shoe rack and a fridge.
 MODELS: dict[str, list[str]] = {
     # SofaB is one seat 0.84 m wide: an armchair, a chair in stratamap's vocabulary.
     "chair": [
@@ -44,13 +44,15 @@ MODELS: dict[str, list[str]] = {
         "aws_robomaker_residential_BalconyTable_01",
     ],
     "desk": ["aws_robomaker_residential_ReadingDesk_01"],
+    # The bookstore's "BookshelfC" is a closed 0.86 m cube (a display unit): storage, by its shape.
     "cabinet": [
         "aws_robomaker_residential_NightStand_01",
         "aws_robomaker_residential_TVCabinet_01",
         "aws_robomaker_residential_Wardrobe_01",
-        "aws_robomaker_residential_ShoeRack_01",
+        "aws_robomaker_retail_BookshelfC_01",
     ],
-    "shelf": ["aws_robomaker_retail_BookshelfC_01"],
+    # The shoe rack is open boards between two side frames: a shelf, by its shape.
+    "shelf": ["aws_robomaker_residential_ShoeRack_01"],
     "fridge": ["aws_robomaker_residential_Refrigerator_01"],
 }
 

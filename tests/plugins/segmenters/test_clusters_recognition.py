@@ -66,6 +66,16 @@ def test_support_context_names_units_tables_and_cups():
     assert not typical_rather("counter", "table", shape(length=1.6, depth=0.8, height=0.74, reach=0.9, **unit))
 
 
+def test_a_unit_below_worktop_height_is_no_counter():
+    """Worktops stand 0.85 m high or more (a map measures them a few centimetres higher): a closed
+    0.8 m display cube or sideboard, long and deep enough for a counter, is a cabinet."""
+    unit = dict(bottom=0.0, against_wall=True, flat_top=True, solid=True)
+    cube = shape(length=0.95, depth=0.9, height=0.8, reach=0.85, **unit)
+    assert not fits_class("counter", cube) and prior_class(cube, VOCAB)[0] == "cabinet"
+    worktop = shape(length=0.95, depth=0.62, height=0.88, reach=0.75, **unit)
+    assert prior_class(worktop, VOCAB)[0] == "counter"
+
+
 def test_a_long_low_unit_is_a_cabinet_and_a_long_tall_one_is_several():
     """A TV bench or a lowboard comes up to 3 m long as one piece; a 2.9 m unit of worktop height is
     a run of units (a counter) and of a sideboard's height several cabinets, not one."""
