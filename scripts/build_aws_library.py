@@ -25,7 +25,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from stratamap.core.library.models import NEUTRAL_ALBEDO, mesh_face_colors
+from stratamap.core.atomic import atomic_directory, check_output_folder
+from stratamap.core.errors import DataError, StratamapError
+from stratamap.core.library.models import NEUTRAL_ALBEDO, Y_UP_TO_Z_UP, mesh_face_colors
+
+#: What this script writes beside the class folders: how an earlier output is recognised.
+NOTICE = "LICENSE"
 
 #: stratamap class -> the worlds' model names (folder ``models/<prefix><name>``). Chosen for what the
 #: tuning scenes lack: other chairs and an armchair, tables and a desk, low and tall storage, a
@@ -62,13 +67,13 @@ def find_model(sources: list[Path], name: str) -> Path:
         folder = source / "models" / name
         if folder.is_dir():
             return folder
-    raise SystemExit(f"error: model {name!r} is in none of {', '.join(map(str, sources))} (models/{name})")
+    raise DataError(f"model {name!r} is in none of {', '.join(map(str, sources))} (models/{name})")
 
 
 def visual_mesh(folder: Path) -> Path:
     meshes = sorted((folder / "meshes").glob("*_visual.[dD][aA][eE]"))
     if not meshes:
-        raise SystemExit(f"error: {folder}/meshes: no *_visual.DAE")
+        raise DataError(f"{folder}/meshes: no *_visual.DAE")
     return meshes[0]
 
 
@@ -95,34 +100,36 @@ def convert(dae: Path) -> trimesh.Trimesh:
     out = trimesh.util.concatenate(parts)
     out.apply_scale(metres)
     if up == "Y_UP":
-        out.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+        out.apply_transform(Y_UP_TO_Z_UP)
     elif up != "Z_UP":
-        raise SystemExit(f"error: {dae}: up axis {up} (expected Z_UP or Y_UP)")
+        raise DataError(f"{dae}: up axis {up} (expected Z_UP or Y_UP)")
     return out
 
 
 def build(sources: list[Path], out: Path) -> list[Path]:
+    """Convert every model of MODELS into ``out`` (replaced as a whole only once all are written)."""
+    final = check_output_folder(out, lambda folder: (folder / NOTICE).is_file(), "model library")
     written = []
-    for class_name, names in MODELS.items():
-        folder = out / class_name
-        folder.mkdir(parents=True, exist_ok=True)
-        rows = []
-        for name in names:
-            mesh = convert(visual_mesh(find_model(sources, name)))
-            file = folder / f"{name}.ply"
-            mesh.export(file)
-            rows.append({"file": file.name, "class": class_name, "id": name, "scale": "1.0"})
-            size = np.round(mesh.extents, 2).tolist()
-            print(f"{class_name:8s} {name}: {len(mesh.faces)} faces, {size} m", file=sys.stderr)
-            written.append(file)
-        with open(folder / "classes.csv", "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=["file", "class", "id", "scale"])
-            writer.writeheader()
-            writer.writerows(rows)
-    (out / "LICENSE").write_text(
-        "Meshes converted from aws-robotics/aws-robomaker-small-house-world and\n"
-        "aws-robotics/aws-robomaker-bookstore-world (MIT-0) by scripts/build_aws_library.py.\n"
-    )
+    with atomic_directory(final) as staging:
+        for class_name, names in MODELS.items():
+            folder = staging / class_name
+            folder.mkdir()
+            rows = []
+            for name in names:
+                mesh = convert(visual_mesh(find_model(sources, name)))
+                mesh.export(folder / f"{name}.ply")
+                rows.append({"file": f"{name}.ply", "class": class_name, "id": name, "scale": "1.0"})
+                size = np.round(mesh.extents, 2).tolist()
+                print(f"{class_name:8s} {name}: {len(mesh.faces)} faces, {size} m", file=sys.stderr)
+                written.append(final / class_name / f"{name}.ply")
+            with open(folder / "classes.csv", "w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=["file", "class", "id", "scale"])
+                writer.writeheader()
+                writer.writerows(rows)
+        (staging / NOTICE).write_text(
+            "Meshes converted from aws-robotics/aws-robomaker-small-house-world and\n"
+            "aws-robotics/aws-robomaker-bookstore-world (MIT-0) by scripts/build_aws_library.py.\n"
+        )
     return written
 
 
@@ -131,7 +138,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("sources", type=Path, nargs="+", help="Clones of the AWS RoboMaker world repositories.")
     parser.add_argument("--out", type=Path, default=Path("out/aws_library"), help="Library folder to write.")
     args = parser.parse_args(argv)
-    build(args.sources, args.out)
+    try:
+        build(args.sources, args.out)
+    except StratamapError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -98,15 +98,15 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     middle = pts[(z >= zmin + 0.25 * height) & (z <= zmin + 0.75 * height)]
     along = middle[:, :2] @ axis
     full = pts[:, :2] @ axis
-    bins = max(1, int(np.ceil((full.max() - full.min()) / cell)))
-    covered = len(np.unique(np.clip(((along - full.min()) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
+    low, high = float(full.min()), float(full.max())
+    bins = max(1, int(np.ceil((high - low) / cell)))
+    covered = len(np.unique(np.clip(((along - low) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
     solid = covered / bins >= 0.6
     if solid and sight is not None:
         seen = sight.seen_through(pts, box)
         solid = not (seen.through + seen.stopped >= SEEN_THROUGH_RAYS and seen.share >= SEEN_THROUGH)
     # Knee space: below KNEE_HEIGHT, the middle third of its length holds points in under a quarter of
     # its 5 cm cells (stray points of the map's noise), where its ends hold legs or pedestals.
-    low, high = float(full.min()), float(full.max())
     third = (high - low) / 3.0
     knee_space = False
     if height > KNEE_HEIGHT + 0.2 and third >= 2 * cell:
