@@ -1,6 +1,6 @@
 """Write furniture of AWS RoboMaker's Gazebo worlds as a model library of meshes with ``classes.csv``,
-one folder per class, for the tuning scenes configs/scenes/generalization/tuning/house_tune.yaml and
-study_tune.yaml (issue 28).
+one folder per class, for the tuning scenes configs/scenes/generalization/tuning/house_tune.yaml,
+study_tune.yaml and galley_tune.yaml (issue 28).
 
 The models come from two public repositories (MIT-0 licence: use, copy and modify without
 attribution), made by neither stratamap's generator nor the sources of the generalization
@@ -34,7 +34,7 @@ NOTICE = "LICENSE"
 
 #: stratamap class -> the worlds' model names (folder ``models/<prefix><name>``). Chosen for what the
 #: tuning scenes lack: other chairs and an armchair, tables and a desk, low and tall storage, a
-#: display cube, a shoe rack and a fridge.
+#: display cube, a shoe rack, a fridge and a kitchen's counter.
 MODELS: dict[str, list[str]] = {
     # SofaB is one seat 0.84 m wide: an armchair, a chair in stratamap's vocabulary.
     "chair": [
@@ -59,6 +59,9 @@ MODELS: dict[str, list[str]] = {
     # The shoe rack is open boards between two side frames: a shelf, by its shape.
     "shelf": ["aws_robomaker_residential_ShoeRack_01"],
     "fridge": ["aws_robomaker_residential_Refrigerator_01"],
+    # An L of base units under one worktop (2.6 x 3.2 m, 0.6 m deep) with a double sink and its tap:
+    # a kitchen's counter, its fixtures part of it.
+    "counter": ["aws_robomaker_residential_KitchenCabinet_01"],
 }
 
 

@@ -186,3 +186,28 @@ def test_an_office_seats_a_chair_at_a_desk_from_a_model_library(tmp_path, mesh_l
     chair = np.linalg.inv(desk.pose) @ np.append(objects["chair"].to_ground_truth().box().center, 1.0)
     assert abs(chair[0]) < 0.1, chair
     assert -0.35 - 0.7 < chair[1] < -0.35, chair
+
+
+def test_chairs_sit_at_a_table_from_a_model_library(tmp_path, mesh_library):
+    """A library table is one part, whose box fills the space under its top: a chair pushed in under
+    it overlaps that box, so every chair went to a wall, often into a corner no walk looked at. The
+    chairs now stand at the table's sides, pulled out, clear of its box and facing it."""
+    doc = {
+        "type": "kitchen",
+        "room_size": [5.0, 4.4, 2.6],
+        "objects": {"table": {"count": 1, "library": {"path": str(mesh_library), "models": ["table"]}}, "chair": 2},
+    }
+    for seed in (0, 1, 2):
+        world = SyntheticWorld(SceneSpec.from_yaml(_spec_file(tmp_path, {**doc, "seed": seed})))
+        table = next(o for o in world.scene.objects if o.class_name == "table")
+        chairs = [o for o in world.scene.objects if o.class_name == "chair"]
+        assert len(chairs) == 2, world.scene.skipped
+        for chair in chairs:
+            at = (np.linalg.inv(table.pose) @ np.append(chair.pose[:3, 3], 1.0))[:2]
+            # Within half a metre of the table's 1.2 x 0.7 m top, beside it, not under it.
+            gap = np.abs(at) - np.array([0.6, 0.35])
+            assert gap.max() < 0.5 and gap.max() > 0.0, (seed, at)
+            # Facing it: the chair's front (-y in its frame) points toward the table's middle.
+            front = chair.pose[:2, :2] @ np.array([0.0, -1.0])
+            toward = table.pose[:2, 3] - chair.pose[:2, 3]
+            assert front @ toward / np.linalg.norm(toward) > 0.5, (seed, at)
