@@ -311,32 +311,38 @@ class Placer:
         order = self.rng.permutation(len(slots))
         for idx in order:
             host, local, yaw_local, bias = slots[int(idx)]
+            outward = np.array([-np.sin(yaw_local), np.cos(yaw_local)])  # the chair's back direction
             for _ in range(tries):
                 # Pushed partly under: the chair's front edge goes past the host's edge by `push`.
                 push = bias * self.rng.uniform(0.05, 0.25)
-                outward = np.array([-np.sin(yaw_local), np.cos(yaw_local)])  # the chair's back direction
-                center = local + outward * (depth / 2 - push + 0.02)
                 yaw = yaw_local + self.rng.uniform(-0.25, 0.25)
-                pose = host.pose @ make_pose((center[0], center[1], 0.0), yaw)
-                aabbs = part_aabbs(model, pose)
-                if self.inside_room(aabbs) and self.free(aabbs) and self.clear_of_keepout(aabbs):
-                    slots.pop(int(idx))
-                    return self.add(model, pose, "floor")
+                placed = self._seat(model, slots, int(idx), local + outward * (depth / 2 - push + 0.02), yaw)
+                if placed is not None:
+                    return placed
         # At a library table, pulled out instead, up to 30 cm: its model is one part, whose box fills
         # the space under its top (a seat pushed in overlaps it), and a turned table's box is wider than
         # the table. Tried only where no slot took the seat pushed in, so the rooms that did, and every
         # room of generated furniture, come out as before.
         for idx in order:
             host, local, yaw_local, bias = slots[int(idx)]
+            if bias == 0 or host.model.family in FAMILIES:
+                continue
             outward = np.array([-np.sin(yaw_local), np.cos(yaw_local)])
-            pulled = bias > 0 and host.model.family not in FAMILIES
-            for gap in np.arange(0.02, 0.31, 0.04) if pulled else ():
-                center = local + outward * (depth / 2 + gap)
-                pose = host.pose @ make_pose((center[0], center[1], 0.0), yaw_local)
-                aabbs = part_aabbs(model, pose)
-                if self.inside_room(aabbs) and self.free(aabbs) and self.clear_of_keepout(aabbs):
-                    slots.pop(int(idx))
-                    return self.add(model, pose, "floor")
+            for gap in np.arange(0.02, 0.31, 0.04):
+                placed = self._seat(model, slots, int(idx), local + outward * (depth / 2 + gap), yaw_local)
+                if placed is not None:
+                    return placed
+        return None
+
+    def _seat(self, model: Model, slots: list, idx: int, center: np.ndarray, yaw: float) -> Placed | None:
+        """The chair at ``center`` (the host's frame of slot ``idx``) turned by ``yaw``, if it fits
+        there; the slot is then taken."""
+        host = slots[idx][0]
+        pose = host.pose @ make_pose((center[0], center[1], 0.0), yaw)
+        aabbs = part_aabbs(model, pose)
+        if self.inside_room(aabbs) and self.free(aabbs) and self.clear_of_keepout(aabbs):
+            slots.pop(idx)
+            return self.add(model, pose, "floor")
         return None
 
     def support_surfaces(self, supporter_class: str) -> list[tuple[Placed, tuple[float, ...]]]:
