@@ -7,6 +7,13 @@ the rest (for issue 28: `clusters` recognition and `icp_match` after the detecto
     python scripts/tune_walks.py score configs/bench/generalization_tuning.yaml --workers 2
     python scripts/tune_walks.py score configs/bench/generalization_tuning.yaml --scenes office_tune-s2 --objects
 
+`frames` runs only the source and the variant's segmenter (no cache, no TSDF) and prints how its
+per-frame labels fall on the ground truth's: per true class, the share of its pixels given each class,
+summed over the tuning walks chosen (a change to a per-frame segmenter, such as the detector's depth
+segmentation, is read in a minute or two, before a `prefix` of every walk):
+
+    python scripts/tune_walks.py frames configs/bench/generalization_tuning.yaml --scenes office_tune-s1 office_tune-s3
+
 `score` prints, per walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and map
 PQ, then the means of the tuning walks and of the validation walks (seeds --validation-seeds, 4-7 by
 default) apart, and what the tuning walks' true objects were called (the benchmark report's table,
@@ -165,10 +172,52 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
     return row
 
 
+def run_frames(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
+    """The walk's per-frame confusion: pixels of each true class (rows) given each class (columns) by the
+    variant's first stage, a segmenter of frames."""
+    from stratamap.core.stages import PipelineData
+
+    bench_file, variant_name, scene, _, cache, _ = job
+    spec, _, variant = load(bench_file, variant_name)
+    pipe = pipeline(spec, variant, scene)
+    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
+    data = PipelineData()
+    pipe._run_stage(pipe.validated.source, -1, data)
+    if data.ground_truth is None or not data.ground_truth.frame_labels:
+        return {"scene": scene["name"], "error": "its source gives no per-frame ground truth"}
+    try:
+        pipe._run_stage(pipe.validated.stages[0], 0, data)
+    except StratamapError as err:
+        return {"scene": scene["name"], "error": str(err)}
+    if data.frame_labels is None:
+        return {"scene": scene["name"], "error": f"{pipe.validated.stages[0].plugin!r} labels no frames"}
+    vocab = data.ground_truth.vocabulary
+    n = len(vocab.names)
+    truth = {f.frame_index: np.asarray(f.class_ids, np.int64) for f in data.ground_truth.frame_labels}
+    confusion = np.zeros((n, n), np.int64)
+    for frame in data.frame_labels.frames:
+        given = np.asarray(frame.class_ids, np.int64)
+        true = truth[frame.frame_index]
+        confusion += np.bincount((true * n + given).ravel(), minlength=n * n).reshape(n, n)
+    return {"scene": scene["name"], "confusion": confusion, "names": list(vocab.names), "things": vocab.is_thing}
+
+
+def confusion_lines(confusion: np.ndarray, names: list[str], things: Any, top: int = 5) -> list[str]:
+    """Per true thing class with pixels: its pixel count and the ``top`` classes given them, by share."""
+    lines = []
+    for k in np.flatnonzero(np.asarray(things, bool) & (confusion.sum(1) > 0)):
+        row = confusion[k] / confusion[k].sum()
+        given = [f"{names[j] if j else '(none)'} {row[j]:.3f}" for j in np.argsort(-row)[:top] if row[j] >= 0.005]
+        lines.append(f"{names[k]:10s} {int(confusion[k].sum()):>10d} px: " + ", ".join(given))
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "command", choices=["prefix", "score"], help="prefix: cache the early stages; score: run the rest."
+        "command",
+        choices=["prefix", "score", "frames"],
+        help="prefix: cache the early stages; score: run the rest; frames: the segmenter's per-frame labels.",
     )
     parser.add_argument("bench", type=Path, help="Benchmark file (configs/bench/*.yaml).")
     parser.add_argument("--variant", default="detector", help="The variant whose stages run (default: detector).")
@@ -199,10 +248,18 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --scenes {unknown}: not walks of {args.bench}", file=sys.stderr)
             return 2
         scenes = [s for s in scenes if s["name"] in args.scenes]
+    left_out = 0
+    if args.command == "frames":  # the validation walks are read as means only
+        tuning = [s for s in scenes if not is_validation(s["name"], args.validation_seeds)]
+        left_out = len(scenes) - len(tuning)
+        if not tuning:
+            print(f"error: the {left_out} walks chosen are all validation walks (read as means only)", file=sys.stderr)
+            return 2
+        scenes = tuning
     args.cache.mkdir(parents=True, exist_ok=True)
     flag = args.rebuild if args.command == "prefix" else args.objects
     jobs = [(args.bench, args.variant, s, args.stages, args.cache, flag) for s in scenes]
-    work = run_prefix if args.command == "prefix" else run_rest
+    work = {"prefix": run_prefix, "score": run_rest, "frames": run_frames}[args.command]
     if args.workers <= 1:
         results = [work(job) for job in jobs]
     else:
@@ -211,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "prefix":
         print("\n".join(results))
         return 0
+    if args.command == "frames":
+        return print_frames(results, left_out)
     missing = [r["scene"] for r in results if "missing" in r]
     if missing:
         print(f"error: no cached prefix for {missing}: run `prefix` first", file=sys.stderr)
@@ -220,9 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{row['scene']:32s} {row['aware']:.3f} {row['agnostic']:.3f} {row['pq']:.3f}")
         for line in row.get("objects", []):
             print(line)
-        seed = re.search(r"-s(\d+)$", row["scene"])
-        validation = seed is not None and int(seed.group(1)) in args.validation_seeds
-        groups["validation" if validation else "tuning"].append(row)
+        groups["validation" if is_validation(row["scene"], args.validation_seeds) else "tuning"].append(row)
     for name, rows in groups.items():
         if rows:
             a = np.array([[r["aware"], r["agnostic"], r["pq"]] for r in rows])
@@ -231,6 +288,27 @@ def main(argv: list[str] | None = None) -> int:
     # Where the tuning walks lose class-aware F1 (the validation walks are read as means only).
     print("tuning walks, what the true objects were called (3D box IoU >= 0.25):")
     for line in called_lines([r["labels"] for r in groups["tuning"] if r.get("labels")]):
+        print(f"  {line}")
+    return 0
+
+
+def is_validation(scene: str, validation_seeds: list[int]) -> bool:
+    """Whether a walk (named ``...-s<seed>``) is a validation walk."""
+    seed = re.search(r"-s(\d+)$", scene)
+    return seed is not None and int(seed.group(1)) in validation_seeds
+
+
+def print_frames(results: list[dict[str, Any]], left_out: int) -> int:
+    """Print the walks' summed per-frame confusion (``left_out``: validation walks not run)."""
+    failed = [f"{r['scene']}: {r['error']}" for r in results if "error" in r]
+    if failed:
+        print(f"error: {'; '.join(failed)}", file=sys.stderr)
+        return 2
+    total = sum(r["confusion"] for r in results)
+    print(f"per-frame labels of {len(results)} tuning walks: per true class, the share of its pixels given each class")
+    if left_out:
+        print(f"({left_out} validation walks left out: read as means only)")
+    for line in confusion_lines(total, results[0]["names"], results[0]["things"]):
         print(f"  {line}")
     return 0
 

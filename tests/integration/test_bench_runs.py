@@ -119,6 +119,29 @@ def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_
         assert named == [counts]
 
 
+def test_tune_walks_frames_reads_a_segmenters_labels_against_the_ground_truth(local_run, tmp_path):
+    """`tune_walks.py frames` runs the source and the variant's segmenter only, and says how its
+    per-frame labels fall on the ground truth's: the oracle's fall where they are; a walk chosen only
+    among the validation walks is refused (they are read as means)."""
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
+    config, _, _ = local_run
+
+    def frames(*extra: str) -> subprocess.CompletedProcess:
+        args = [sys.executable, str(script), "frames", str(config), "--variant", "none", "--cache", str(tmp_path)]
+        return subprocess.run([*args, *extra], capture_output=True, text=True)
+
+    done = frames()
+    assert done.returncode == 0, done.stderr
+    rows = [line.split() for line in done.stdout.splitlines() if line.startswith("  ")]
+    assert {row[0] for row in rows} >= {"chair", "table"}
+    for row in rows:  # "chair 12345 px: chair 1.000"
+        assert row[3] == row[0] and float(row[4].rstrip(",")) > 0.99, row
+    refused = frames("--validation-seeds", "3")
+    assert refused.returncode == 2 and "validation walks" in refused.stderr
+
+
 def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
     """A cached prefix keeps the stream's poses and metadata, and of its images only the depth of the
     frames that give clusters its rays: clusters turns its normals to the cameras, reads the source's
