@@ -52,13 +52,24 @@ def load(bench_file: Path, variant: str) -> tuple[bench.BenchSpec, list[dict[str
     return spec, scenes, chosen
 
 
-def pipeline(spec: bench.BenchSpec, variant: bench.Variant, scene: dict[str, Any]) -> Any:
+def pipeline(spec: bench.BenchSpec, variant: bench.Variant, scene: dict[str, Any], cache: Path) -> Any:
+    """The walk's pipeline, writing what its stages write under ``cache``/runs/<walk>."""
     from stratamap.core.config import validate
     from stratamap.core.pipeline import Pipeline
 
     pipe = Pipeline(validate(bench.variant_document(spec, variant, scene["source"]), origin="tune_walks"))
     pipe.records = []
+    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
     return pipe
+
+
+def run_source(pipe: Any) -> Any:
+    """A PipelineData holding what the walk's source gives (deterministic: rendered or read again)."""
+    from stratamap.core.stages import PipelineData
+
+    data = PipelineData()
+    pipe._run_stage(pipe.validated.source, -1, data)
+    return data
 
 
 def cache_file(cache: Path, scene: dict[str, Any], spec: bench.BenchSpec, variant: bench.Variant, stages: int) -> Path:
@@ -100,17 +111,14 @@ def holds_rays(stream: Any) -> bool:
 
 
 def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
-    from stratamap.core.stages import PipelineData
 
     bench_file, variant_name, scene, stages, cache, rebuild = job
     spec, _, variant = load(bench_file, variant_name)
     target = cache_file(cache, scene, spec, variant, stages)
     if target.exists() and not rebuild:
         return f"{scene['name']}: cached"
-    pipe = pipeline(spec, variant, scene)
-    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
-    data = PipelineData()
-    pipe._run_stage(pipe.validated.source, -1, data)
+    pipe = pipeline(spec, variant, scene, cache)
+    data = run_source(pipe)
     for i in range(stages):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.stream = light_stream(data.stream)
@@ -124,7 +132,6 @@ def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
 def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
     from stratamap.core.geometry.boxes import box_iou_3d
     from stratamap.core.map.instances import naming_text
-    from stratamap.core.stages import PipelineData
 
     bench_file, variant_name, scene, stages, cache, objects = job
     spec, _, variant = load(bench_file, variant_name)
@@ -133,14 +140,11 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
         return {"scene": scene["name"], "missing": str(source)}
     with open(source, "rb") as fh:
         data = pickle.load(fh)
-    pipe = pipeline(spec, variant, scene)
-    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
+    pipe = pipeline(spec, variant, scene, cache)
     # A cache written before it kept the ray frames' depth: the source (deterministic, its frames
     # rendered or read when used) gives its stream back for clusters' sightlines.
     if not holds_rays(data.stream):
-        fresh = PipelineData()
-        pipe._run_stage(pipe.validated.source, -1, fresh)
-        data.stream = fresh.stream
+        data.stream = run_source(pipe).stream
     for i in range(stages, len(pipe.validated.stages)):
         pipe._run_stage(pipe.validated.stages[i], i, data)
     data.map.vocabulary = data.ground_truth.vocabulary
@@ -175,14 +179,11 @@ def run_rest(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str
 def run_frames(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> dict[str, Any]:
     """The walk's per-frame confusion: pixels of each true class (rows) given each class (columns) by the
     variant's first stage, a segmenter of frames."""
-    from stratamap.core.stages import PipelineData
 
     bench_file, variant_name, scene, _, cache, _ = job
     spec, _, variant = load(bench_file, variant_name)
-    pipe = pipeline(spec, variant, scene)
-    pipe.out_dir = cache / "runs" / bench.safe(scene["name"])
-    data = PipelineData()
-    pipe._run_stage(pipe.validated.source, -1, data)
+    pipe = pipeline(spec, variant, scene, cache)
+    data = run_source(pipe)
     if data.ground_truth is None or not data.ground_truth.frame_labels:
         return {"scene": scene["name"], "error": "its source gives no per-frame ground truth"}
     try:
