@@ -14,13 +14,13 @@ segmentation, is read in a minute or two, before a `prefix` of every walk):
 
     python scripts/tune_walks.py frames configs/bench/generalization_tuning.yaml --scenes office_tune-s1 office_tune-s3
 
-`score` prints, per walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and map
-PQ, then the means of the tuning walks and of the validation walks (seeds --validation-seeds, 4-7 by
-default) apart, and what the tuning walks' true objects were called (the benchmark report's table,
-summed over the tuning walks); `--objects` adds each instance with the ground-truth object its box
-overlaps most. The cache holds the prefix as it was computed: after a change to a prefix stage's code, run
-`prefix --rebuild`. A development tool: reported figures come from `stratamap bench`, which runs
-every stage.
+`score` prints, per tuning walk, detection F1 at 3D box IoU >= 0.25 (class-aware, class-agnostic) and
+map PQ, then the means of the tuning walks and of the validation walks (seeds --validation-seeds, 4-7
+by default) apart, and what the tuning walks' true objects were called (the benchmark report's table,
+summed over the tuning walks); `--objects` adds each instance of a tuning walk with the ground-truth
+object its box overlaps most. A validation walk is printed only in its group's mean. The cache holds
+the prefix as it was computed: after a change to a prefix stage's code, run `prefix --rebuild`. A
+development tool: reported figures come from `stratamap bench`, which runs every stage.
 """
 
 from __future__ import annotations
@@ -258,8 +258,14 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         scenes = tuning
     args.cache.mkdir(parents=True, exist_ok=True)
-    flag = args.rebuild if args.command == "prefix" else args.objects
-    jobs = [(args.bench, args.variant, s, args.stages, args.cache, flag) for s in scenes]
+
+    def flag(scene: dict[str, Any]) -> bool:
+        if args.command == "prefix":
+            return args.rebuild
+        # Per-object lines only for tuning walks: the validation walks are read as means only.
+        return args.objects and not is_validation(scene["name"], args.validation_seeds)
+
+    jobs = [(args.bench, args.variant, s, args.stages, args.cache, flag(s)) for s in scenes]
     work = {"prefix": run_prefix, "score": run_rest, "frames": run_frames}[args.command]
     if args.workers <= 1:
         results = [work(job) for job in jobs]
@@ -277,15 +283,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     groups: dict[str, list[dict[str, Any]]] = {"tuning": [], "validation": []}
     for row in results:
+        group = "validation" if is_validation(row["scene"], args.validation_seeds) else "tuning"
+        groups[group].append(row)
+        if group == "validation":
+            continue
         print(f"{row['scene']:32s} {row['aware']:.3f} {row['agnostic']:.3f} {row['pq']:.3f}")
         for line in row.get("objects", []):
             print(line)
-        groups["validation" if is_validation(row["scene"], args.validation_seeds) else "tuning"].append(row)
     for name, rows in groups.items():
         if rows:
             a = np.array([[r["aware"], r["agnostic"], r["pq"]] for r in rows])
             label = f"{name} mean of {len(rows)}"
             print(f"{label:32s} {a[:, 0].mean():.3f} {a[:, 1].mean():.3f} {np.nanmean(a[:, 2]):.3f}")
+    if groups["validation"]:
+        print(f"({len(groups['validation'])} validation walks: read as their mean only)")
     # Where the tuning walks lose class-aware F1 (the validation walks are read as means only).
     print("tuning walks, what the true objects were called (3D box IoU >= 0.25):")
     for line in called_lines([r["labels"] for r in groups["tuning"] if r.get("labels")]):

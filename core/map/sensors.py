@@ -323,3 +323,32 @@ def renumbered(item: Any, index: int) -> Any:
     if isinstance(item, FrameSegmentation) and item.frame_index != index:
         return dataclasses.replace(item, frame_index=index)
     return item
+
+
+#: Where a map with no sensor is looked at from: this high (m) over its lowest point, over its centre.
+EYE_HEIGHT = 1.5
+
+
+def sensor_viewpoints(stream: SensorStream | None, points: np.ndarray) -> np.ndarray:
+    """Where a map of ``points`` (N, 3) was seen from, (V, 3): the camera positions of posed frames (at
+    most about 200, evenly spaced), a scanner file's scan positions (``sensor_positions``: E57), a static
+    cloud's sensor (``world_transform``), EYE_HEIGHT over the centre of a cloud with no sensor
+    (``metadata['sensor_origin']`` False: a mesh's surface samples, a LAS file), else a point 2 m above
+    the map's centre."""
+    if stream is not None:
+        poses = getattr(stream.frames, "poses", None)
+        if poses is None:
+            poses = [f.pose for f in stream.frames]
+        centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
+        if len(centres):
+            return centres[:: max(1, len(centres) // 200)]
+        if stream.points is not None and stream.metadata.get("sensor_positions"):  # a scanner file's (E57)
+            return np.asarray(stream.metadata["sensor_positions"], float).reshape(-1, 3)
+        if stream.points is not None and stream.metadata.get("sensor_origin", True):
+            transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
+            return transform[:3, 3][None]
+        if stream.points is not None:
+            # No sensor (a mesh's surface samples): where someone inside would stand, eye high.
+            centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
+            return np.array([[centre[0], centre[1], float(points[:, 2].min()) + EYE_HEIGHT]])
+    return (points.mean(axis=0) + [0.0, 0.0, 2.0])[None]

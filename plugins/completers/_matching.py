@@ -26,11 +26,13 @@ from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.instances import plausible, set_naming
 from stratamap.core.map.layers import Completion, Joint, ObjectInstance, ObjectInstances, Part
 from stratamap.core.map.priors import plausible_heights
+from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.parallel import ExecutorConfig, map_tasks
 from stratamap.core.stages import Completer, PipelineData, StageConfig
 
 o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
+spatial = lazy_module("scipy.spatial")
 trimesh = lazy_module("trimesh")
 
 #: An object whose lowest point is this close (m) to the floor (z = 0 in a gravity-aligned map) stands on it.
@@ -104,6 +106,18 @@ class MatcherConfig(StageConfig, ExecutorConfig):
         default=0.03,
         gt=0.0,
         description="Largest mean distance (m) from the observed points to a model for recognition to take its class.",
+    )
+    recognize_coverage: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Smallest share of the model's seeable surface (posed as fitted, facing a viewpoint of the map unhidden "
+            "by the model itself) within recognize_fit of the observed points for recognition to take its class: the "
+            "fit is one-sided, so a sliver of a wall lies on many a model's surface; 0 turns the check off. 0.5 was "
+            "chosen on the tuning walks of configs/bench/generalization_tuning.yaml (docs/experiments/2026-11-29-"
+            "recognition-two-sided.md)."
+        ),
     )
     reject_distance: float | None = Field(
         default=0.05,
@@ -234,6 +248,40 @@ def observation_disagreement(points: np.ndarray, mesh: trimesh.Trimesh, distance
     )
     dist = scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
     return float(np.mean(dist > distance))
+
+
+#: At most this many viewpoints (evenly spaced) judge which of a model's surface could be seen.
+COVERAGE_VIEWS = 40
+#: Surface samples of a model whose share near the observed points is its coverage.
+COVERAGE_SAMPLES = 2000
+
+
+def seen_coverage(mesh: trimesh.Trimesh, points: np.ndarray, views: np.ndarray, distance: float) -> float:
+    """Share of the surface of ``mesh`` (world frame) that a sensor at ``views`` (V, 3) could have seen
+    and that lies within ``distance`` of the observed ``points``: the other direction of a one-sided fit.
+    A surface sample counts as seeable from a viewpoint when the ray from it meets no other part of the
+    mesh first (a unit's back against the wall, its bottom and what its doors close in are not); where
+    no viewpoint sees any of it, the whole surface counts. Deterministic (fixed sampling seed)."""
+    if len(mesh.faces) == 0 or len(points) == 0:
+        return 0.0
+    samples = np.asarray(trimesh.sample.sample_surface(mesh, COVERAGE_SAMPLES, seed=0)[0], dtype=np.float64)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
+    )
+    views = np.asarray(views, dtype=np.float64).reshape(-1, 3)
+    views = views[np.unique(np.linspace(0, len(views) - 1, min(len(views), COVERAGE_VIEWS)).astype(int))]
+    seeable = np.zeros(len(samples), dtype=bool)
+    for view in views:
+        offset = samples - view
+        reach = np.linalg.norm(offset, axis=1)
+        rays = np.c_[np.broadcast_to(view, samples.shape), offset / np.maximum(reach, 1e-9)[:, None]]
+        hit = scene.cast_rays(o3c.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+        seeable |= hit >= reach - 0.01  # the first surface the ray meets is the sample's own
+    if not seeable.any():
+        seeable[:] = True
+    near = spatial.cKDTree(np.asarray(points, dtype=np.float64)).query(samples[seeable], workers=1)[0]
+    return float(np.mean(near <= distance))
 
 
 def rejection_reason(inst: ObjectInstance, completion: Completion, cfg: MatcherConfig) -> str | None:
@@ -448,7 +496,9 @@ class MatchingCompleter(Completer[MatcherConfigT]):
     def recognize(self, insts: ObjectInstances, index: ModelIndex, data: PipelineData) -> None:
         """Recognition by matching: an object with no class (or a weakly voted one) is matched against
         every class of the library its size allows, and takes the class of the best-fitting model when
-        that fit is within ``recognize_fit``. The attempt is recorded in ``attributes['recognition']``."""
+        that fit is within ``recognize_fit`` and the observed points cover ``recognize_coverage`` of the
+        model's seeable surface (``seen_coverage``). The attempt is recorded in
+        ``attributes['recognition']``."""
         cfg = self.config
         todo = [
             inst
@@ -467,13 +517,20 @@ class MatchingCompleter(Completer[MatcherConfigT]):
                 name, match = found
                 fit = float(match.details.get("fit_m", match.score))
                 record.update({"best_class": name, "model": match.model_id, "fit_m": round(fit, 4)})
-                if fit <= cfg.recognize_fit and name != inst.class_name:
+                covered = 1.0
+                if fit <= cfg.recognize_fit and name != inst.class_name and cfg.recognize_coverage > 0:
+                    mesh = posed_completion(index.library.get(match.model_id), match, self.name).world_mesh()
+                    views = sensor_viewpoints(data.stream if data is not None else None, inst.points)
+                    covered = seen_coverage(mesh, inst.points, views, cfg.recognize_fit)
+                    record["coverage"] = round(covered, 3)
+                if fit <= cfg.recognize_fit and name != inst.class_name and covered >= cfg.recognize_coverage:
                     record["class"] = name
                     set_naming(
                         inst,
                         "matching",
                         f"model {match.model_id} fits at {fit * 100:.1f} cm mean distance, the best of every class "
-                        f"(at most {cfg.recognize_fit * 100:g} cm; was {inst.class_name})",
+                        f"(at most {cfg.recognize_fit * 100:g} cm), and the object covers {covered:.0%} of its "
+                        f"seeable surface (at least {cfg.recognize_coverage:.0%}; was {inst.class_name})",
                     )
                     inst.class_name = name
                     recognized += 1

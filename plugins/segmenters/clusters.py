@@ -50,6 +50,7 @@ from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.instances import NAMING, members_of, set_naming
 from stratamap.core.map.layers import Semantics
+from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters._layout import FLOOR, LAYOUT_NAMES, NONE, WALL, LayoutParams, find_layout
 from stratamap.plugins.segmenters._recognition import (
@@ -300,35 +301,6 @@ def working_voxel(points: np.ndarray, map_voxel: float | None, cfg: ClustersConf
     spacing = cKDTree(points).query(sample, k=2)[0][:, 1]
     spacing = spacing[spacing > 0]
     return float(cfg.spacing_factor * np.median(spacing)) if len(spacing) else 0.01
-
-
-#: Where a map with no sensor is looked at from: this high (m) over its lowest point, over its centre.
-EYE_HEIGHT = 1.5
-
-
-def viewpoints(data: PipelineData, cells: np.ndarray) -> np.ndarray:
-    """Where the map was seen from: the camera positions of posed frames, a scanner file's scan
-    positions (``sensor_positions``: E57), a static cloud's sensor (``world_transform``), EYE_HEIGHT
-    over the centre of a cloud with no sensor (``metadata['sensor_origin']`` False: a mesh's surface
-    samples, a LAS file), else a point 2 m above the map's centre."""
-    stream = data.stream
-    if stream is not None:
-        poses = getattr(stream.frames, "poses", None)
-        if poses is None:
-            poses = [f.pose for f in stream.frames]
-        centres = np.array([np.asarray(pose)[:3, 3] for pose in poses if pose is not None]).reshape(-1, 3)
-        if len(centres):
-            return centres[:: max(1, len(centres) // 200)]
-        if stream.points is not None and stream.metadata.get("sensor_positions"):  # a scanner file's (E57)
-            return np.asarray(stream.metadata["sensor_positions"], float).reshape(-1, 3)
-        if stream.points is not None and stream.metadata.get("sensor_origin", True):
-            transform = np.asarray(stream.metadata.get("world_transform") or np.eye(4))
-            return transform[:3, 3][None]
-        if stream.points is not None:
-            # No sensor (a mesh's surface samples): where someone inside would stand, eye high.
-            centre = (cells.min(axis=0) + cells.max(axis=0)) / 2.0
-            return np.array([[centre[0], centre[1], float(cells[:, 2].min()) + EYE_HEIGHT]])
-    return (cells.mean(axis=0) + [0.0, 0.0, 2.0])[None]
 
 
 def source_floor(data: PipelineData) -> float | None:
@@ -1066,7 +1038,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 )
         voxel = working_voxel(points, geometry.voxel_size, cfg)
         cells, cell_of_point = voxel_downsample(points, voxel)
-        views = viewpoints(data, cells)
+        views = sensor_viewpoints(data.stream, cells)
         normals = estimate_normals(cells, cfg.normal_radius_voxels * voxel, views)
 
         # 1. Layout: floor, walls, ceiling (stuff) and support surfaces (objects' tops).

@@ -89,16 +89,17 @@ def test_killed_benchmark_resumes_without_redoing_runs(tmp_path):
 
 def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_path):
     """scripts/tune_walks.py caches a variant's early stages per walk and runs only the rest: its
-    figures are the benchmark's own for the same walk and variant."""
+    figures are the benchmark's own for the same walk and variant. A validation walk is printed only in
+    its group's mean, never object by object."""
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
     config, out, _ = local_run
     cache = ["--variant", "none", "--stages", "2", "--cache", str(tmp_path / "cache")]
 
-    def tune(command: str) -> subprocess.CompletedProcess:
+    def tune(command: str, *extra: str) -> subprocess.CompletedProcess:
         return subprocess.run(
-            [sys.executable, str(script), command, str(config), *cache], capture_output=True, text=True
+            [sys.executable, str(script), command, str(config), *cache, *extra], capture_output=True, text=True
         )
 
     missing = tune("score")
@@ -117,6 +118,16 @@ def test_tune_walks_scores_cached_prefixes_as_the_benchmark_does(local_run, tmp_
         counts = sorted(f"{name} {n}" for name, n in row.items())
         named = [sorted(p.strip()[len(true) :].strip().split(", ")) for p in printed if p.split()[0] == true]
         assert named == [counts]
+    # A tuning walk's objects are printed one by one; a validation walk's are not, nor its own figures:
+    # it is read only in its group's mean.
+    listed = tune("score", "--objects")
+    assert listed.returncode == 0 and "-> #" in listed.stdout and "truth #0" in listed.stdout
+    held_out = tune("score", "--objects", "--validation-seeds", "3")
+    assert held_out.returncode == 0, held_out.stderr
+    assert not any(row.startswith("office-s3") for row in held_out.stdout.splitlines())
+    assert "-> #" not in held_out.stdout and "truth #" not in held_out.stdout
+    mean = next(row for row in held_out.stdout.splitlines() if row.startswith("validation mean of 1"))
+    assert [float(x) for x in mean.split()[4:]] == pytest.approx(expected, abs=5e-4)
 
 
 def test_tune_walks_frames_reads_a_segmenters_labels_against_the_ground_truth(local_run, tmp_path):
@@ -151,11 +162,10 @@ def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
     import pickle
     from pathlib import Path
 
-    from stratamap.core.stages import PipelineData
+    from stratamap.core.map.sensors import sensor_viewpoints
     from stratamap.core.synthetic import SceneSpec
     from stratamap.core.synthetic.generate import generate_sequence
     from stratamap.plugins.segmenters._sightlines import Sightlines, ray_frames
-    from stratamap.plugins.segmenters.clusters import viewpoints
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
     spec = importlib.util.spec_from_file_location("tune_walks", script)
@@ -171,12 +181,11 @@ def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
     assert len(light.frames) == 12 and all(f.rgb.size == 3 for f in light.frames)
     kept = [k for k, f in enumerate(light.frames) if f.depth.size > 1]
     assert kept == ray_frames(12).tolist() and len(kept) == 5
-    full, cached = PipelineData(), PipelineData()
-    full.stream, cached.stream = stream, pickle.loads(pickle.dumps(light))
+    cached = pickle.loads(pickle.dumps(light))
     cells = np.random.default_rng(0).uniform(0, 4, (50, 3))
-    assert np.array_equal(viewpoints(full, cells), viewpoints(cached, cells))
-    assert cached.stream.metadata == stream.metadata
-    assert tune_walks.holds_rays(cached.stream)
+    assert np.array_equal(sensor_viewpoints(stream, cells), sensor_viewpoints(cached, cells))
+    assert cached.metadata == stream.metadata
+    assert tune_walks.holds_rays(cached)
     rays, cached_rays = Sightlines.from_stream(stream), Sightlines.from_stream(cached.stream)
     assert len(rays) > 0 and np.array_equal(rays.ends, cached_rays.ends)
     assert np.array_equal(rays.origins, cached_rays.origins)

@@ -323,3 +323,52 @@ def test_recognition_gives_no_class_that_stands_on_a_support_to_an_object_on_the
     out = ICPMatchCompleter(library=name).run(data)["instances"]
     assert out[1].class_name == "object" and "best_class" not in out[1].attributes["recognition"]
     assert out[2].class_name == "microwave"
+
+
+def test_seen_coverage_counts_what_a_sensor_could_have_seen_of_a_model():
+    """A closed unit against a wall, seen from the room: its front, top and sides are what the sensor
+    could see. Points on those cover nearly all of it, although its back and bottom (a third of its
+    surface) hold none; a strip of its front covers little."""
+    from stratamap.plugins.completers._matching import seen_coverage
+
+    unit = trimesh.creation.box(extents=[1.0, 0.5, 0.9])
+    unit.apply_translation([0.0, 0.0, 0.45])
+    views = np.array([[x, -3.0, 1.3] for x in (-2.0, -1.0, 0.0, 1.0, 2.0)])
+    surface, faces = trimesh.sample.sample_surface(unit, 20000, seed=1)
+    normals = unit.face_normals[faces]
+    seen = surface[(normals[:, 1] < 0.5) & (normals[:, 2] > -0.5)]  # not the back (+y) nor the bottom
+    assert 0.55 < len(seen) / len(surface) < 0.75
+    assert seen_coverage(unit, seen, views, 0.03) > 0.95
+    strip = seen[(normals[(normals[:, 1] < 0.5) & (normals[:, 2] > -0.5)][:, 1] < -0.5) & (np.abs(seen[:, 0]) < 0.05)]
+    assert len(strip) > 100 and seen_coverage(unit, strip, views, 0.03) < 0.1
+    # Nothing seeable from these viewpoints (all inside the model): the whole surface counts.
+    assert 0.55 < seen_coverage(unit, seen, np.array([[0.0, 0.0, 0.45]]), 0.03) < 0.8
+
+
+def test_recognition_takes_no_class_for_a_strip_of_a_models_surface():
+    """A strip of a fridge's front (a sliver a map keeps of a tall unit) lies on the fridge model's
+    surface: the one-sided fit passes, but the strip covers little of what could be seen of the model
+    posed there, so it keeps no class; the whole fridge is recognized."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
+    fridge = make_model("fridge", 0, 2)
+    name = register_library("recognition-strip", ModelLibrary([model_to_library(fridge)]))
+    mesh = fridge.mesh()
+    pts, faces = trimesh.sample.sample_surface(mesh, 20000, seed=0)
+    front = pts[(mesh.face_normals[faces][:, 1] < -0.9)]
+    centre = float(np.median(front[:, 0]))
+    strip = front[np.abs(front[:, 0] - centre) < 0.06] + [2.0, 1.0, 0.0]
+    whole = pts[mesh.face_normals[faces][:, 2] > -0.5] + [4.0, 1.0, 0.0]
+    data = PipelineData()
+    data.map.instances = ObjectInstances(
+        [
+            ObjectInstance(1, "object", strip, gravity_aligned_box(strip)),
+            ObjectInstance(2, "object", whole, gravity_aligned_box(whole)),
+        ]
+    )
+    out = ICPMatchCompleter(library=name).run(data)["instances"]
+    record = out[1].attributes["recognition"]
+    assert record["best_class"] == "fridge" and record["fit_m"] <= 0.03 and record["coverage"] < 0.3, record
+    assert out[1].class_name == "object" and "class" not in record
+    assert out[2].class_name == "fridge" and out[2].attributes["recognition"]["coverage"] >= 0.3
+    assert "seeable surface" in out[2].attributes["naming"]["why"]
