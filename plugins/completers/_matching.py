@@ -112,11 +112,11 @@ class MatcherConfig(StageConfig, ExecutorConfig):
         ge=0.0,
         le=1.0,
         description=(
-            "Smallest share of the model's seeable surface (posed as fitted, facing a viewpoint of the map unhidden "
-            "by the model itself) within recognize_fit of the observed points for recognition to take its class: the "
-            "fit is one-sided, so a sliver of a wall lies on many a model's surface; 0 turns the check off. 0.5 was "
-            "chosen on the tuning walks of configs/bench/generalization_tuning.yaml (docs/experiments/2026-11-29-"
-            "recognition-two-sided.md)."
+            "Smallest share of the model's seeable surface (posed as fitted: what a ray from one of the map's "
+            "viewpoints reaches before any other part of the model) within recognize_fit of the observed points for "
+            "recognition to take its class: the fit is one-sided, so a sliver of a wall lies on many a model's "
+            "surface; 0 turns the check off. 0.5 was chosen on the tuning walks of "
+            "configs/bench/generalization_tuning.yaml (docs/experiments/2026-11-29-recognition-two-sided.md)."
         ),
     )
     reject_distance: float | None = Field(
@@ -259,8 +259,8 @@ COVERAGE_SAMPLES = 2000
 def seen_coverage(mesh: trimesh.Trimesh, points: np.ndarray, views: np.ndarray, distance: float) -> float:
     """Share of the surface of ``mesh`` (world frame) that a sensor at ``views`` (V, 3) could have seen
     and that lies within ``distance`` of the observed ``points``: the other direction of a one-sided fit.
-    A surface sample counts as seeable from a viewpoint when the ray from it meets no other part of the
-    mesh first (a unit's back against the wall, its bottom and what its doors close in are not); where
+    A surface sample counts as seeable from a viewpoint when the ray from the viewpoint to it meets no
+    other part of the mesh first (a unit's back against the wall, its bottom and what its doors close in are not); where
     no viewpoint sees any of it, the whole surface counts. Deterministic (fixed sampling seed)."""
     if len(mesh.faces) == 0 or len(points) == 0:
         return 0.0
@@ -517,13 +517,14 @@ class MatchingCompleter(Completer[MatcherConfigT]):
                 name, match = found
                 fit = float(match.details.get("fit_m", match.score))
                 record.update({"best_class": name, "model": match.model_id, "fit_m": round(fit, 4)})
+                renames = fit <= cfg.recognize_fit and name != inst.class_name
                 covered = 1.0
-                if fit <= cfg.recognize_fit and name != inst.class_name and cfg.recognize_coverage > 0:
+                if renames and cfg.recognize_coverage > 0:
                     mesh = posed_completion(index.library.get(match.model_id), match, self.name).world_mesh()
                     views = sensor_viewpoints(data.stream if data is not None else None, inst.points)
                     covered = seen_coverage(mesh, inst.points, views, cfg.recognize_fit)
                     record["coverage"] = round(covered, 3)
-                if fit <= cfg.recognize_fit and name != inst.class_name and covered >= cfg.recognize_coverage:
+                if renames and covered >= cfg.recognize_coverage:
                     record["class"] = name
                     set_naming(
                         inst,

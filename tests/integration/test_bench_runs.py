@@ -186,6 +186,6 @@ def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
     assert np.array_equal(sensor_viewpoints(stream, cells), sensor_viewpoints(cached, cells))
     assert cached.metadata == stream.metadata
     assert tune_walks.holds_rays(cached)
-    rays, cached_rays = Sightlines.from_stream(stream), Sightlines.from_stream(cached.stream)
+    rays, cached_rays = Sightlines.from_stream(stream), Sightlines.from_stream(cached)
     assert len(rays) > 0 and np.array_equal(rays.ends, cached_rays.ends)
     assert np.array_equal(rays.origins, cached_rays.origins)
