@@ -111,7 +111,6 @@ def holds_rays(stream: Any) -> bool:
 
 
 def run_prefix(job: tuple[Path, str, dict[str, Any], int, Path, bool]) -> str:
-
     bench_file, variant_name, scene, stages, cache, rebuild = job
     spec, _, variant = load(bench_file, variant_name)
     target = cache_file(cache, scene, spec, variant, stages)

@@ -238,15 +238,20 @@ def stands_on_floor(class_name: str, top_z: float, floor_z: float = 0.0) -> bool
     return heights is not None and heights[0] <= top_z - floor_z <= heights[1]
 
 
-def observation_disagreement(points: np.ndarray, mesh: trimesh.Trimesh, distance: float) -> float:
-    """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
-    if len(points) == 0 or len(mesh.faces) == 0:
-        return 0.0
+def raycasting_scene(mesh: trimesh.Trimesh) -> Any:
+    """An Open3D ray-casting scene of ``mesh`` (distances to it, rays against it)."""
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
     )
-    dist = scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
+    return scene
+
+
+def observation_disagreement(points: np.ndarray, mesh: trimesh.Trimesh, distance: float) -> float:
+    """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
+    if len(points) == 0 or len(mesh.faces) == 0:
+        return 0.0
+    dist = raycasting_scene(mesh).compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
     return float(np.mean(dist > distance))
 
 
@@ -265,10 +270,7 @@ def seen_coverage(mesh: trimesh.Trimesh, points: np.ndarray, views: np.ndarray, 
     if len(mesh.faces) == 0 or len(points) == 0:
         return 0.0
     samples = np.asarray(trimesh.sample.sample_surface(mesh, COVERAGE_SAMPLES, seed=0)[0], dtype=np.float64)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
-    )
+    scene = raycasting_scene(mesh)
     views = np.asarray(views, dtype=np.float64).reshape(-1, 3)
     views = views[np.unique(np.linspace(0, len(views) - 1, min(len(views), COVERAGE_VIEWS)).astype(int))]
     seeable = np.zeros(len(samples), dtype=bool)
