@@ -44,6 +44,11 @@ class OrientedBox:
     def top_z(self) -> float:
         return float(self.center[2] + self.size[2] / 2)
 
+    def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Per point (N, 3), whether it lies inside the box grown by ``margin`` (m) on every side."""
+        local = (np.asarray(points, dtype=np.float64) - self.center) @ self.pose[:3, :3]
+        return np.all(np.abs(local) <= self.size / 2 + margin, axis=1)
+
     def corners_2d(self) -> np.ndarray:
         """(4, 2) footprint corners in world x, y, counter-clockwise."""
         hx, hy = self.size[0] / 2, self.size[1] / 2

@@ -77,6 +77,14 @@ from stratamap.plugins.segmenters._sightlines import Sightlines
 STACK_GAP = 0.12
 
 
+#: A piece with this share of its points inside a larger floor-standing object's box is a part of it
+#: (``_join_enclosed``), the box grown by this many voxels on every side (the map's noise at its faces).
+ENCLOSED_SHARE = 0.8
+ENCLOSED_MARGIN_VOXELS = 2.5
+#: Seating: furniture stands within a table's, a desk's or a unit's box (a chair pushed under it or
+#: close beside it), never within a seat's.
+SEATING = ("chair", "sofa", "bench")
+
 #: A chair's back, behind its seat, may reach this far (m) below the seat's top (a swivel chair's back
 #: on the bar that holds it).
 BACK_BELOW_SEAT = 0.2
@@ -1406,6 +1414,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         self._join_parts(points, class_ids, instance_ids, vocab, base_z, walls, sight, support_heights, voxel)
         self._assemble_chairs(points, class_ids, instance_ids, vocab, base_z, walls, sight, why)
         self._join_seating(points, class_ids, instance_ids, vocab, base_z, walls, sight, voxel, why)
+        self._join_enclosed(
+            points, class_ids, instance_ids, vocab, base_z, walls, sight, support_heights, support_of_point, voxel
+        )
         # What an object may stand on: support surfaces and other instances, each by its own key.
         n_supports = len(support_areas) if support_areas is not None else 0
         holder = np.where(instance_ids > 0, n_supports + instance_ids, -1)
@@ -1645,6 +1656,101 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
             why[first] = ("shape", "seating side by side, too long for one chair: a sofa")
         if joined:
             self.note("seating_joined", joined)
+
+    def _join_enclosed(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+        sight: Sightlines | None,
+        support_heights: np.ndarray,
+        support_of_point: np.ndarray | None,
+        voxel: float,
+    ) -> None:
+        """A piece lying within a larger floor-standing object's box (ENCLOSED_SHARE of its points, the
+        box grown by ENCLOSED_MARGIN_VOXELS) is a part of it: a chair's slat or post, a fridge's handle,
+        a worktop's edge that frames boxed on their own. It joins that object, whose class must still
+        fit it, unless it is an object of its own there: a small thing standing on a support surface
+        (``support_of_point``: the support index of each point, -1 none; a cup on the worktop, or on
+        the table a chair is pushed under), or at the height (``support_heights``) of a support surface
+        of the object around it; or furniture standing on the floor, whose class its shape fits, within
+        anything but seating (a chair under a table or a desk). In place; each join is noted."""
+        from scipy.spatial import cKDTree
+
+        from stratamap.core.geometry.boxes import gravity_aligned_box
+        from stratamap.core.map.instances import instance_members
+        from stratamap.core.map.priors import NOT_STACKED, ON_A_SUPPORT
+
+        info = {}
+        for iid, sel in instance_members(instance_ids).items():
+            cls = int(np.bincount(class_ids[sel]).argmax())
+            if len(sel) >= 4 and vocab.is_thing[cls]:
+                info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls, sight), sel)
+        # Floor-standing objects hold pieces, each as the class it will have: its own where its shape
+        # fits it, else the one its shape makes most likely (a unit a detector called a table).
+        holders, kind = {}, {}
+        for iid, (name, shape, sel) in info.items():
+            if shape.bottom <= FLOOR_GAP:
+                holders[iid] = gravity_aligned_box(points[sel])
+                fits = name != "object" and fits_class(name, shape)
+                kind[iid] = name if fits else self._prior(shape, vocab, base_z, np.zeros(0), voxel)[0]
+        if not holders:
+            return
+        tolerance = self._standing_tolerance(voxel)
+        on_top = np.flatnonzero(support_of_point >= 0) if support_of_point is not None else np.zeros(0, np.int64)
+        surfaces = cKDTree(points[on_top]) if len(on_top) else None
+        joined = []
+        for iid in sorted(info, key=lambda i: (len(info[i][2]), i)):
+            name, shape, sel = info[iid]
+            heights = np.zeros(0)
+            if surfaces is not None:
+                # The support surfaces under the piece's foot (by place, not only by height), its own
+                # points left out (a worktop's edge is support surface itself).
+                foot = points[sel][points[sel, 2] <= base_z + shape.bottom + voxel]
+                near = on_top[sorted({int(j) for hits in surfaces.query_ball_point(foot, tolerance) for j in hits})]
+                heights = points[near[instance_ids[near] != iid], 2] - base_z
+            # A small thing on a support surface is an object of its own. The surface under a cup is
+            # hidden by it, and its edge may be too: at a support's height, a small thing stands on the
+            # object around it where that object holds a support surface at that height (a worktop);
+            # else it is level with a support elsewhere (a chair's post beside a table's top).
+            shelved = self._prior(shape, vocab, base_z, heights + base_z, voxel)[0] in ON_SUPPORTS or (
+                name in ON_A_SUPPORT and fits_class(name, shape)
+            )
+            if shelved and on_a_support(shape.bottom, heights, tolerance):
+                continue
+            level = shelved and on_a_support(base_z + shape.bottom, support_heights, tolerance)
+            furniture = (
+                name in NOT_STACKED and fits_class(name, shape) and shape.bottom <= FLOOR_GAP and not _thin(points[sel])
+            )
+            for holder in sorted(holders, key=lambda i: (-len(info[i][2]), i)):
+                h_name, h_shape, h_sel = info[holder]
+                if holder == iid or len(h_sel) <= len(sel):
+                    continue
+                if furniture and kind[holder] not in SEATING:
+                    continue
+                within = holders[holder].contains(points[sel], ENCLOSED_MARGIN_VOXELS * voxel).mean()
+                if within < ENCLOSED_SHARE:
+                    continue
+                if level and support_of_point is not None:
+                    held = support_of_point[h_sel] >= 0
+                    if on_a_support(base_z + shape.bottom, points[h_sel[held], 2], tolerance):
+                        continue
+                merged = np.concatenate([h_sel, sel])
+                if kind[holder] != "object" and not fits_class(
+                    kind[holder], describe_shape(points[merged], base_z, walls, sight)
+                ):
+                    continue
+                instance_ids[sel] = holder
+                class_ids[sel] = vocab.id(h_name)
+                info[holder] = (h_name, h_shape, merged)
+                holders.pop(iid, None)
+                joined.append({"instance": iid, "into": holder, "class": h_name, "was": name})
+                break
+        if joined:
+            self.note("enclosed_joined", joined)
 
     def _join_parts(
         self,

@@ -65,3 +65,10 @@ def test_first_of_each_row_is_numpys_row_unique():
     expected = np.sort(np.unique(rows, axis=0, return_index=True)[1])
     assert np.array_equal(first_of_each_row(rows), expected)
     assert 9 not in first_of_each_row(rows)
+
+
+def test_a_box_contains_points_within_its_turned_sides_and_margin():
+    box = OrientedBox([1.0, 0.0, 0.5], np.pi / 4, [2.0, 0.2, 1.0])  # long side along x = y
+    along, across, above = [1.7, 0.7, 0.5], [1.7, -0.7, 0.5], [1.0, 0.0, 1.04]
+    assert box.contains(np.array([along, across, above])).tolist() == [True, False, False]
+    assert box.contains(np.array([above]), margin=0.05).tolist() == [True]

@@ -558,6 +558,66 @@ def test_a_chair_pushed_under_a_table_stays_a_chair():
     assert len(chairs) == 1 and chairs[0].box.size[2] > 0.25
 
 
+def test_a_chairs_back_above_a_table_tops_height_joins_its_chair_and_the_cup_on_the_table_stays():
+    """The frames boxed the top of one half of a chair's back, rising from the height of the table top
+    beside it, as a "box": of a box's size, its foot at a support's height. But no support surface lies under
+    it, the chair holds none at that height, and it lies within the chair's box: it is part of the
+    chair (``_join_enclosed``). The cup on the table's top stands on a support surface: an object of
+    its own."""
+    points, names = kitchen_room(0.02)
+    back_top = (names == "chair") & (points[:, 2] > 0.76) & (points[:, 0] > 2.95)  # one post and half the back
+    assert points[back_top, 1].min() > 2.9  # beside the table's top, not over it
+    out = recognized(
+        points,
+        names,
+        [
+            (names == "table", "table"),
+            (names == "cup", "cup"),
+            ((names == "chair") & ~back_top, "chair"),
+            (back_top, "box"),
+        ],
+    )
+    assert sorted(inst.class_name for inst in out["instances"]) == ["chair", "counter", "cup", "table"]
+    sem = out["semantics"]
+    chair_id = np.bincount(sem.instance_ids[(names == "chair") & ~back_top]).argmax()
+    assert (sem.instance_ids[back_top] == chair_id).all()
+
+
+def armchair(x: float, y: float) -> list:
+    """A 0.8 x 0.8 m armchair: a seat block, two arms and a back, standing on the floor."""
+    return [
+        ("armchair", (x - 0.3, y - 0.4, 0.0), (x + 0.3, y + 0.25, 0.42)),
+        ("arm", (x - 0.4, y - 0.4, 0.0), (x - 0.3, y + 0.4, 0.62)),
+        ("armchair", (x + 0.3, y - 0.4, 0.0), (x + 0.4, y + 0.4, 0.62)),
+        ("armchair", (x - 0.3, y + 0.25, 0.0), (x + 0.3, y + 0.4, 0.85)),
+    ]
+
+
+def test_an_armchairs_arm_boxed_as_a_chair_of_its_own_joins_it():
+    """The frames boxed an armchair's arm apart, as a "chair": a chair's size by the priors and on the
+    floor, but it lies within the armchair's box, and one chair does not stand within another. One
+    chair."""
+    objects, names = solids(armchair(3.0, 2.5), 0.02)
+    keep = objects[:, 2] > 1e-6
+    points, names = in_room((objects[keep], names[keep]))
+    out = recognized(points, names, [(names == "armchair", "chair"), (names == "arm", "chair")])
+    assert [inst.class_name for inst in out["instances"]] == ["chair"]
+
+
+def test_a_chair_pushed_under_a_table_is_a_chair_of_its_own():
+    """A chair pushed under a table lies (all but its back's top) within the table's box: furniture
+    standing on the floor, of a class its shape fits, under furniture with room below its top. It is
+    no piece of the table."""
+    objects, names = solids(table(3.0, 2.5) + chair(3.0, 2.62), 0.02)
+    keep = objects[:, 2] > 1e-6
+    keep &= ~((names == "chair") & (objects[:, 2] > 0.72) & (objects[:, 2] < 0.75 + 1e-6))  # under the top
+    points, names = in_room((objects[keep], names[keep]))
+    seat_and_legs = (names == "chair") & (points[:, 2] < 0.8)
+    assert seat_and_legs.sum() >= 0.8 * (names == "chair").sum()  # within the table's box grown by 5 cm
+    out = recognized(points, names, [(names == "table", "table"), (names == "chair", "chair")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["chair", "table"]
+
+
 def test_a_chair_holding_a_desk_top_is_no_chair():
     """A weak "chair" box's mask took a desk's top, its legs unseen (a desk top seen in the air is as
     high as a chair's back): a chair's seat is no 1.0 x 0.8 m level surface (``max_top_area``). The
