@@ -978,6 +978,27 @@ def _largest_top(
     return float(support_areas[held].max()) if len(held) else 0.0
 
 
+def _thing_shapes(
+    points: np.ndarray,
+    class_ids: np.ndarray,
+    instance_ids: np.ndarray,
+    vocab: Vocabulary,
+    base_z: float,
+    walls: list[Any],
+    sight: Sightlines | None,
+) -> dict[int, tuple[str, Shape, np.ndarray]]:
+    """Each instance of a thing class (its points' most frequent) with 4 points or more, by id: its
+    class, its shape and its point indices."""
+    from stratamap.core.map.instances import instance_members
+
+    info = {}
+    for iid, sel in instance_members(instance_ids).items():
+        cls = int(np.bincount(class_ids[sel]).argmax())
+        if len(sel) >= 4 and vocab.is_thing[cls]:
+            info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls, sight), sel)
+    return info
+
+
 def _thin(pts: np.ndarray) -> bool:
     """Thinner than THIN across, in height (2-98 % of its points: a single frame's floor bends by
     centimetres at range) or in depth (a poster on a wall), and flat: at most FLAT times as thick as
@@ -1681,14 +1702,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         from scipy.spatial import cKDTree
 
         from stratamap.core.geometry.boxes import gravity_aligned_box
-        from stratamap.core.map.instances import instance_members
         from stratamap.core.map.priors import NOT_STACKED, ON_A_SUPPORT
 
-        info = {}
-        for iid, sel in instance_members(instance_ids).items():
-            cls = int(np.bincount(class_ids[sel]).argmax())
-            if len(sel) >= 4 and vocab.is_thing[cls]:
-                info[iid] = (vocab.name(cls), describe_shape(points[sel], base_z, walls, sight), sel)
+        info = _thing_shapes(points, class_ids, instance_ids, vocab, base_z, walls, sight)
         # Floor-standing objects hold pieces, each as the class it will have: its own where its shape
         # fits it, else the one its shape makes most likely (a unit a detector called a table).
         holders, kind = {}, {}
@@ -1770,20 +1786,16 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         the anchor's class that cannot be of it alone (a 20 cm "chair" at seat height), or one that
         nothing of its own holds up (off the floor, off the walls, of no floor-standing class: a
         backrest's top voted "monitor"). In place."""
-        from stratamap.core.map.instances import instance_members
         from stratamap.core.map.priors import NOT_STACKED, OPEN_BELOW
 
-        members = instance_members(instance_ids)
-        if len(members) < 2:
+        if len(np.unique(instance_ids[instance_ids > 0])) < 2:
             return
-        info = {}
-        for iid, sel in members.items():
-            if len(sel) < 4:
-                continue
-            cls = int(np.bincount(class_ids[sel]).argmax())
-            if vocab.is_thing[cls]:
-                shape = describe_shape(points[sel], base_z, walls, sight)
-                info[iid] = (vocab.name(cls), shape, sel, self._prior(shape, vocab, base_z, support_heights, voxel)[0])
+        info = {
+            iid: (name, shape, sel, self._prior(shape, vocab, base_z, support_heights, voxel)[0])
+            for iid, (name, shape, sel) in _thing_shapes(
+                points, class_ids, instance_ids, vocab, base_z, walls, sight
+            ).items()
+        }
         # Anchors by the class they will have: the voted one where their size allows it, else the
         # priors' (a counter a detector without a 'counter' label framed as a "box").
         anchor_class, standing_class = {}, {}
