@@ -1727,7 +1727,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 # points left out (a worktop's edge is support surface itself).
                 foot = points[sel][points[sel, 2] <= base_z + shape.bottom + voxel]
                 near = on_top[sorted({int(j) for hits in surfaces.query_ball_point(foot, tolerance) for j in hits})]
-                heights = points[near[instance_ids[near] != iid], 2] - base_z
+                # A seat's surface holds pieces of its chair far more often than things.
+                seats = [h for h in holders if kind[h] in SEATING]
+                heights = points[near[(instance_ids[near] != iid) & ~np.isin(instance_ids[near], seats)], 2] - base_z
             # A small thing on a support surface is an object of its own. The surface under a cup is
             # hidden by it, and its edge may be too: at a support's height, a small thing stands on the
             # object around it where that object holds a support surface at that height (a worktop);
@@ -1750,7 +1752,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 within = holders[holder].contains(points[sel], ENCLOSED_MARGIN_VOXELS * voxel).mean()
                 if within < ENCLOSED_SHARE:
                     continue
-                if level and support_of_point is not None:
+                if level and support_of_point is not None and kind[holder] not in SEATING:
                     held = support_of_point[h_sel] >= 0
                     if on_a_support(base_z + shape.bottom, points[h_sel[held], 2], tolerance):
                         continue
