@@ -1718,6 +1718,8 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         tolerance = self._standing_tolerance(voxel)
         on_top = np.flatnonzero(support_of_point >= 0) if support_of_point is not None else np.zeros(0, np.int64)
         surfaces = cKDTree(points[on_top]) if len(on_top) else None
+        # A seat's surface holds pieces of its chair far more often than things: it spares none.
+        seats = [h for h, k in kind.items() if k in SEATING]
         joined = []
         for iid in sorted(info, key=lambda i: (len(info[i][2]), i)):
             name, shape, sel = info[iid]
@@ -1727,8 +1729,6 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 # points left out (a worktop's edge is support surface itself).
                 foot = points[sel][points[sel, 2] <= base_z + shape.bottom + voxel]
                 near = on_top[sorted({int(j) for hits in surfaces.query_ball_point(foot, tolerance) for j in hits})]
-                # A seat's surface holds pieces of its chair far more often than things.
-                seats = [h for h in holders if kind[h] in SEATING]
                 heights = points[near[(instance_ids[near] != iid) & ~np.isin(instance_ids[near], seats)], 2] - base_z
             # A small thing on a support surface is an object of its own. The surface under a cup is
             # hidden by it, and its edge may be too: at a support's height, a small thing stands on the
@@ -1744,7 +1744,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 name in NOT_STACKED and fits_class(name, shape) and shape.bottom <= FLOOR_GAP and not _thin(points[sel])
             )
             for holder in sorted(holders, key=lambda i: (-len(info[i][2]), i)):
-                h_name, h_shape, h_sel = info[holder]
+                h_name, _, h_sel = info[holder]
                 if holder == iid or len(h_sel) <= len(sel):
                     continue
                 if furniture and kind[holder] not in SEATING:
@@ -1763,7 +1763,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                     continue
                 instance_ids[sel] = holder
                 class_ids[sel] = vocab.id(h_name)
-                info[holder] = (h_name, h_shape, merged)
+                info[holder] = (h_name, info[holder][1], merged)
                 holders.pop(iid, None)
                 joined.append({"instance": iid, "into": holder, "class": h_name, "was": name})
                 break
