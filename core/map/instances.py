@@ -14,6 +14,7 @@ NAMED_BY = {
     "labels": "the previous stage's per-frame labels, fused in the map (a detector's or a network's classes)",
     "votes": "the fused labels of most of its points, where the segmenter found the object by geometry",
     "shape": "class size priors and support context (recognition by priors)",
+    "context": "what else the map holds (a counter's size in a room with nothing of a kitchen is a cabinet's)",
     "size rules": "the segmenter's own class_rules (extent and height) or a support surface on top",
     "matching": "the best-fitting library model over every class (recognition by matching)",
     "unnamed": "nothing named it: no label, vote or rule fitted, so it keeps the catch-all class (object)",

@@ -28,6 +28,7 @@ class Shape(NamedTuple):
     solid: bool  # its body (middle heights) spans most of its length and was not seen through: a front, not legs
     seat: bool = False  # a third of its top view at sitting height, a back or arms rising above it
     knee_space: bool = False  # nothing below KNEE_HEIGHT across the middle of its length: legs or pedestals at its ends
+    top_span: float = 0.0  # share of its length (5 cm bins) that its flat top's level covers: one worktop, not two tops
 
 
 #: A desk's knee space is clear of its body up to at least this height (m) across the middle third of
@@ -60,6 +61,14 @@ BACK_ABOVE_SEAT = 0.15
 #: coffee tables with a low shelf 0.34-0.48, tables on legs 0.51-0.97.
 SEEN_THROUGH = 0.25
 SEEN_THROUGH_RAYS = 100
+#: The longest single base unit or chest of drawers (m): kitchen base units come 0.3-1.2 m wide (12-48
+#: in). A worktop longer than that spans two units or more: a counter run, which kitchens have.
+SINGLE_UNIT_LENGTH = 1.2
+#: A worktop is one slab: its level covers at least this share of the run's length (two units side by
+#: side that came out as one object show two tops, at two heights).
+RUN_TOP_SPAN = 0.9
+#: Appliances that stand in kitchens, not in offices or living rooms.
+KITCHEN_APPLIANCES = ("fridge", "oven", "sink", "dishwasher")
 #: Things the priors name when they stand on a support surface, by size.
 ON_SUPPORTS = ("cup", "bottle", "box")
 #: Things of a hand's size among them (a box may be a microwave's size).
@@ -85,10 +94,11 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     cell = 0.05
     footprint = max(footprint_area(pts[:, :2], cell), cell * cell)
     flat_top = False
+    top = pts[:0]
     for level in np.arange(zmax, zmax - height / 3.0, -0.02):
         layer = pts[np.abs(z - level) <= 0.02]
         if len(layer) and footprint_area(layer[:, :2], cell) >= 0.5 * footprint:
-            flat_top = True
+            flat_top, top = True, layer
             break
     # A solid body: the middle heights' points, projected on the box's long axis, cover most of its
     # length (a unit's front or side) rather than two or four spots (a table's legs).
@@ -102,6 +112,14 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     bins = max(1, int(np.ceil((high - low) / cell)))
     covered = len(np.unique(np.clip(((along - low) / cell).astype(np.int64), 0, bins - 1))) if len(along) else 0
     solid = covered / bins >= 0.6
+    # The top's span: the 5 cm cells whose highest point lies on the flat top's level (a front face
+    # crosses every level; only a cell's highest point says where its top is), along the long axis.
+    top_span = 0.0
+    if flat_top:
+        column, highest = _column_tops(pts, cell)
+        on_level = np.abs(highest - float(np.median(top[:, 2]))) <= 0.02
+        along_top = pts[on_level[column], :2] @ axis
+        top_span = len(np.unique(np.clip(((along_top - low) / cell).astype(np.int64), 0, bins - 1))) / bins
     if solid and sight is not None:
         seen = sight.seen_through(pts, box)
         solid = not (seen.through + seen.stopped >= SEEN_THROUGH_RAYS and seen.share >= SEEN_THROUGH)
@@ -115,8 +133,29 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
         taken = len(np.unique(((full[centre] - low - third) / cell).astype(np.int64)))
         knee_space = taken < 0.25 * cells
     return Shape(
-        length, depth, height, zmin - base_z, reach, bool(near_wall), flat_top, solid, _seat(pts, cell), knee_space
+        length,
+        depth,
+        height,
+        zmin - base_z,
+        reach,
+        bool(near_wall),
+        flat_top,
+        solid,
+        _seat(pts, cell),
+        knee_space,
+        float(top_span),
     )
+
+
+def _column_tops(pts: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's vertical column (``cell`` m square) and each column's highest z: the top view."""
+    from stratamap.core.geometry.points import cell_keys
+
+    _, column = np.unique(cell_keys(pts * (1.0, 1.0, 0.0), cell), return_inverse=True)  # heights dropped
+    column = column.reshape(-1)
+    tops = np.full(int(column.max()) + 1, -np.inf)
+    np.maximum.at(tops, column, pts[:, 2])
+    return column, tops
 
 
 def _seat(pts: np.ndarray, cell: float) -> bool:
@@ -125,12 +164,8 @@ def _seat(pts: np.ndarray, cell: float) -> bool:
     a tenth or more it lies BACK_ABOVE_SEAT or more above the seat (a backrest, arms): a chair's, an
     armchair's or a sofa's top view, not a table's, a cabinet's or a counter's, whose top view is one
     level (their top), nor a stool's."""
-    from stratamap.core.geometry.points import cell_keys
-
-    z = pts[:, 2] - float(pts[:, 2].min())
-    _, column = np.unique(cell_keys(pts * (1.0, 1.0, 0.0), cell), return_inverse=True)  # heights dropped
-    tops = np.full(int(column.max()) + 1, -np.inf)
-    np.maximum.at(tops, column.reshape(-1), z)
+    _, tops = _column_tops(pts, cell)
+    tops = tops - float(pts[:, 2].min())
     at_seat = (tops >= SEAT_HEIGHTS[0]) & (tops <= SEAT_HEIGHTS[1])
     if at_seat.mean() < 1.0 / 3.0:
         return False
@@ -288,6 +323,12 @@ def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05
         return low - slack <= shape.height <= high + slack
 
     return within(geometric) and not within(voted)
+
+
+def counter_run(shape: Shape) -> bool:
+    """Whether an object of this shape is a worktop over two base units or more (longer than
+    SINGLE_UNIT_LENGTH, a counter's size): no storage unit of an office or a living room is that."""
+    return shape.length > SINGLE_UNIT_LENGTH and shape.top_span >= RUN_TOP_SPAN and fits_class("counter", shape)
 
 
 def on_a_support(foot: float, support_heights: np.ndarray, tolerance: float) -> bool:

@@ -57,12 +57,14 @@ from stratamap.plugins.segmenters._recognition import (
     FLAT,
     FLOOR_GAP,
     HAND_HELD,
+    KITCHEN_APPLIANCES,
     NO_RULE_FITS,
     ON_SUPPORTS,
     SEAT_HEIGHTS,
     STANDING_GAP,
     THIN,
     Shape,
+    counter_run,
     describe_shape,
     fits_class,
     on_a_support,
@@ -1489,9 +1491,50 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
                 class_ids[sel] = vocab.id(new)
                 changes.append({"instance": iid, "from": name, "to": new, "why": reason})
                 why[iid] = ("shape", f"{reason} (was {name})")
+        changes += self._counters_need_a_kitchen(points, class_ids, instance_ids, vocab, base_z, walls, sight, why)
         if changes:
             self.note("recognition", changes)
         return class_ids, instance_ids
+
+    def _counters_need_a_kitchen(
+        self,
+        points: np.ndarray,
+        class_ids: np.ndarray,
+        instance_ids: np.ndarray,
+        vocab: Vocabulary,
+        base_z: float,
+        walls: list[Any],
+        sight: Sightlines | None,
+        why: dict[int, tuple[str, str]],
+    ) -> list[dict[str, Any]]:
+        """A unit the priors called a counter by its size alone (a solid unit with a flat top at
+        worktop height) is as likely a chest of drawers or a storage unit: where nothing in the map
+        says kitchen (no counter run longer than one unit, ``counter_run``; no counter another source
+        named; no KITCHEN_APPLIANCES), such units no longer than one unit are cabinets. In place;
+        returns the changes."""
+        from stratamap.core.map.instances import instance_members
+
+        if "counter" not in vocab or "cabinet" not in vocab:
+            return []
+        short = []
+        for iid, sel in instance_members(instance_ids).items():
+            name = vocab.name(int(np.bincount(class_ids[sel]).argmax()))
+            if name in KITCHEN_APPLIANCES:
+                return []
+            if name != "counter":
+                continue
+            shape = describe_shape(points[sel], base_z, walls, sight)
+            if counter_run(shape) or why.get(iid, ("labels", ""))[0] != "shape":
+                return []
+            if fits_class("cabinet", shape):
+                short.append((iid, sel))
+        changes = []
+        reason = "a counter's size, but nothing in the map says kitchen (no counter run, no appliance): a unit"
+        for iid, sel in short:
+            class_ids[sel] = vocab.id("cabinet")
+            changes.append({"instance": iid, "from": "counter", "to": "cabinet", "why": reason})
+            why[iid] = ("context", f"{reason} (was counter)")
+        return changes
 
     def _split_units(
         self,

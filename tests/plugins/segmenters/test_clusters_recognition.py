@@ -897,3 +897,38 @@ def test_a_mug_against_the_wall_that_frames_voted_wall_is_a_mug():
     inst = next(i for i in out["instances"] if i.id == int(np.argmax(owner)))
     assert inst.class_name == "cup", naming_text(inst)
     assert (sem.class_ids[picture] == VOCAB.id("wall")).mean() > 0.9
+
+
+def storage_unit(y0: float, length: float, height: float, depth: float = 0.62) -> tuple[np.ndarray, np.ndarray]:
+    """A closed unit against the x=0 wall from y0, its back and the floor under it unseen."""
+    unit, names = solids([("unit", (0.0, y0, 0.0), (depth, y0 + length, height))], 0.02)
+    keep = (unit[:, 2] > 1e-6) & (unit[:, 0] > 1e-6)
+    return unit[keep], names[keep]
+
+
+def test_a_counter_sized_unit_where_nothing_says_kitchen_is_a_cabinet():
+    """A 1 m closed unit, 0.62 m deep and 0.9 m high, is a short worktop's size and a chest's or a
+    storage unit's too. Alone in a room (an office's storage unit scaled to a cabinet's height) it is a
+    cabinet, and its naming says why; beside a worktop run longer than one unit (a kitchen) the same
+    unit is a counter."""
+    points, names = in_room(storage_unit(1.0, 1.0, 0.9))
+    out = recognized(points, names, [(names == "unit", "box")])
+    assert [inst.class_name for inst in out["instances"]] == ["cabinet"]
+    assert next(iter(out["instances"])).attributes["naming"]["by"] == "context"
+    run, run_names = storage_unit(2.4, 1.6, 0.9)
+    points, names = in_room(storage_unit(0.6, 1.0, 0.9), (run, np.full(len(run), "run")))
+    out = recognized(points, names, [(names == "unit", "box"), (names == "run", "box")])
+    assert sorted(inst.class_name for inst in out["instances"]) == ["counter", "counter"]
+
+
+def test_a_worktop_run_has_one_top():
+    """A worktop over two units is one slab at one level along its whole length; two units side by
+    side at 0.82 m and 0.9 m that came out as one object show two tops: no run, no kitchen."""
+    from stratamap.plugins.segmenters._recognition import counter_run
+
+    one, _ = storage_unit(1.0, 1.6, 0.9)
+    assert counter_run(describe_shape(one, 0.0, []))
+    low, _ = storage_unit(1.0, 0.9, 0.82)
+    high, _ = storage_unit(1.9, 0.7, 0.9)
+    two = describe_shape(np.concatenate([low, high]), 0.0, [])
+    assert two.length > 1.5 and fits_class("counter", two) and not counter_run(two)
