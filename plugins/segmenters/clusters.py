@@ -1510,8 +1510,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         """A unit the priors called a counter by its size alone (a solid unit with a flat top at
         worktop height) is as likely a chest of drawers or a storage unit: where nothing in the map
         says kitchen (no counter run longer than one unit, ``counter_run``; no counter another source
-        named; no KITCHEN_APPLIANCES), such units no longer than one unit are cabinets. In place;
-        returns the changes."""
+        named; no KITCHEN_APPLIANCES), such units are cabinets: those no longer than one unit, and
+        longer ones with no one top along them (two units that came out as one). In place; returns
+        the changes."""
         from stratamap.core.map.instances import instance_members
 
         if "counter" not in vocab or "cabinet" not in vocab:
