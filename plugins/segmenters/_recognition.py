@@ -92,6 +92,7 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     # cells), as a table's, a counter's or a cabinet's top do (under a kettle too) and a chair's backrest
     # does not.
     cell = 0.05
+    column, highest = _column_tops(pts, cell)  # the top view, for a seat and for the top's span
     footprint = max(footprint_area(pts[:, :2], cell), cell * cell)
     flat_top = False
     top = pts[:0]
@@ -116,7 +117,6 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     # crosses every level; only a cell's highest point says where its top is), along the long axis.
     top_span = 0.0
     if flat_top:
-        column, highest = _column_tops(pts, cell)
         on_level = np.abs(highest - float(np.median(top[:, 2]))) <= 0.02
         along_top = pts[on_level[column], :2] @ axis
         top_span = len(np.unique(np.clip(((along_top - low) / cell).astype(np.int64), 0, bins - 1))) / bins
@@ -141,7 +141,7 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
         bool(near_wall),
         flat_top,
         solid,
-        _seat(pts, cell),
+        _seat(highest - zmin),
         knee_space,
         float(top_span),
     )
@@ -158,14 +158,12 @@ def _column_tops(pts: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
     return column, tops
 
 
-def _seat(pts: np.ndarray, cell: float) -> bool:
-    """Whether the object is seating seen from above: the highest point over each ``cell`` of its
-    footprint lies at sitting height (SEAT_HEIGHTS above its foot) over a third of it or more, and over
-    a tenth or more it lies BACK_ABOVE_SEAT or more above the seat (a backrest, arms): a chair's, an
-    armchair's or a sofa's top view, not a table's, a cabinet's or a counter's, whose top view is one
-    level (their top), nor a stool's."""
-    _, tops = _column_tops(pts, cell)
-    tops = tops - float(pts[:, 2].min())
+def _seat(tops: np.ndarray) -> bool:
+    """Whether the object is seating seen from above (``tops``: the highest point of each 5 cm column
+    of its footprint, above its foot): that point lies at sitting height (SEAT_HEIGHTS) over a third
+    of its columns or more, and over a tenth or more BACK_ABOVE_SEAT or more above the seat (a
+    backrest, arms): a chair's, an armchair's or a sofa's top view, not a table's, a cabinet's or a
+    counter's, whose top view is one level (their top), nor a stool's."""
     at_seat = (tops >= SEAT_HEIGHTS[0]) & (tops <= SEAT_HEIGHTS[1])
     if at_seat.mean() < 1.0 / 3.0:
         return False
