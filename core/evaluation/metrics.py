@@ -26,16 +26,23 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
 
         out["detection"] = detection.evaluate_instances(m.instances, gt.objects)
         out["detection"]["box_map50"] = detection.box_map(m.instances, gt.objects)
+        refined_boxes = None
         if m.contact_graph is not None:
             from stratamap.core.map.layers import OrientedBox
 
-            refined = {
+            refined_boxes = {
                 n: OrientedBox.from_dict(d["box_refined"])
                 for n, d in m.contact_graph.support.nodes(data=True)
                 if "box_refined" in d
             }
-            out["detection"]["box_map50_refined"] = detection.box_map(m.instances, gt.objects, boxes=refined)
+            out["detection"]["box_map50_refined"] = detection.box_map(m.instances, gt.objects, boxes=refined_boxes)
         out["completion"] = completion.evaluate_completion(m.instances, gt.objects)
+        from stratamap.core.evaluation.furniture import evaluate_furniture
+
+        n_points = len(m.geometry) if m.geometry is not None else 0
+        out["furniture"] = evaluate_furniture(m.instances, gt.objects, m.semantics, n_points, boxes=refined_boxes)
+        observed = evaluate_furniture(m.instances, gt.objects, m.semantics, n_points)
+        out["furniture"]["observed"] = {k: observed[k] for k in ("recall", "precision", "recall_class_aware")}
         if m.contact_graph is not None and gt.contact_graph is not None:
             from stratamap.core.evaluation.graph import evaluate_graph
 

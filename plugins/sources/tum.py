@@ -68,7 +68,16 @@ class TUMConfig(SequenceConfig):
     pose_tolerance: float = Field(
         default=0.02, gt=0, description="Max time to the nearest ground-truth pose outside interpolation, seconds."
     )
+    path_fields = ("path", "ground_truth_path")
+
     load_ground_truth: bool = Field(default=True, description="Load a gt/ folder beside the sequence when present.")
+    ground_truth_path: str | None = Field(
+        default=None,
+        description=(
+            "A gt/ folder to load instead of the one beside the sequence: labels made for a recording that is kept "
+            "elsewhere or read-only (benchmarks/real_rooms/<name>/gt); its poses are in the recording's world frame."
+        ),
+    )
 
 
 class TUMSource(SequenceSource[TUMConfig]):
@@ -187,10 +196,15 @@ class TUMSource(SequenceSource[TUMConfig]):
         if (root / "laser.txt").is_file():
             stream.laser_scans = read_laser_file(root / "laser.txt")
         gt = None
-        if cfg.load_ground_truth and (root / "gt").is_dir():
+        gt_dir = root / "gt"
+        if cfg.ground_truth_path is not None:
+            gt_dir = Path(cfg.ground_truth_path)
+            if not gt_dir.is_dir():
+                raise DataError(f"{gt_dir}: ground_truth_path is not a folder (expected a gt/ folder with scene.json)")
+        if cfg.load_ground_truth and gt_dir.is_dir():
             stamps = [Path(f).stem for f in rgb_files]
-            gt = load_ground_truth(root / "gt", stamps, shape)
-            traj = root / "gt" / "trajectory.txt"
+            gt = load_ground_truth(gt_dir, stamps, shape)
+            traj = gt_dir / "trajectory.txt"
             if traj.is_file():
                 tt, tp = parse_tum_poses(traj)
                 true = interpolate_poses(tt, tp, np.array(times), cfg.pose_tolerance)

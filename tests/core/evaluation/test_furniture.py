@@ -1,0 +1,91 @@
+"""The furniture family: one-to-one matching at furniture scale, class-aware recall, and the share
+of the map one instance takes (a room collapsed into one object is caught)."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from stratamap.core.evaluation.furniture import at_furniture_scale, evaluate_furniture
+from stratamap.core.geometry.boxes import OrientedBox
+from stratamap.core.geometry.transforms import make_pose
+from stratamap.core.map.groundtruth import GroundTruthObject
+from stratamap.core.map.layers import ObjectInstance, ObjectInstances, Semantics
+
+
+def truth(oid: int, cls: str, center, size, yaw: float = 0.0) -> GroundTruthObject:
+    c = np.asarray(center, float)
+    return GroundTruthObject(oid, cls, trimesh.creation.box(extents=size), make_pose(c, yaw))
+
+
+def predicted(iid: int, cls: str, center, size, yaw: float = 0.0, n: int = 100) -> ObjectInstance:
+    box = OrientedBox(np.asarray(center, float), yaw, np.asarray(size, float))
+    pts = np.random.default_rng(iid).uniform(-0.5, 0.5, (n, 3)) * box.size + box.center
+    return ObjectInstance(iid, cls, pts, box)
+
+
+ROOM = [
+    truth(1, "table", [0.0, 0.0, 0.375], [1.6, 0.9, 0.75]),
+    truth(2, "chair", [1.2, 0.0, 0.45], [0.5, 0.5, 0.9]),
+    truth(3, "cabinet", [3.0, 2.0, 0.45], [1.0, 0.5, 0.9]),
+    truth(4, "cup", [0.0, 0.0, 0.8], [0.08, 0.08, 0.1]),  # not furniture: never scored
+]
+
+
+def test_every_piece_found_and_named_scores_one():
+    found = ObjectInstances(
+        [
+            predicted(10, "table", [0.02, 0.0, 0.37], [1.55, 0.92, 0.74]),
+            predicted(11, "chair", [1.2, 0.05, 0.45], [0.5, 0.45, 0.9]),
+            predicted(12, "cabinet", [3.0, 2.0, 0.45], [0.95, 0.5, 0.9]),
+            predicted(13, "cup", [0.0, 0.0, 0.8], [0.08, 0.08, 0.1]),
+        ]
+    )
+    res = evaluate_furniture(found, ROOM)
+    assert (res["ground_truth"], res["predicted"], res["matched"]) == (3, 3, 3)
+    assert res["recall"] == res["precision"] == res["recall_class_aware"] == 1.0
+
+
+def test_a_blob_over_the_room_counts_against_precision_and_takes_the_map():
+    blob = predicted(20, "object", [1.5, 1.0, 0.45], [4.5, 3.0, 0.9], n=900)
+    chair = predicted(21, "chair", [1.2, 0.0, 0.45], [0.5, 0.5, 0.9], n=100)
+    inst = ObjectInstances([blob, chair])
+    ids = np.r_[np.full(900, 20), np.full(100, 21), np.zeros(1000, int)]
+    sem = Semantics(np.zeros(len(ids), int), ids)
+    res = evaluate_furniture(inst, ROOM, sem, len(ids))
+    assert res["predicted"] == 2  # the unnamed blob is furniture-sized
+    assert res["matched"] == 1 and res["precision"] == 0.5 and abs(res["recall"] - 1 / 3) < 1e-9
+    assert res["largest_instance"] == "instance 20" and abs(res["largest_share"] - 0.45) < 1e-9
+
+
+def test_matching_is_one_to_one_and_needs_iou():
+    two_on_one = ObjectInstances(
+        [
+            predicted(30, "table", [0.0, 0.0, 0.375], [1.6, 0.9, 0.75]),
+            predicted(31, "table", [0.05, 0.0, 0.375], [1.5, 0.9, 0.75]),
+            predicted(32, "cabinet", [3.7, 2.0, 0.45], [1.0, 0.5, 0.9]),  # 0.7 m off: IoU 0.18, a miss
+        ]
+    )
+    res = evaluate_furniture(two_on_one, ROOM)
+    assert res["matched"] == 1 and res["predicted"] == 3
+    assert res["by_class"]["cabinet"]["found"] == 0
+
+
+def test_wrong_names_count_for_the_agnostic_figures_only():
+    res = evaluate_furniture(ObjectInstances([predicted(40, "shelf", [3.0, 2.0, 0.45], [1.0, 0.5, 0.9])]), ROOM)
+    assert res["matched"] == 1 and res["recall_class_aware"] == 0.0
+
+
+def test_small_unnamed_things_are_not_furniture():
+    box = OrientedBox(np.zeros(3), 0.0, np.array([0.3, 0.2, 0.2]))
+    assert not at_furniture_scale("object", box)
+    assert at_furniture_scale("object", OrientedBox(np.zeros(3), 0.0, np.array([0.6, 0.3, 0.5])))
+    assert at_furniture_scale("chair", box)
+
+
+def test_the_refined_box_of_a_table_whose_legs_are_hidden_is_scored():
+    top_only = predicted(50, "table", [0.0, 0.0, 0.69], [1.6, 0.9, 0.12])  # the chairs hide its legs
+    inst = ObjectInstances([top_only])
+    assert evaluate_furniture(inst, ROOM)["matched"] == 0
+    refined = OrientedBox(np.array([0.0, 0.0, 0.375]), 0.0, np.array([1.6, 0.9, 0.75]))
+    assert evaluate_furniture(inst, ROOM, boxes={50: refined})["matched"] == 1
