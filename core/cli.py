@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -99,6 +101,22 @@ def _fail(exc: BaseException) -> None:
     raise typer.Exit(code=2)
 
 
+#: The exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+INTERRUPTED = 130
+
+
+@contextmanager
+def _interruptible(out: Path | None) -> Iterator[None]:
+    """Ctrl-C inside the block ends the command with one line and exit status 130 (not click's
+    "Aborted!" and 1): output folders are written atomically, so ``out`` is as it was."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        where = f"{out} is as it was" if out is not None else "no output was written or replaced"
+        console.print(f"[bold red]interrupted:[/] {escape(where)}", highlight=False, soft_wrap=True)
+        raise typer.Exit(code=INTERRUPTED) from None
+
+
 def _registry() -> Any:
     """The installed plugins; plugins that failed to load are warnings, a clash of names an error."""
     from stratamap.core.registry import default_registry
@@ -109,6 +127,8 @@ def _registry() -> Any:
         _fail(exc)
     for failure in registry.failures:
         console.print(f"[yellow]warning:[/] {failure}", highlight=False, soft_wrap=True)
+    for heavy in registry.heavy_imports:
+        console.print(f"[yellow]note:[/] {heavy}", highlight=False, soft_wrap=True)
     return registry
 
 
@@ -148,20 +168,21 @@ def _run(
     from stratamap.core.config import load_pipeline
     from stratamap.core.pipeline import Pipeline
 
-    registry = _registry()
-    try:
-        validated = load_pipeline(config, overrides, registry, observe)
-    except StratamapError as exc:
-        _fail(exc)
-    pipeline = Pipeline(validated, registry)
-    observer = RichProgress(console)
-    registry.plugin_manager.register(observer, name="rich-progress")
-    try:
-        report = pipeline.run(out)
-    except StratamapError as exc:
-        _fail(exc)
-    finally:
-        registry.plugin_manager.unregister(observer)
+    with _interruptible(out):
+        registry = _registry()
+        try:
+            validated = load_pipeline(config, overrides, registry, observe)
+        except StratamapError as exc:
+            _fail(exc)
+        pipeline = Pipeline(validated, registry)
+        observer = RichProgress(console)
+        registry.plugin_manager.register(observer, name="rich-progress")
+        try:
+            report = pipeline.run(out)
+        except StratamapError as exc:
+            _fail(exc)
+        finally:
+            registry.plugin_manager.unregister(observer)
     return report, pipeline.out_dir
 
 
@@ -213,6 +234,7 @@ def bench(
     address: Annotated[
         str | None, typer.Option("--address", help="Ray cluster address (default: start a local Ray instance).")
     ] = None,
+    overrides: SetOption = None,
 ) -> None:
     """Run every (scene, variant) pair of a benchmark; resumable; tables and figures from the records."""
     from stratamap.core.evaluation.bench import run_bench
@@ -220,7 +242,15 @@ def bench(
     if executor not in ("local", "ray"):
         _fail(ConfigError([("--executor", f"expected 'local' or 'ray', got {executor!r}")]))
     try:
-        summary = run_bench(config, out, workers=workers, executor=executor, address=address)  # type: ignore[arg-type]
+        with _interruptible(out):
+            summary = run_bench(
+                config,
+                out,
+                workers=workers,
+                executor=executor,  # type: ignore[arg-type]
+                address=address,
+                overrides=overrides,
+            )
     except StratamapError as exc:
         _fail(exc)
     out_console.print(f"{summary['records']} records ({summary['ran']} run now) -> {out}")
@@ -369,7 +399,7 @@ def models_build(
 
     progress, update = _progress_callback("building models")
     try:
-        with progress:
+        with _interruptible(out), progress:
             lib = build_library(out, per_family, seed, families.split(",") if families else None, update)
     except StratamapError as exc:
         _fail(exc)
@@ -383,10 +413,13 @@ def models_build(
 @models_app.command("info")
 def models_info(
     path: Annotated[
-        Path, typer.Argument(help="A library folder (stratamap, PartNet-Mobility, or meshes + classes.csv).")
+        Path,
+        typer.Argument(
+            help="A library folder (stratamap, PartNet-Mobility, ShapeNet layout, or meshes + classes.csv)."
+        ),
     ],
 ) -> None:
-    """Summarize a model library: models per class and family, joints, load problems."""
+    """Summarize a model library: models per class and family, joints, what was skipped and why."""
     from stratamap.core.library.models import ModelLibrary
 
     try:
@@ -405,8 +438,16 @@ def models_info(
     for (c, f), (n, rv, pr) in sorted(rows.items()):
         table.add_row(c, f, str(n), str(rv), str(pr))
     out_console.print(table)
+    skipped = [p for p in lib.problems if p.endswith("skipped")]
+    out_console.print(
+        f"{len(lib)} models of {len(lib.classes())} classes ({', '.join(lib.classes()) or 'none'}); "
+        f"{len(skipped)} skipped",
+        highlight=False,
+        soft_wrap=True,
+    )
     for p in lib.problems:
-        console.print(f"[yellow]warning:[/] {p}", highlight=False, soft_wrap=True)
+        label = "skipped" if p in skipped else "warning"
+        console.print(f"[yellow]{label}:[/] {escape(p)}", highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -433,7 +474,7 @@ def synth(
     world = SyntheticWorld(scene_spec)
     progress, update = _progress_callback("rendering")
     try:
-        with progress:
+        with _interruptible(out), progress:
             write_sequence(world, out, update)
     except StratamapError as exc:
         _fail(exc)

@@ -31,7 +31,7 @@ from stratamap.core.documents import format_path, read_mapping, validation_probl
 from stratamap.core.errors import ConfigError
 from stratamap.core.hookspecs import Observer, ObserverConfig
 from stratamap.core.registry import OBSERVERS, PluginInfo, Registry, default_registry
-from stratamap.core.stages import KINDS, Stage, StageConfig
+from stratamap.core.stages import KINDS, Stage, StageConfig, layers_after, missing_layers, originates
 
 
 class StageSpec(BaseModel):
@@ -258,6 +258,26 @@ def placeholders(value: Any, parts: tuple[Any, ...]) -> list[tuple[Any, ...]]:
     return []
 
 
+def _expanded(value: str) -> Path:
+    """``value`` with ``~`` expanded; as written when it names no known user (``~nobody/x``)."""
+    try:
+        return Path(value).expanduser()
+    except RuntimeError:
+        return Path(value)
+
+
+def _missing_input(value: str) -> str | None:
+    """Why the input file or folder ``value`` cannot be read, or None when it exists."""
+    if "\0" in value:
+        return "not a valid path (it holds a NUL character)"
+    try:
+        if _expanded(value).exists():
+            return None
+    except OSError as exc:  # a name too long for the file system, say
+        return f"{value[:200]!r}: not a valid path ({exc.strerror or exc})"
+    return f"{value if value.isprintable() else repr(value)} does not exist"
+
+
 def _resolve_paths(config: StageConfig, base_dir: Path, key: str, overridden: set[str]) -> StageConfig:
     """``config`` with its relative paths (``Config.path_fields``) taken from ``base_dir``; values
     set on the command line (``overridden``) stay relative to the working folder."""
@@ -266,7 +286,7 @@ def _resolve_paths(config: StageConfig, base_dir: Path, key: str, overridden: se
         value = getattr(config, name, None)
         if not isinstance(value, str) or not value or value.startswith("<") or f"{key}.{name}" in overridden:
             continue
-        expanded = Path(value).expanduser()
+        expanded = _expanded(value)
         if not expanded.is_absolute():
             updates[name] = os.path.normpath(base_dir.absolute() / expanded)
     return config.model_copy(update=updates) if updates else config
@@ -314,8 +334,9 @@ def validate(
             if path == "source":  # what a source reads must exist before anything runs
                 for name in type(config).path_fields:
                     value = getattr(config, name, None)
-                    if isinstance(value, str) and value and not Path(value).expanduser().exists():
-                        problems.append((f"source.params.{name}", f"{value} does not exist"))
+                    problem = _missing_input(value) if isinstance(value, str) and value else None
+                    if problem is not None:
+                        problems.append((f"source.params.{name}", problem))
         resolved.append(ResolvedStage(path, stage_spec, info, config))
     observers, observer_problems = _resolve_observers(registry, spec)
     problems += observer_problems
@@ -353,32 +374,28 @@ def _resolve_observers(registry: Registry, spec: PipelineSpec) -> tuple[list[Res
 
 
 def check_data_flow(source: ResolvedStage, stages: list[ResolvedStage], registry: Registry) -> list[tuple[str, str]]:
-    """Every required layer must be provided by the source or an earlier stage."""
+    """Every required layer must be made by the source or an earlier stage (a stage that only
+    updates a layer it may be given does not make it): the rule a run checks again on its data."""
     problems = []
-    available = set(source.info.cls.provides)
-    for st in stages:
-        missing = sorted(set(st.info.cls.requires) - available)
-        for layer in missing:
-            providers = sorted(
-                f"{info.name} ({info.kind})"
-                for info in registry.all()
-                if layer in info.cls.provides and layer not in info.cls.requires
-            )
-            later = [
-                s.spec.plugin
-                for s in stages[stages.index(st) + 1 :]
-                if layer in s.info.cls.provides and layer not in s.info.cls.requires
-            ]
-            hint = f"; it comes later from {', '.join(later)}: reorder the stages" if later else ""
-            problems.append(
-                (
-                    f"{st.path}.plugin",
-                    f"stage {st.spec.plugin!r} requires layer {layer!r}, which no earlier stage provides "
-                    f"(could provide it: {', '.join(providers) or 'no installed plugin'}){hint}",
-                )
-            )
-        available |= set(st.info.cls.provides)
+    available = layers_after(source.info.cls, set())
+    for k, st in enumerate(stages):
+        for layer in missing_layers(st.info.cls, available):
+            problems.append((f"{st.path}.plugin", missing_layer_message(st, layer, registry, stages[k + 1 :])))
+        available = layers_after(st.info.cls, available)
     return problems
+
+
+def missing_layer_message(
+    stage: ResolvedStage, layer: str, registry: Registry, later: list[ResolvedStage] | None = None
+) -> str:
+    """Why ``stage`` cannot run without ``layer``, and which plugins could make it."""
+    providers = sorted(f"{info.name} ({info.kind})" for info in registry.all() if originates(info.cls, layer))
+    after = [s.spec.plugin for s in later or [] if originates(s.info.cls, layer)]
+    hint = f"; it comes later from {', '.join(after)}: reorder the stages" if after else ""
+    return (
+        f"stage {stage.spec.plugin!r} requires layer {layer!r}, which no earlier stage provides "
+        f"(could provide it: {', '.join(providers) or 'no installed plugin'}){hint}"
+    )
 
 
 def load_pipeline(

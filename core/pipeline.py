@@ -18,12 +18,12 @@ from typing import Any
 
 import pluggy
 
-from stratamap.core.atomic import atomic_directory, check_output_folder, write_json
+from stratamap.core.atomic import atomic_directory, check_output_folder, raise_if_interrupted, write_json
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
 from stratamap.core.errors import ConfigError, PluginError
 from stratamap.core.hookspecs import Observer
 from stratamap.core.registry import Registry, default_registry
-from stratamap.core.stages import LAYERS, Exporter, PipelineData, Stage
+from stratamap.core.stages import LAYERS, Exporter, PipelineData, Stage, missing_layers
 
 
 def package_versions() -> dict[str, str]:
@@ -216,6 +216,25 @@ class Pipeline:
         return self.registry.hook
 
     def _run_stage(self, resolved: ResolvedStage, index: int, data: PipelineData) -> None:
+        # The rule validate checked on the declared layers, now on what the earlier stages made: a
+        # stage that declared a layer and returned none leaves its readers a one-line error. What a
+        # source declares depends on the recording (ground truth only where there is some): the
+        # stages that need it say in their own words what is missing and how to get it.
+        from_source = self.validated.source.info.cls.provides
+        missing = [layer for layer in missing_layers(resolved.info.cls, data.available()) if layer not in from_source]
+        if missing:
+            earlier = [self.validated.source, *self.validated.stages[: max(index, 0)]]
+            problems = []
+            for layer in missing:
+                declared = [r.spec.plugin for r in earlier if layer in r.info.cls.provides]
+                problems.append(
+                    (
+                        f"{resolved.path}.plugin",
+                        f"stage {resolved.spec.plugin!r} requires layer {layer!r}, which no earlier stage made in "
+                        f"this run (declared by {', '.join(declared) or 'none'}, which returned none)",
+                    )
+                )
+            raise ConfigError(problems, self.validated.origin)
         stage: Stage = resolved.instantiate()
         stage._hook = self.hook
         self.hook.stratamap_stage_start(pipeline=self, stage=stage, index=index)
@@ -296,7 +315,9 @@ class Pipeline:
 
         self._run_stage(self.validated.source, -1, data)
         for i, resolved in enumerate(self.validated.stages):
+            raise_if_interrupted()
             self._run_stage(resolved, i, data)
+        raise_if_interrupted()
 
         if data.ground_truth is not None:
             data.map.vocabulary = data.ground_truth.vocabulary

@@ -103,6 +103,42 @@ class LoadFailure:
         return f"plugin {self.entry_point!r} from distribution {self.distribution!r} failed to load: {self.error}"
 
 
+#: Libraries that take a second or more to import: a plugin that imports one at load time makes every
+#: command slower (``--help`` aside), so the registry names it. Built-ins import them lazily.
+HEAVY_LIBRARIES: tuple[str, ...] = (
+    "open3d",
+    "trimesh",
+    "scipy.spatial",
+    "networkx",
+    "onnxruntime",
+    "matplotlib",
+    "torch",
+    "pxr",
+    "mujoco",
+    "pybullet",
+)
+
+
+@dataclass(frozen=True)
+class HeavyImport:
+    """A plugin whose module imported heavy libraries when it was loaded, not when its stage ran."""
+
+    distribution: str
+    entry_point: str
+    libraries: tuple[str, ...]
+
+    def __str__(self) -> str:
+        return (
+            f"plugin {self.entry_point!r} from distribution {self.distribution!r} imports "
+            f"{', '.join(self.libraries)} when it is loaded, which slows every stratamap command: import them "
+            "inside the stage (stratamap.core.lazy.lazy_module; docs/plugins.md)"
+        )
+
+
+def _newly_imported(before: set[str]) -> tuple[str, ...]:
+    return tuple(lib for lib in HEAVY_LIBRARIES if lib in sys.modules and lib not in before)
+
+
 @dataclass
 class Registry:
     """Stage classes by kind and name (observer classes under ``observers``), plus the plugin
@@ -111,6 +147,7 @@ class Registry:
     plugin_manager: pluggy.PluginManager
     stages: dict[str, dict[str, PluginInfo]] = field(default_factory=lambda: {k: {} for k in PLUGIN_KINDS})
     failures: list[LoadFailure] = field(default_factory=list)
+    heavy_imports: list[HeavyImport] = field(default_factory=list)
 
     def get(self, kind: str, name: str) -> PluginInfo:
         if kind not in self.stages:
@@ -213,19 +250,25 @@ def build_registry(
         seen_eps.add((ep.group, ep.value))
         if not autoload and dist != DISTRIBUTION:
             continue
+        before = set(sys.modules)
         try:
             obj = ep.load()
         except Exception as exc:  # a broken plugin must not take the run down
             registry.failures.append(LoadFailure(dist, ep.name, f"{type(exc).__name__}: {exc}"))
             continue
+        if dist != DISTRIBUTION and (heavy := _newly_imported(before)):
+            registry.heavy_imports.append(HeavyImport(dist, ep.name, heavy))
         _register_object(pm, obj, dist, origins, registry, ep.name)
 
     for spec in extra_modules:
+        before = set(sys.modules)
         try:
             module = _load_module_from_path(spec) if spec.endswith(".py") else importlib.import_module(spec)
         except Exception as exc:
             registry.failures.append(LoadFailure(f"<{EXTRA_PLUGINS_ENV}>", spec, f"{type(exc).__name__}: {exc}"))
             continue
+        if heavy := _newly_imported(before):
+            registry.heavy_imports.append(HeavyImport(f"<{EXTRA_PLUGINS_ENV}>", spec, heavy))
         _register_object(pm, module, f"<{EXTRA_PLUGINS_ENV}>", origins, registry, spec)
 
     for kind in PLUGIN_KINDS:

@@ -271,6 +271,25 @@ class Exporter(Stage[ConfigT]):
         return self.export(data, Path(out_dir))
 
 
+def missing_layers(stage: type[Stage] | Stage, available: Iterable[str]) -> list[str]:
+    """The layers ``stage`` requires that are not among ``available`` (sorted): checked on the
+    declared layers by ``validate`` and on the actual blackboard before each stage of a run."""
+    return sorted(set(stage.requires) - set(available))
+
+
+def originates(stage: type[Stage] | Stage, layer: str) -> bool:
+    """Whether ``stage`` makes ``layer`` from other layers. A layer it also requires or takes as
+    optional input is one it updates, not one it makes (``physical_check`` adjusts the contact graph
+    when there is one, and writes none when there is none)."""
+    return layer in stage.provides and layer not in stage.requires and layer not in stage.optional
+
+
+def layers_after(stage: type[Stage] | Stage, available: Iterable[str]) -> set[str]:
+    """The layers available once ``stage`` ran on ``available``: these, and those it originates;
+    a layer it only passes through counts only if it was there before."""
+    return set(available) | {layer for layer in stage.provides if originates(stage, layer) or layer in stage.requires}
+
+
 KIND_BASES: dict[str, type[Stage]] = {
     "sources": Source,
     "segmenters": Segmenter,
@@ -279,4 +298,15 @@ KIND_BASES: dict[str, type[Stage]] = {
     "exporters": Exporter,
 }
 
-__all__ = ["KINDS", "KIND_BASES", "LAYERS", "MAP_LAYERS", "PipelineData", "Stage", "StageConfig"]
+__all__ = [
+    "KINDS",
+    "KIND_BASES",
+    "LAYERS",
+    "MAP_LAYERS",
+    "PipelineData",
+    "Stage",
+    "StageConfig",
+    "layers_after",
+    "missing_layers",
+    "originates",
+]

@@ -37,6 +37,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "stratamap.plugins.exporters.scene_graph",
     "stratamap.plugins.exporters.mjcf",
     "stratamap.plugins.exporters.sdf",
+    "stratamap.plugins.exporters.usd",
     "stratamap.plugins.exporters.glb",
     "stratamap.plugins.exporters.ros2_bag",
     "stratamap.plugins.observers.rerun",

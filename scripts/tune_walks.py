@@ -83,11 +83,11 @@ def light_stream(stream: Any) -> Any:
     """The stream without its colour images and without the depth images of frames no stage reads,
     which are the bulk of it: the late stages read the map, and of the stream its metadata, where
     each frame was taken (clusters turns its normals to the cameras and takes the floor where the
-    source found it) and the depth of the frames that give clusters its rays (``_sightlines``)."""
+    source found it) and the depth of the frames that give clusters its rays (``clusters.sightlines``)."""
     import dataclasses
 
     from stratamap.core.map.sensors import RGBDFrame
-    from stratamap.plugins.segmenters._sightlines import ray_frames
+    from stratamap.plugins.segmenters.clusters.sightlines import ray_frames
 
     if stream is None:
         return None

@@ -9,6 +9,14 @@ record written atomically under ``DIR/records/``, so an interrupted benchmark lo
 re-run skips what is done; ``results.json``/``.csv``/``.md``, the figures and ``report.html`` are
 rebuilt from the records at the end. Every run also writes its own ``report.html`` under ``DIR/runs/``.
 
+A run that fails (bad input, a stage's error, a worker process killed by the system) costs only
+itself: it is written as a failure under ``DIR/failures/`` with its error in one line, listed in
+``results.json`` (``failures``), ``results.md`` and ``report.html``, and tried again by the next
+``stratamap bench``; the others' results are written as usual. The bench then ends normally (exit
+0) with a warning per failed run, unless no run has a result at all: then, results written, it is
+an error (exit 2). Ctrl-C stops the bench: the workers are ended, the runs they had finished keep
+their records, and no results are written.
+
     stratamap bench configs/bench/completion.yaml --out out/bench/completion --workers 2
 """
 
@@ -18,6 +26,7 @@ import copy
 import json
 import re
 import resource
+import shutil
 import time
 from pathlib import Path
 from typing import Any, Literal
@@ -28,7 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.atomic import write_json
 from stratamap.core.documents import load_model
-from stratamap.core.errors import ConfigError
+from stratamap.core.errors import ConfigError, DataError, StratamapError
 
 # ----------------------------------------------------------------------------------- the file
 
@@ -75,6 +84,13 @@ class SceneEntry(BaseModel):
     variants: list[str] | None = Field(
         default=None, description="Run only these variants on these scenes (default: all)."
     )
+    scene_list: str | None = Field(
+        default=None,
+        description=(
+            "With `files`: a text file of scene ids, one a line (e.g. ScanNet's scannetv2_val.txt); only the files "
+            "named by a listed id (their stem, or their folder's name) are scenes."
+        ),
+    )
 
 
 class Variant(BaseModel):
@@ -114,9 +130,24 @@ class BenchSpec(BaseModel):
     physics_seconds: float = Field(default=2.0, gt=0.0, description="Simulated seconds of settling.")
 
 
-def load_bench(path: str | Path) -> tuple[BenchSpec, Path]:
+def load_bench(path: str | Path, overrides: list[str] | None = None) -> tuple[BenchSpec, Path]:
+    """A benchmark file, with ``overrides`` (``stratamap bench --set key.path=value``) applied first."""
     path = Path(path)
-    spec = load_model(BenchSpec, path, "benchmark file")
+    if overrides:
+        from pydantic import ValidationError
+
+        from stratamap.core.config import apply_override
+        from stratamap.core.documents import read_mapping, validation_problems
+
+        doc = read_mapping(path, "benchmark file")
+        for assignment in overrides:
+            apply_override(doc, assignment)
+        try:
+            spec = BenchSpec.model_validate(doc)
+        except ValidationError as exc:
+            raise ConfigError(validation_problems(exc), source=str(path)) from None
+    else:
+        spec = load_model(BenchSpec, path, "benchmark file")
     names = [v.name for v in spec.variants]
     if len(set(names)) != len(names):
         raise ConfigError([("variants", f"variant names must be unique, got {names}")], source=str(path))
@@ -137,6 +168,23 @@ def _resolve(path: str, base: Path) -> str:
         if (root / p).exists():
             return str((root / p).resolve())
     return str(repo_root() / p)
+
+
+def _listed(paths: list[Path], listing: Path, k: int, skipped: list[str]) -> list[Path]:
+    """The ``paths`` a scene list names (by stem, name or folder name); listed ids without a file are noted."""
+    from stratamap.core.documents import read_text
+
+    ids = [line.strip() for line in read_text(listing, "scene list").splitlines() if line.strip()]
+    wanted = set(ids)
+    kept = [p for p in paths if {p.stem, p.name, p.parent.name} & wanted]
+    found = {n for p in kept for n in (p.stem, p.name, p.parent.name)}
+    absent = [i for i in ids if i not in found]
+    if absent:
+        skipped.append(
+            f"scenes[{k}]: {len(absent)} of the {len(ids)} scenes {listing} lists have no file "
+            f"({', '.join(absent[:5])}{', ...' if len(absent) > 5 else ''}), skipped"
+        )
+    return kept
 
 
 def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any]], list[str]]:
@@ -173,8 +221,13 @@ def expand_scenes(spec: BenchSpec, bench_file: Path) -> tuple[list[dict[str, Any
                 )
         elif entry.source is not None:
             if entry.files:
-                root = Path(_resolve(str(Path(entry.files).parent), base))
-                paths = sorted(root.glob(Path(entry.files).name))
+                # The pattern's folders may hold wildcards too (ScanNet: scans/*/*.sens).
+                parts = Path(entry.files).parts
+                fixed = next((i for i, part in enumerate(parts) if any(c in part for c in "*?[")), len(parts) - 1)
+                root = Path(_resolve(str(Path(*parts[:fixed])) if fixed else ".", base))
+                paths = sorted(root.glob(str(Path(*parts[fixed:]))))
+                if entry.scene_list is not None:
+                    paths = _listed(paths, Path(_resolve(entry.scene_list, base)), k, skipped)
                 if not paths:
                     skipped.append(f"scenes[{k}]: no file matches {entry.files}, skipped")
                 for file in paths:
@@ -227,6 +280,37 @@ def record_path(out: Path, scene: str, variant: str) -> Path:
     return out / "records" / safe(scene) / f"{safe(variant)}.json"
 
 
+class StageFailed(Exception):
+    """A variant's stage raised ``error``; ``stage`` names it as ``stages[2]:tsdf``."""
+
+    def __init__(self, stage: str, error: Exception):
+        super().__init__(stage, error)
+        self.stage, self.error = stage, error
+
+
+def failure_path(out: Path, scene: str, variant: str) -> Path:
+    return out / "failures" / safe(scene) / f"{safe(variant)}.json"
+
+
+#: The longest error kept in a failure (an Open3D error names its C++ function in full).
+ERROR_CHARS = 300
+
+
+def one_line(exc: BaseException) -> str:
+    """The error as one line: stratamap's own as it says it, any other with its type."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc))  # Open3D colours its errors
+    text = "; ".join(line.strip() for line in text.splitlines() if line.strip())
+    if not isinstance(exc, StratamapError):
+        text = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return text if len(text) <= ERROR_CHARS else text[: ERROR_CHARS - 3] + "..."
+
+
+def write_failure(out: Path, scene: str, variant: str, error: str, stage: str | None = None) -> dict[str, Any]:
+    failure = {"scene": scene, "variant": variant, "failed": True, "stage": stage, "error": error}
+    write_json(failure_path(out, scene, variant), failure)
+    return failure
+
+
 def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -235,18 +319,28 @@ def peak_memory_mb() -> float:
 
 
 def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
-    """Run the pending variants of one scene; shared leading stages once. Returns the records."""
+    """Run the pending variants of one scene; shared leading stages once. Returns the records, and
+    a failure (also written under ``failures/``) for each variant that raised: an error in the
+    shared stages fails every variant, one in a variant's own stages that variant only.
+    KeyboardInterrupt is never caught."""
     from stratamap.core.config import validate
-    from stratamap.core.pipeline import MemorySampler, Pipeline
+    from stratamap.core.pipeline import Pipeline
 
     scene, variants, bench, out = job["scene"], job["variants"], job["bench"], Path(job["out"])
     spec = BenchSpec.model_validate(bench)
     pipes = {}
+    failures: list[dict[str, Any]] = []
     for v in variants:
         variant = next(x for x in spec.variants if x.name == v)
-        pipes[v] = Pipeline(
-            validate(variant_document(spec, variant, scene["source"]), origin=f"{job['bench_file']}#{v}")
-        )
+        try:
+            pipes[v] = Pipeline(
+                validate(variant_document(spec, variant, scene["source"]), origin=f"{job['bench_file']}#{v}")
+            )
+        except Exception as exc:  # one variant's invalid document does not stop the others
+            failures.append(write_failure(out, scene["name"], v, one_line(exc), "pipeline"))
+    variants = [v for v in variants if v in pipes]
+    if not variants:
+        return failures
 
     # Shared prefix: the leading stages every pending variant runs with identical parameters.
     def key(p: Pipeline, i: int) -> str:
@@ -268,67 +362,94 @@ def run_scene(job: dict[str, Any]) -> list[dict[str, Any]]:
     first.out_dir = out / "runs" / safe(scene["name"]) / "_shared"
     base = PipelineData()
     first.records = []
-    first._run_stage(first.validated.source, -1, base)
-    for i in range(shared):
-        first._run_stage(first.validated.stages[i], i, base)
+    resolved = first.validated.source
+    try:
+        first._run_stage(resolved, -1, base)
+        for i in range(shared):
+            resolved = first.validated.stages[i]
+            first._run_stage(resolved, i, base)
+    except Exception as exc:
+        where = f"{resolved.path}:{resolved.info.name}"
+        return failures + [write_failure(out, scene["name"], v, one_line(exc), where) for v in variants]
     shared_records = list(first.records)
     records = []
     for v in variants:
-        pipe = pipes[v]
-        data = copy.copy(base)
-        data.map = copy.deepcopy(base.map)
-        data.notes = copy.deepcopy(base.notes)
-        data.warnings = list(base.warnings)
-        pipe.out_dir = out / "runs" / safe(scene["name"]) / safe(v)
-        pipe.records = []
-        for i in range(shared, len(pipe.validated.stages)):
-            pipe._run_stage(pipe.validated.stages[i], i, data)
-        if data.ground_truth is not None:
-            data.map.vocabulary = data.ground_truth.vocabulary
-        with MemorySampler() as evaluation_memory:
-            metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
-        stages = [
-            {
-                "name": r.name,
-                "plugin": r.plugin,
-                "kind": r.kind,
-                "seconds": round(r.seconds, 4),
-                "cpu_seconds": round(r.cpu_seconds, 4),
-                "shared": shared_run,
-                "memory": r.memory(),
-            }
-            for shared_run, part in ((True, shared_records), (False, pipe.records))
-            for r in part
-        ]
-        record = {
-            "scene": scene["name"],
-            "variant": v,
-            "plugins": [
-                {"path": s.path, "plugin": s.info.name, "kind": s.info.kind, "params": s.config.model_dump(mode="json")}
-                for s in [pipe.validated.source, *pipe.validated.stages]
-            ],
-            "seconds": {f"{s['name']}:{s['plugin']}": s["seconds"] for s in stages},
-            "seconds_total": round(sum(s["seconds"] for s in stages), 4),
-            "cpu_seconds": {f"{s['name']}:{s['plugin']}": s["cpu_seconds"] for s in stages},
-            "cpu_seconds_total": round(sum(s["cpu_seconds"] for s in stages), 4),
-            "peak_memory_mb": round(peak_memory_mb(), 1),
-            "memory_by_stage": {f"{s['name']}:{s['plugin']}": s["memory"]["peak_mb"] for s in stages},
-            "evaluation_peak_memory_mb": round(evaluation_memory.peak_mb, 1),
-            "scale": scene_scale(data),
-            "metrics": metrics,
-            "details": details,
-            "warnings": data.warnings,
-            # What each learned model was trained on and what it never saw, so the results say it.
-            "networks": {
-                stage: facts["network"]
-                for stage, facts in data.notes.items()
-                if isinstance(facts, dict) and isinstance(facts.get("network"), dict)
-            },
+        try:
+            records.append(_run_variant(job, spec, pipes[v], v, base, shared, shared_records))
+            continue
+        except StageFailed as failed:
+            failures.append(write_failure(out, scene["name"], v, one_line(failed.error), failed.stage))
+        except Exception as exc:
+            failures.append(write_failure(out, scene["name"], v, one_line(exc), "evaluation"))
+        # What the failed run's exporters had written is not a result: no half-done run folder stays.
+        shutil.rmtree(out / "runs" / safe(scene["name"]) / safe(v), ignore_errors=True)
+    return records + failures
+
+
+def _run_variant(
+    job: dict[str, Any], spec: BenchSpec, pipe: Any, v: str, base: Any, shared: int, shared_records: list
+) -> dict[str, Any]:
+    """One variant of a scene from the shared stages' result: its own stages, its measures, its record."""
+    from stratamap.core.pipeline import MemorySampler
+
+    scene, out = job["scene"], Path(job["out"])
+    data = copy.copy(base)
+    data.map = copy.deepcopy(base.map)
+    data.notes = copy.deepcopy(base.notes)
+    data.warnings = list(base.warnings)
+    pipe.out_dir = out / "runs" / safe(scene["name"]) / safe(v)
+    pipe.records = []
+    for i in range(shared, len(pipe.validated.stages)):
+        resolved = pipe.validated.stages[i]
+        try:
+            pipe._run_stage(resolved, i, data)
+        except Exception as exc:
+            raise StageFailed(f"{resolved.path}:{resolved.info.name}", exc) from exc
+    if data.ground_truth is not None:
+        data.map.vocabulary = data.ground_truth.vocabulary
+    with MemorySampler() as evaluation_memory:
+        metrics, details = measure(pipe.hook, data, spec, pipe.out_dir)
+    stages = [
+        {
+            "name": r.name,
+            "plugin": r.plugin,
+            "kind": r.kind,
+            "seconds": round(r.seconds, 4),
+            "cpu_seconds": round(r.cpu_seconds, 4),
+            "shared": shared_run,
+            "memory": r.memory(),
         }
-        write_run_report(data, record, stages, pipe.validated.origin, pipe.out_dir)
-        write_json(record_path(out, scene["name"], v), record)
-        records.append(record)
-    return records
+        for shared_run, part in ((True, shared_records), (False, pipe.records))
+        for r in part
+    ]
+    record = {
+        "scene": scene["name"],
+        "variant": v,
+        "plugins": [
+            {"path": s.path, "plugin": s.info.name, "kind": s.info.kind, "params": s.config.model_dump(mode="json")}
+            for s in [pipe.validated.source, *pipe.validated.stages]
+        ],
+        "seconds": {f"{s['name']}:{s['plugin']}": s["seconds"] for s in stages},
+        "seconds_total": round(sum(s["seconds"] for s in stages), 4),
+        "cpu_seconds": {f"{s['name']}:{s['plugin']}": s["cpu_seconds"] for s in stages},
+        "cpu_seconds_total": round(sum(s["cpu_seconds"] for s in stages), 4),
+        "peak_memory_mb": round(peak_memory_mb(), 1),
+        "memory_by_stage": {f"{s['name']}:{s['plugin']}": s["memory"]["peak_mb"] for s in stages},
+        "evaluation_peak_memory_mb": round(evaluation_memory.peak_mb, 1),
+        "scale": scene_scale(data),
+        "metrics": metrics,
+        "details": details,
+        "warnings": data.warnings,
+        # What each learned model was trained on and what it never saw, so the results say it.
+        "networks": {
+            stage: facts["network"]
+            for stage, facts in data.notes.items()
+            if isinstance(facts, dict) and isinstance(facts.get("network"), dict)
+        },
+    }
+    write_run_report(data, record, stages, pipe.validated.origin, pipe.out_dir)
+    write_json(record_path(out, scene["name"], v), record)
+    return record
 
 
 def scene_scale(data: Any) -> dict[str, Any]:
@@ -457,25 +578,84 @@ def _plain(obj: Any) -> Any:
 # ----------------------------------------------------------------------------------- executors
 
 
-def _local_worker(job: dict[str, Any]) -> list[dict[str, Any]]:
-    return run_scene(job)
+#: A worker's exit status when Ctrl-C ended it (the shell's 128 + SIGINT).
+INTERRUPTED = 130
+
+
+def _local_worker(job: dict[str, Any]) -> None:
+    """A worker process's job: its records and failures go to disk, where the driver reads them."""
+    try:
+        run_scene(job)
+    except KeyboardInterrupt:
+        # Ctrl-C reaches every process of the terminal's group: the driver stops the bench, this
+        # worker says so by its exit status instead of printing a traceback of its own.
+        raise SystemExit(INTERRUPTED) from None
+
+
+def _died(code: int | None) -> str:
+    """How a worker process ended, in words."""
+    import signal
+
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        killed = " (out of memory?)" if -code == signal.SIGKILL else ""
+        return f"the worker process was killed by {name}{killed}"
+    return f"the worker process exited with status {code}"
+
+
+def job_outcomes(job: dict[str, Any], died: str | None = None) -> list[dict[str, Any]]:
+    """The records and failures a finished job left on disk; a variant with neither is failed with
+    ``died`` (the job's process ended before it wrote either)."""
+    out, scene = Path(job["out"]), job["scene"]["name"]
+    outcomes = []
+    for v in job["variants"]:
+        for path in (record_path(out, scene, v), failure_path(out, scene, v)):
+            if path.is_file():
+                outcomes.append(json.loads(path.read_text()))
+                break
+        else:
+            outcomes.append(write_failure(out, scene, v, died or "the run left no record", None))
+    return outcomes
 
 
 def run_jobs_local(jobs: list[dict[str, Any]], workers: int, on_done) -> None:
-    """Jobs in worker processes (one fresh process per scene, so peak memory is per scene)."""
+    """Jobs in worker processes (one fresh process per scene, so peak memory is per scene). A
+    process that dies (killed for memory, a crash in native code) fails its scene's unfinished
+    variants and no other job; Ctrl-C ends every worker and is raised."""
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    import signal
+    from multiprocessing.connection import wait
 
     from stratamap.core.parallel import worker_blas_threads
 
     ctx = mp.get_context("spawn")  # Open3D and OpenMP threads do not survive fork
-    with (
-        worker_blas_threads(workers),
-        ProcessPoolExecutor(max_workers=max(1, workers), mp_context=ctx, max_tasks_per_child=1) as pool,
-    ):
-        futures = {pool.submit(_local_worker, job): job for job in jobs}
-        for fut in as_completed(futures):
-            on_done(futures[fut], fut.result())
+    queue = list(jobs)
+    running: dict[Any, tuple[Any, dict[str, Any]]] = {}
+    started = []  # listed before start(): a Ctrl-C that lands inside start() still ends the process
+    try:
+        with worker_blas_threads(workers):
+            while queue or running:
+                while queue and len(running) < max(1, workers):
+                    job = queue.pop(0)
+                    proc = ctx.Process(target=_local_worker, args=(job,), name=f"bench {job['scene']['name']}")
+                    started.append(proc)
+                    proc.start()
+                    running[proc.sentinel] = (proc, job)
+                for sentinel in wait(list(running)):
+                    proc, job = running.pop(sentinel)
+                    proc.join()
+                    if proc.exitcode in (INTERRUPTED, -signal.SIGINT):
+                        raise KeyboardInterrupt
+                    on_done(job, job_outcomes(job, None if proc.exitcode == 0 else _died(proc.exitcode)))
+    finally:
+        alive = [proc for proc in started if proc.is_alive()]
+        for proc in alive:  # after Ctrl-C or a failing callback: no worker outlives the bench
+            proc.terminate()
+        for proc in alive:
+            proc.join()
 
 
 def run_jobs_ray(jobs: list[dict[str, Any]], address: str | None, on_done, num_cpus: int | None = None) -> None:
@@ -495,7 +675,13 @@ def run_jobs_ray(jobs: list[dict[str, Any]], address: str | None, on_done, num_c
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
-                on_done(pending.pop(ref), ray.get(ref))
+                job = pending.pop(ref)
+                try:
+                    ray.get(ref)
+                except Exception as exc:  # the task's worker died (a stage's own error is already a failure)
+                    on_done(job, job_outcomes(job, f"the Ray task failed: {one_line(exc)}"))
+                else:
+                    on_done(job, job_outcomes(job))
     finally:
         if started:
             ray.shutdown()
@@ -511,11 +697,15 @@ def run_bench(
     executor: Literal["local", "ray"] = "local",
     address: str | None = None,
     progress: bool = True,
+    overrides: list[str] | None = None,
 ) -> dict[str, Any]:
-    """Run what is missing, then rebuild ``results.*`` and figures from every record."""
-    spec, path = load_bench(bench_file)
+    """Run what is missing (runs that failed before included), then rebuild ``results.*`` and
+    figures from every record. A failed run is listed with its error and the bench goes on; a
+    DataError, after the results are written, when no run has a result at all (the CLI's exit 2)."""
+    from stratamap.core.config import validate
+
+    spec, path = load_bench(bench_file, overrides)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     scenes, skipped = expand_scenes(spec, path)
     bench_doc = spec.model_dump(mode="json")
     jobs = []
@@ -525,10 +715,17 @@ def run_bench(
         pending = [v for v in wanted if not record_path(out, scene["name"], v).is_file()]
         total += len(wanted)
         done_before += len(wanted) - len(pending)
+        for v in pending:  # a mistyped override is the benchmark file's error: found before anything runs
+            variant = next(x for x in spec.variants if x.name == v)
+            validate(variant_document(spec, variant, scene["source"]), origin=f"{path}#{v}")
         if pending:
             jobs.append(
                 {"scene": scene, "variants": pending, "bench": bench_doc, "out": str(out), "bench_file": str(path)}
             )
+    out.mkdir(parents=True, exist_ok=True)
+    for job in jobs:  # what a run of this bench fails is its own failure, not one left by the last
+        for v in job["variants"]:
+            failure_path(out, job["scene"]["name"], v).unlink(missing_ok=True)
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -537,8 +734,8 @@ def run_bench(
     ) as bar:
         task = bar.add_task(f"bench {spec.name}", total=total, completed=done_before)
 
-        def on_done(job: dict[str, Any], records: list[dict[str, Any]]) -> None:
-            bar.update(task, advance=len(records), description=f"bench {spec.name}: {job['scene']['name']}")
+        def on_done(job: dict[str, Any], outcomes: list[dict[str, Any]]) -> None:
+            bar.update(task, advance=len(outcomes), description=f"bench {spec.name}: {job['scene']['name']}")
 
         if jobs:
             if executor == "ray":
@@ -546,22 +743,64 @@ def run_bench(
             else:
                 run_jobs_local(jobs, workers, on_done)
     records = collect_records(out, scenes, spec)
+    failures = collect_failures(out, scenes, spec)
     results = {"name": spec.name, "versions": versions(), "skipped": skipped, "records": records}
+    results["failures"] = failures
     write_json(out / "results.json", results)
     from stratamap.core.evaluation.bench_report import write_reports
 
     written = write_reports(results, spec, out, bench_file=path)
+    from stratamap.core.evaluation.scan2cad import write_pooled
+
+    pooled_scan2cad = write_pooled(records, out)  # the benchmark's own figures pool scans, not average them
+    if pooled_scan2cad is not None:
+        written.append(pooled_scan2cad)
     from stratamap.core.evaluation.bench_report import scale_table
 
+    failed = [failure_line(f) for f in failures]
+    if failed and progress:
+        from rich.console import Console
+
+        warn = Console(stderr=True)
+        for line in failed:
+            warn.print(f"[yellow]warning:[/] bench {spec.name}: {line}", highlight=False, soft_wrap=True, markup=True)
+    if failures and not records:
+        first = f"first: {failed[0]}" if len(failed) > 1 else failed[0]
+        raise DataError(f"bench {spec.name}: all {len(failures)} runs failed ({first}); see {out / 'results.md'}")
     scale = scale_table(records)
     return {
         "records": len(records),
         "ran": sum(len(j["variants"]) for j in jobs),
         "skipped": skipped,
+        # One line per run that failed ("scene / variant at stage: error"): no record, tried again next time.
+        "failed": failed,
         "files": [str(p) for p in written],
         # The cost against scene size (Markdown lines), when some variant ran at several sizes.
         "scale": scale.markdown() if scale is not None else [],
     }
+
+
+def failure_line(failure: dict[str, Any]) -> str:
+    where = f" at {failure['stage']}" if failure.get("stage") else ""
+    return f"{failure['scene']} / {failure['variant']} failed{where}: {failure['error']}"
+
+
+def collect_failures(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
+    """The failures of the runs that have no record, in the order of the records."""
+    failures = []
+    for scene in scenes:
+        for v in spec.variants:
+            if scene.get("variants") is not None and v.name not in scene["variants"]:
+                continue
+            if record_path(out, scene["name"], v.name).is_file():
+                continue
+            p = failure_path(out, scene["name"], v.name)
+            if p.is_file():
+                try:
+                    failures.append(json.loads(p.read_text()))
+                except json.JSONDecodeError:  # only possible if written by hand: atomic writes never leave halves
+                    p.unlink()
+    return failures
 
 
 def collect_records(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:

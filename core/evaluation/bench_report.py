@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from stratamap.core.atomic import atomic_path, write_text
+from stratamap.core.documents import read_text
 from stratamap.core.errors import DataError
 
 #: Families in table order; keys not listed still appear (sorted) after these.
@@ -137,7 +138,8 @@ class ResultTable:
 
     def markdown(self) -> list[str]:
         lines = [f"## {self.title}", "", "| " + " | ".join(self.header) + " |", "|" + "---|" * len(self.header)]
-        return lines + ["|" + "".join(f" {cell} |" if cell else " |" for cell in row) for row in self.rows] + [""]
+        cells = [[cell.replace("|", "\\|") for cell in row] for row in self.rows]  # an error may hold a |
+        return lines + ["|" + "".join(f" {cell} |" if cell else " |" for cell in row) for row in cells] + [""]
 
 
 def summary_lines(results: dict[str, Any], spec: Any, variants: list[str]) -> list[str]:
@@ -151,8 +153,23 @@ def summary_lines(results: dict[str, Any], spec: Any, variants: list[str]) -> li
     )
     if results.get("skipped"):
         lines.append("Skipped: " + "; ".join(results["skipped"]))
+    failures = results.get("failures") or []
+    if failures:
+        lines.append(
+            f"Failed: {len(failures)} of {len(failures) + len(records)} runs, without results (table 'failed runs'); "
+            "the next `stratamap bench` into this folder runs them again."
+        )
     lines += network_lines(records, variants)
     return lines
+
+
+def failures_table(results: dict[str, Any]) -> ResultTable | None:
+    """The runs that failed: where and why, one line each."""
+    failures = results.get("failures") or []
+    if not failures:
+        return None
+    rows = [[f["scene"], f["variant"], f.get("stage") or "–", str(f["error"])] for f in failures]
+    return ResultTable("failed runs", ["scene", "variant", "stage", "error"], rows)
 
 
 def network_lines(records: list[dict[str, Any]], variants: list[str]) -> list[str]:
@@ -209,12 +226,13 @@ def labels_table(records: list[dict[str, Any]], variants: list[str]) -> ResultTa
 def result_tables(
     results: dict[str, Any], spec: Any, rows: list[dict[str, float]], variants: list[str]
 ) -> list[ResultTable]:
-    """A table per metric family (variants as columns), one per ``per_scene`` metric, and Table IV
-    of each run that classified planes."""
+    """The runs that failed (first, when some did), a table per metric family (variants as columns),
+    one per ``per_scene`` metric, and Table IV of each run that classified planes."""
     records = results["records"]
     values = table_values(records, rows, variants)
     scenes = sorted({r["scene"] for r in records})
-    tables = []
+    failed = failures_table(results)
+    tables = [] if failed is None else [failed]
     families = sorted(
         {k.split(".")[0] for k in values}, key=lambda f: (FAMILIES.index(f) if f in FAMILIES else len(FAMILIES), f)
     )
@@ -669,7 +687,7 @@ def write_html(
     parts.append("<h2>Runs</h2>" + table(["scene", "variant", "seconds", "peak memory (MB)", "report"], runs, "runs"))
     config, shown = yaml.safe_dump(spec.model_dump(mode="json"), sort_keys=False), "the benchmark, as validated"
     if bench_file is not None and Path(bench_file).is_file():  # as written, comments included
-        config, shown = Path(bench_file).read_text(), str(bench_file)
+        config, shown = read_text(bench_file, "benchmark file"), str(bench_file)
     parts.append(f"<h2>Benchmark file</h2><p>{escape(shown)}</p><pre>{escape(config)}</pre>")
     return write_text(out / "report.html", page(f"stratamap benchmark: {spec.name}", parts))
 

@@ -77,3 +77,68 @@ def first_of_each_row(points: np.ndarray) -> np.ndarray:
     rows = np.ascontiguousarray(np.asarray(points, dtype=np.float64) + 0.0)
     keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).reshape(-1)
     return np.sort(np.unique(keys, return_index=True)[1])
+
+
+#: The bulk of a cloud: per axis, its points between these percentiles (the lower one rounded up,
+#: the upper one down, so one stray point of a hundred never becomes a bound).
+BULK_PERCENTILES = (1.0, 99.0)
+#: A point farther outside the bulk's box than this many times its largest side is a stray (a
+#: sensor's glitch at 1e9 m, a float read as garbage): a 30 m room keeps whatever lies within 600 m
+#: of it, a window's view of trees 100 m away included.
+FAR_FROM_BULK = 20.0
+#: Percentiles of more points than this are taken on an even subsample (the same on every run).
+BULK_SAMPLE = 1_000_000
+
+
+def bulk_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) corners of the box that holds the bulk of ``points`` (finite values only;
+    ``BULK_PERCENTILES``): bounds that a few stray points cannot stretch."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) > BULK_SAMPLE:
+        points = points[:: int(np.ceil(len(points) / BULK_SAMPLE))]
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if len(points) == 0:
+        return np.zeros(3), np.zeros(3)
+    low = np.percentile(points, BULK_PERCENTILES[0], axis=0, method="higher")
+    high = np.percentile(points, BULK_PERCENTILES[1], axis=0, method="lower")
+    return low, np.maximum(high, low)
+
+
+def far_from_bulk(points: np.ndarray, factor: float = FAR_FROM_BULK) -> np.ndarray:
+    """Per point, whether it lies farther than ``factor`` times the bulk's largest side outside the
+    bulk's box (:func:`bulk_box`), or has a NaN or infinite coordinate. A cloud whose bulk is one
+    point has no scale to judge by: only its non-finite points are far."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    low, high = bulk_box(points)
+    size = float(np.max(high - low))
+    far = np.zeros(len(points), bool)
+    for k in range(3):  # a column at a time: a 10-million-point cloud needs no (N, 3) temporaries
+        column = points[:, k]
+        far |= ~np.isfinite(column)
+        if size > 0:
+            far |= (column < low[k] - factor * size) | (column > high[k] + factor * size)
+    return far
+
+
+#: A cloud whose bulk spans at least this much along every axis, and ``UNIT_HINT_LARGEST`` along one,
+#: is no scene in metres a robot maps (200 m tall): it was written in smaller units (a room 2.5 m tall
+#: is 250 cm or 2,500 mm; a site a kilometre long but 10 m tall is no hint).
+UNIT_HINT_SMALLEST, UNIT_HINT_LARGEST = 200.0, 300.0
+
+
+def unit_hint(points: np.ndarray) -> str | None:
+    """Why ``points`` look written in millimetres or centimetres, with the scale to set, when the
+    bulk's extent says so (:data:`UNIT_HINT_SMALLEST`); else None. One stray far point does not
+    count: the bulk's box leaves it out."""
+    low, high = bulk_box(points)
+    spans = high - low
+    if spans.min() < UNIT_HINT_SMALLEST or spans.max() < UNIT_HINT_LARGEST:
+        return None
+
+    def metres(scale: float) -> str:
+        return " x ".join(f"{v * scale:.3g}" for v in spans)
+
+    return (
+        f"its bulk spans {' x '.join(f'{v:,.0f}' for v in spans)} units, no scene in metres: millimetres "
+        f"(source.params.scale=0.001: {metres(0.001)} m) or centimetres (0.01: {metres(0.01)} m)?"
+    )

@@ -59,6 +59,20 @@ def _write_image_map(
     return yml, pgm
 
 
+def no_free_space(grid: OccupancyGrid, what: str) -> str | None:
+    """Why a map written from ``grid`` gives a robot nowhere to go, when none of its cells is free
+    (``FREE_CELL``): a Nav2 planner finds no path on it. ``what`` names the file; else None."""
+    data = np.asarray(grid.data)
+    if np.any((data >= 0) & (data <= FREE_CELL)):
+        return None
+    occupied = int(np.sum(data >= OCCUPIED_CELL))
+    return (
+        f"{what} has no free cells ({occupied:,} occupied, {data.size - occupied:,} unknown of {data.size:,}): a "
+        "planner finds no path on it (a laser layer needs several looks at a place to call it free; see the "
+        "report's occupancy notes for what it was made from)"
+    )
+
+
 def write_map(grid: OccupancyGrid, directory: str | Path, basename: str = "map") -> tuple[Path, Path]:
     """Write ``basename.pgm`` and ``basename.yaml`` (atomically) for nav2_map_server."""
     data = grid.data

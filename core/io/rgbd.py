@@ -14,6 +14,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.io import brief
 from stratamap.core.lazy import lazy_module
@@ -171,12 +172,7 @@ def read_text_lines(path: Path) -> list[str]:
     """The lines of a text file, or a DataError naming the file when it is missing or not text."""
     if not path.is_file():
         raise DataError(f"{path}: file missing")
-    try:
-        return path.read_text(encoding="utf-8").splitlines()
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be read ({brief(exc)})") from exc
+    return read_data_text(path).splitlines()
 
 
 def read_timestamped_list(path: Path, min_values: int = 0, what: str = "") -> list[tuple[float, list[str]]]:

@@ -19,6 +19,10 @@ The same loader reads
   ``id``) or ``classes.json`` (``{"file": "class"}`` or a list of ``{"file", "class", "id"}``);
 * PartNet-Mobility folders (``mobility.urdf`` + ``textured_objs/`` + ``meta.json``), turned to
   face -y; one such folder or a folder of them;
+* a ShapeNet-layout folder (``SYNSET/MODEL_ID/models/model_normalized.obj``, as ShapeNetCore v2
+  ships it; ``taxonomy.json`` beside the synsets is optional), synsets mapped to classes by
+  :data:`SHAPENET_CLASSES`, the y-up models turned z-up and, having no units, scaled to their
+  class's typical height; the synsets and models it cannot use are listed in ``problems``;
 * a single ``.urdf`` file (``package://`` URIs resolved through ``package.xml``), as one
   articulated model; missing meshes fall back to collision geometry and are reported.
 
@@ -34,6 +38,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -43,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from stratamap.core.atomic import atomic_directory, check_output_folder, write_json
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Joint
@@ -68,6 +74,38 @@ PARTNET_CLASSES = {
     "Mug": "cup",
     "Dishwasher": "cabinet",
 }
+
+#: ShapeNet synset id -> stratamap class, for the synsets whose objects the default vocabulary
+#: names (Scan2CAD's eight categories among them). Synsets not listed here (bed 02818832, bathtub
+#: 02808440, trash bin 02747177, lamp, airplane, ...) have no class and are skipped when loading.
+SHAPENET_CLASSES = {
+    "03001627": "chair",
+    "04379243": "table",
+    "02933112": "cabinet",
+    "02871439": "shelf",  # bookshelf
+    "04256520": "sofa",
+    "03211117": "monitor",  # display
+    "03761084": "microwave",
+    "03642806": "laptop",
+    "02876657": "bottle",
+    "03797390": "cup",  # mug
+    "03991062": "plant",  # pot (potted plants)
+    "02828884": "bench",
+}
+#: Names of common synsets that are not loaded, so a skipped folder is reported by what it holds.
+SHAPENET_NAMES = {
+    "02818832": "bed",
+    "02808440": "bathtub",
+    "02747177": "trash bin",
+    "03636649": "lamp",
+    "04004475": "printer",
+    "02691156": "airplane",
+    "02958343": "car",
+    "04530566": "vessel",
+    "04090263": "rifle",
+    "03467517": "guitar",
+}
+SHAPENET_MESH = Path("models") / "model_normalized.obj"
 
 #: Colour of parts whose source gives none (a light, slightly warm grey, like unpainted furniture).
 NEUTRAL_ALBEDO = (0.72, 0.71, 0.68)
@@ -211,9 +249,12 @@ class ModelLibrary:
             return _load_partnet_folders(subdirs, root=path)
         if (path / "classes.csv").is_file() or (path / "classes.json").is_file():
             return _load_mesh_folder(path, up_axis)
+        if _is_shapenet(path):
+            return load_shapenet(path)
         raise DataError(
             f"{path}: not a model library: expected models.json (stratamap), mobility.urdf folders "
-            "(PartNet-Mobility), or mesh files with classes.csv / classes.json"
+            "(PartNet-Mobility), SYNSET/MODEL/models/model_normalized.obj folders (ShapeNet), or mesh files "
+            "with classes.csv / classes.json"
         )
 
 
@@ -342,7 +383,7 @@ def build_library(
 def _load_native(path: Path) -> ModelLibrary:
     index = path / "models.json"
     try:
-        doc = json.loads(index.read_text())
+        doc = json.loads(read_data_text(index, "model library index"))
     except json.JSONDecodeError as exc:
         raise DataError(f"{index}: corrupt JSON ({exc})") from exc
     if doc.get("format") != LIBRARY_FORMAT or doc.get("version") != LIBRARY_VERSION:
@@ -387,12 +428,15 @@ def _load_native(path: Path) -> ModelLibrary:
 
 def _read_class_table(path: Path) -> list[dict[str, str]]:
     if (path / "classes.csv").is_file():
-        with open(path / "classes.csv", newline="") as fh:
-            rows = list(csv.DictReader(fh))
+        text = read_data_text(path / "classes.csv", "class table")
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
         if rows and not {"file", "class"} <= set(rows[0]):
             raise DataError(f"{path / 'classes.csv'}: needs columns 'file' and 'class', has {list(rows[0])}")
         return rows
-    doc = json.loads((path / "classes.json").read_text())
+    try:
+        doc = json.loads(read_data_text(path / "classes.json", "class table"))
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path / 'classes.json'}: corrupt JSON ({exc})") from None
     if isinstance(doc, dict):
         return [{"file": f, "class": c} for f, c in doc.items()]
     return list(doc)
@@ -451,6 +495,108 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
                     f"{file}: {model.params['units']}; give a scale column in classes.csv (metres per unit) to override"
                 )
         lib.models.append(model)
+    return lib
+
+
+# ------------------------------------------------------------------------------------------
+# ShapeNet
+
+
+def _is_synset(name: str) -> bool:
+    return len(name) == 8 and name.isdigit()
+
+
+def _is_shapenet(path: Path) -> bool:
+    """A ShapeNet root (synset folders) or one synset's folder (model folders holding the mesh)."""
+    if _is_synset(path.name) and any((m / SHAPENET_MESH).is_file() for m in path.iterdir() if m.is_dir()):
+        return True
+    return any(p.is_dir() and _is_synset(p.name) for p in path.iterdir())
+
+
+def _shapenet_taxonomy(root: Path) -> dict[str, str]:
+    """synset id -> its first name in ``taxonomy.json`` (ShapeNetCore v2 ships one), when present."""
+    file = root / "taxonomy.json"
+    if not file.is_file():
+        return {}
+    try:
+        doc = json.loads(read_data_text(file, "ShapeNet taxonomy"))
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{file}: corrupt JSON ({exc})") from None
+    if not isinstance(doc, list):
+        raise DataError(f"{file}: expected a list of {{synsetId, name}} records")
+    return {
+        str(r["synsetId"]): str(r.get("name", "")).split(",")[0] for r in doc if isinstance(r, dict) and "synsetId" in r
+    }
+
+
+def load_shapenet_model(file: Path, synset: str, model_id: str, class_name: str) -> LibraryModel:
+    """One ShapeNet ``model_normalized.obj`` as a library model: turned from y up to z up, origin at
+    its bottom centre, scaled from ShapeNet's unitless normalisation (unit box diagonal) to the
+    class's typical height. ``params["cad_to_model"]`` is the 4x4 that takes a point of the file
+    (ShapeNet's frame, the one Scan2CAD's alignments use) to the model's frame."""
+    part = LibraryPart("mesh", file=file)
+    mesh = part.load()
+    colors = mesh_face_colors(mesh)
+    if colors is not None:
+        part.albedo = mean_color(mesh, colors)
+        part.face_colors = None if np.ptp(colors, axis=0).max() < 1e-3 else colors.astype(np.float32)
+    mesh = part.mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    mesh.apply_transform(Y_UP_TO_Z_UP)
+    lo = mesh.bounds[0].copy()
+    bounds = _canonicalize([part], [], "body")
+    shift = bounds[0] - lo
+    model = LibraryModel(
+        f"shapenet_{synset}_{model_id}",
+        class_name,
+        f"shapenet_{synset}",
+        {"synset": synset, "shapenet_id": model_id, "units": None},
+        [part],
+        [],
+        bounds,
+        feature_planes(mesh),
+        source=str(file),
+    )
+    normalise_size(model, unitless=True)
+    factor = float(model.params.get("scale_to_metres", 1.0))
+    to_model = np.diag([factor, factor, factor, 1.0])
+    to_model[:3, 3] = factor * shift
+    model.params["cad_to_model"] = np.round(to_model @ Y_UP_TO_Z_UP, 9).tolist()
+    return model
+
+
+def load_shapenet(path: str | Path) -> ModelLibrary:
+    """A ShapeNet-layout folder (``SYNSET/MODEL_ID/models/model_normalized.obj``; or one synset's
+    folder) as a library. Synsets without a class in :data:`SHAPENET_CLASSES`, model folders
+    without the mesh and meshes that cannot be read are skipped, each reported in ``problems``."""
+    path = Path(path)
+    if _is_synset(path.name) and not any(_is_synset(p.name) for p in path.iterdir() if p.is_dir()):
+        root, synsets = path.parent, [path]
+    else:
+        root, synsets = path, sorted(p for p in path.iterdir() if p.is_dir() and _is_synset(p.name))
+    names = {**SHAPENET_NAMES, **_shapenet_taxonomy(root)}
+    lib = ModelLibrary([], root=path)
+    for folder in synsets:
+        synset = folder.name
+        models = sorted(p for p in folder.iterdir() if p.is_dir())
+        class_name = SHAPENET_CLASSES.get(synset)
+        if class_name is None:
+            what = f" ({names[synset]})" if names.get(synset) else ""
+            lib.problems.append(
+                f"{folder}: synset {synset}{what} has no stratamap class (SHAPENET_CLASSES); {len(models)} models "
+                "skipped"
+            )
+            continue
+        for model_dir in models:
+            file = model_dir / SHAPENET_MESH
+            if not file.is_file():
+                lib.problems.append(f"{model_dir}: no {SHAPENET_MESH.as_posix()}; skipped")
+                continue
+            try:
+                lib.models.append(load_shapenet_model(file, synset, model_dir.name, class_name))
+            except DataError as exc:
+                lib.problems.append(f"{exc}; skipped")
+    if not lib.models and not lib.problems:
+        raise DataError(f"{path}: no SYNSET/MODEL_ID/{SHAPENET_MESH.as_posix()} found")
     return lib
 
 
@@ -749,11 +895,14 @@ def load_partnet(folder: Path) -> LibraryModel:
     folder = Path(folder)
     meta: dict[str, Any] = {}
     if (folder / "meta.json").is_file():
-        meta = json.loads((folder / "meta.json").read_text())
+        try:
+            meta = json.loads(read_data_text(folder / "meta.json"))
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{folder / 'meta.json'}: corrupt JSON ({exc})") from None
     category = meta.get("model_cat", "")
     semantics = {}
     if (folder / "semantics.txt").is_file():
-        for line in (folder / "semantics.txt").read_text().splitlines():
+        for line in read_data_text(folder / "semantics.txt").splitlines():
             bits = line.split()
             if len(bits) >= 3:
                 semantics[bits[0]] = bits[2]

@@ -154,3 +154,76 @@ def class_extents() -> dict[str, tuple[float, float]]:
 def class_max_lengths() -> dict[str, float]:
     """Longest horizontal side per class, for the classes that have one."""
     return {name: size.max_length for name, size in CLASS_SIZES.items() if size.max_length is not None}
+
+
+# ------------------------------------------------------------------------------------------
+# Masses: what objects of a class are made of
+
+
+@dataclass(frozen=True)
+class ClassBody:
+    """What an object of a class weighs, as the simulators' exports give it: ``density`` (kg/m^3)
+    of the material times the material's volume, which is the object's solid volume but at most
+    ``fill`` of its box (a table is a top and four legs, not a block of wood)."""
+
+    #: kg/m^3 of what the object is made of (solid wood about 600, chipboard 650, glazed ceramic 2400).
+    density: float
+    #: Share of the object's gravity-aligned box that is material.
+    fill: float
+
+
+#: A part or object no thicker than this (m) is a solid slab whatever its class (a door, a
+#: tabletop, a book): ``fill`` describes a whole object's box, not a board cut from it.
+SOLID_THICKNESS = 0.05
+
+#: The figures behind each fill are those of a typical object, in its box (real ones vary by about a
+#: factor of two either way, as the simulators' friction does not care much about).
+CLASS_BODIES: dict[str, ClassBody] = {
+    # 1.6 x 0.9 m top 30 mm thick and four 70 mm legs: 0.057 m^3 of a 1.08 m^3 box; about 40 kg in wood.
+    "table": ClassBody(600.0, 0.055),
+    "desk": ClassBody(600.0, 0.07),  # a table's top and legs, often a drawer unit under it
+    # 0.45 m seat 30 mm thick, a back, four 40 mm legs: 0.012 m^3 of a 0.5 x 0.5 x 0.9 m box, about 7 kg.
+    "chair": ClassBody(600.0, 0.055),
+    "bench": ClassBody(600.0, 0.08),
+    # A hollow carcass of 18 mm chipboard with a shelf inside: 0.065 m^3 of a 0.8 x 0.5 x 0.9 m box, 42 kg.
+    "cabinet": ClassBody(650.0, 0.18),
+    "counter": ClassBody(650.0, 0.2),  # base units (carcasses) under a worktop
+    # An open bookcase 0.8 x 0.3 x 1.8 m: two sides, five shelves and a back, 0.045 m^3, about 29 kg.
+    "shelf": ClassBody(650.0, 0.1),
+    # Foam, webbing and a wooden frame (a mixed density): a three-seater of 2 x 0.9 x 0.85 m, about 70 kg.
+    "sofa": ClassBody(150.0, 0.3),
+    # A storage box and what it holds, taken as filling it.
+    "box": ClassBody(150.0, 1.0),
+    "book": ClassBody(750.0, 1.0),
+    # Ceramic walls and handle: a 0.3 kg mug in a 8 x 8 x 10 cm box.
+    "cup": ClassBody(2400.0, 0.2),
+    # Water in a thin bottle, which fills half its box (round, with a neck).
+    "bottle": ClassBody(1000.0, 0.55),
+    "laptop": ClassBody(1100.0, 1.0),  # aluminium, plastic and a battery: about 1.8 kg
+    # A 24-inch panel and its stand: about 5 kg in a 0.55 x 0.2 x 0.45 m box.
+    "monitor": ClassBody(700.0, 0.15),
+    # Sheet steel, plastic liners, insulation and a compressor: a 0.7 m^3 fridge about 70 kg.
+    "fridge": ClassBody(1000.0, 0.1),
+    "microwave": ClassBody(1300.0, 0.2),
+    "oven": ClassBody(1600.0, 0.1),
+    # Soil in a pot under the plant's far larger (and almost weightless) crown.
+    "plant": ClassBody(1300.0, 0.15),
+}
+
+#: An object of a class without a body above: wooden furniture of a table's fill or so.
+FALLBACK_BODY = ClassBody(600.0, 0.1)
+
+
+def class_body(class_name: str, density: float | None = None) -> ClassBody:
+    """The body facts of ``class_name`` (FALLBACK_BODY for an unknown class); ``density``, when
+    given, replaces its material density (an exporter's per-class override)."""
+    body = CLASS_BODIES.get(class_name, FALLBACK_BODY)
+    return body if density is None else ClassBody(float(density), body.fill)
+
+
+def material_volume(solid_volume: float, box_extents: tuple[float, ...], fill: float) -> float:
+    """The volume (m^3) of material in an object of this solid volume and box: at most ``fill`` of
+    its box, all of it for a slab no thicker than SOLID_THICKNESS."""
+    box = float(box_extents[0]) * float(box_extents[1]) * float(box_extents[2])
+    share = 1.0 if min(box_extents) <= SOLID_THICKNESS else fill
+    return max(0.0, min(float(solid_volume), share * box))

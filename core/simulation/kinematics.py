@@ -22,26 +22,11 @@ from stratamap.core.geometry.hulls import convex_hull
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
+from stratamap.core.map.priors import class_body, material_volume
 
 trimesh = lazy_module("trimesh")
 
 ROOT_LINK = "world"
-
-#: Solid density per class, kg/m^3 of the mesh volume (furniture is partly hollow, hence low).
-DEFAULT_DENSITY = {
-    "chair": 250.0,
-    "table": 300.0,
-    "desk": 300.0,
-    "cabinet": 200.0,
-    "shelf": 200.0,
-    "sofa": 150.0,
-    "box": 150.0,
-    "book": 600.0,
-    "cup": 400.0,
-    "laptop": 700.0,
-    "monitor": 400.0,
-}
-FALLBACK_DENSITY = 300.0
 
 
 @dataclass
@@ -115,8 +100,11 @@ def link_name(inst: ObjectInstance) -> str:
     return safe_name(f"{inst.class_name}_{inst.id}")
 
 
-def inertial_of(mesh: trimesh.Trimesh, density: float) -> Inertial:
-    """Mass from volume x density and the inertia tensor of the solid (convex hull if not watertight)."""
+def inertial_of(mesh: trimesh.Trimesh, density: float, fill: float = 1.0) -> Inertial:
+    """Mass of the material in ``mesh`` (link frame, gravity-aligned), ``density`` kg/m^3 times its
+    solid volume (convex hull if not watertight) but at most ``fill`` of its box
+    (:func:`stratamap.core.map.priors.material_volume`: a box completion of a table is mostly air),
+    and the inertia tensor of the solid for that mass."""
     # A flat mesh has no volume, and trimesh divides by it: the flat case is handled below.
     with np.errstate(divide="ignore", invalid="ignore"):
         solid = mesh if mesh.is_volume else mesh.convex_hull
@@ -124,13 +112,16 @@ def inertial_of(mesh: trimesh.Trimesh, density: float) -> Inertial:
         moment = np.asarray(solid.moment_inertia, dtype=float)
         center_mass = np.asarray(solid.center_mass, dtype=float)
     volume = max(raw_volume, 1e-9)
-    mass = max(volume * density, 1e-3)
+    extents = tuple(float(e) for e in np.asarray(mesh.extents, dtype=float))
+    mass = max(max(material_volume(volume, extents, fill), 1e-9) * density, 1e-3)
     if raw_volume <= 1e-9:  # flat: the box guard below gives it an inertia
         inertia = np.zeros((3, 3))
         center = np.asarray(mesh.bounds.mean(axis=0), dtype=float)
         ext = np.maximum(np.asarray(mesh.extents, dtype=float), 1e-3)
         return Inertial(mass, center, np.diag(mass / 12.0 * (ext[[1, 0, 0]] ** 2 + ext[[2, 2, 1]] ** 2)))
-    inertia = moment / max(raw_volume, 1e-12) * volume * density
+    # The solid's shape at the material's mass: a framed or hollow object's mass sits farther out,
+    # which only the real parts could say.
+    inertia = moment / max(raw_volume, 1e-12) * mass
     # Guard against degenerate hulls: keep the tensor positive definite and physically valid.
     evals = np.linalg.eigvalsh(inertia)
     if not np.all(np.isfinite(inertia)) or evals.min() <= 1e-9:
@@ -272,7 +263,7 @@ def build_tree(
     ``floating_ids``, when given, names the free objects instead of ``floating_classes``;
     ``collision`` gives an object's convex collision parts in its object frame (a rest plan's
     support-completed base) instead of its mesh's."""
-    density = {**DEFAULT_DENSITY, **(density or {})}
+    density = dict(density or {})
     collision = collision or {}
     offsets = offsets or {}
     rotations = rotations or {}
@@ -289,13 +280,14 @@ def build_tree(
         pose = settle @ pose
         poses[inst.id] = pose
         names[inst.id] = link_name(inst)
-        rho = density.get(inst.class_name, FALLBACK_DENSITY)
+        facts = class_body(inst.class_name, density.get(inst.class_name))
+        rho, fill = facts.density, facts.fill
         c = inst.completion
         front = front_joint(inst)
         if front is not None:
             kind, frame, axis, lower, upper = front
             panel = front_panel(inst, frame)
-            links.append(Link(names[inst.id], panel, inertial_of(panel, rho), inst.id, inst.class_name))
+            links.append(Link(names[inst.id], panel, inertial_of(panel, rho, fill), inst.id, inst.class_name))
             # The joint's name says what the segmenter estimated: which side a door hinges on.
             label = f"hinge_{inst.attributes.get('hinge') or 'left'}" if kind == "revolute" else "slide"
             joints.append(
@@ -313,7 +305,7 @@ def build_tree(
                 Link(
                     names[inst.id],
                     None if body is None else body.mesh,
-                    helper_inertial() if body is None else inertial_of(body.mesh, rho),
+                    helper_inertial() if body is None else inertial_of(body.mesh, rho, fill),
                     inst.id,
                     inst.class_name,
                 )
@@ -326,7 +318,7 @@ def build_tree(
                 part = parts.get(j.child)
                 child = part_link(j.child)
                 if part is not None:
-                    links.append(Link(child, part.mesh, inertial_of(part.mesh, rho), inst.id, inst.class_name))
+                    links.append(Link(child, part.mesh, inertial_of(part.mesh, rho, fill), inst.id, inst.class_name))
                 else:
                     links.append(Link(child, None, helper_inertial(), inst.id, inst.class_name))
                 joints.append(
@@ -343,7 +335,9 @@ def build_tree(
                 )
         else:
             links.append(
-                Link(names[inst.id], mesh, inertial_of(mesh, rho), inst.id, inst.class_name, collision.get(inst.id))
+                Link(
+                    names[inst.id], mesh, inertial_of(mesh, rho, fill), inst.id, inst.class_name, collision.get(inst.id)
+                )
             )
     for inst in instances:
         if inst.id in fronts:

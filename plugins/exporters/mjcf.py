@@ -4,32 +4,29 @@ objects placed at rest, hinge and slide joints."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import ClassVar
 
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
+from stratamap.core import Exporter, PipelineData, hookimpl
 from stratamap.core.simulation.mjcf import write_mjcf
 from stratamap.core.simulation.rest import RestPlan, rest_offsets
 from stratamap.core.simulation.structure import room_structure
+from stratamap.plugins.exporters._sections import (
+    Bodies,
+    SectionedConfig,
+    bodies_section,
+    renamed_bodies,
+    warn_renamed,
+)
 
 
-class MJCFConfig(StageConfig):
+class MJCFConfig(SectionedConfig):
     filename: str = Field(default="scene.xml", description="Name of the MJCF file in the export folder.")
     mesh_dir: str = Field(default="mjcf_meshes", description="Sub-folder for the collision and visual meshes.")
-    free_classes: list[str] = Field(
-        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
-        description="Classes that get a free joint (movable objects, placed at rest); others are fixed to the world.",
-    )
-    structure: bool = Field(
-        default=True, description="Add floor height, walls and ceiling from the map as world geoms."
-    )
-    rest: bool = Field(
-        default=True,
-        description="Place free bodies to rest on their support (a few mm of settling; static where they cannot).",
-    )
-    density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
+    bodies: Bodies = bodies_section()
     hinge_holding: float = Field(
         default=2.0,
         ge=0.0,
@@ -39,6 +36,8 @@ class MJCFConfig(StageConfig):
         ),
     )
     timestep: float = Field(default=0.002, gt=0.0, description="Simulation timestep, seconds.")
+
+    renamed: ClassVar[Mapping[str, str]] = renamed_bodies("free_classes")
 
 
 class MJCFExporter(Exporter[MJCFConfig]):
@@ -51,18 +50,20 @@ class MJCFExporter(Exporter[MJCFConfig]):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
+        warn_renamed(self)
+        bodies = cfg.bodies
         assert data.map.instances is not None
-        statics = room_structure(data.map) if cfg.structure else []
+        statics = room_structure(data.map) if bodies.structure else []
         graph = data.map.contact_graph
-        plan = rest_offsets(data.map.instances, graph, cfg.free_classes, statics) if cfg.rest else RestPlan()
+        plan = rest_offsets(data.map.instances, graph, bodies.movable_classes, statics) if bodies.rest else RestPlan()
         self.note("rest", plan.to_dict())
         return write_mjcf(
             data.map.instances,
             out_dir,
             filename=cfg.filename,
             mesh_dir=cfg.mesh_dir,
-            free_classes=cfg.free_classes,
-            density=cfg.density,
+            free_classes=bodies.movable_classes,
+            density=bodies.density,
             hinge_holding=cfg.hinge_holding,
             timestep=cfg.timestep,
             graph=graph,

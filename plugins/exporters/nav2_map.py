@@ -1,7 +1,8 @@
 """Exporter ``nav2_map``: occupancy layers as ``NAME.yaml`` + ``NAME.pgm`` that nav2_map_server loads.
 
 By default the laser-only ``slam`` layer is written as ``map.*`` and the ``multimap`` as
-``multimap.*`` (trinary, occupied_thresh 0.65, free_thresh 0.196, origin, rows flipped).
+``multimap.*`` (trinary, occupied_thresh 0.65, free_thresh 0.196, origin, rows flipped). A map with
+no free cell is written with a warning: a planner finds no path on it.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from pathlib import Path
 from pydantic import Field
 
 from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
-from stratamap.core.io.nav2 import write_map
+from stratamap.core.io.nav2 import no_free_space, write_map
 
 
 class Nav2MapConfig(StageConfig):
@@ -37,6 +38,9 @@ class Nav2MapExporter(Exporter[Nav2MapConfig]):
                     f"no occupancy layer {layer!r} (have: {sorted(data.map.occupancy)}); {basename}.yaml not written"
                 )
                 continue
+            empty = no_free_space(grid, f"{basename}.pgm (layer {layer!r})")
+            if empty:
+                self.warn(empty)
             written.extend(write_map(grid, out_dir, basename))
         return written
 

@@ -21,17 +21,25 @@ swapped in whole.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import Field, field_validator
 
-from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
+from stratamap.core import Exporter, PipelineData, hookimpl
 from stratamap.core.atomic import atomic_directory
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw
 from stratamap.core.io.nav2 import COST_INSCRIBED, COST_LETHAL, COST_UNKNOWN, costmap_values
 from stratamap.core.map.colors import id_colors
+from stratamap.plugins.exporters._sections import (
+    RENAMED_INFLATION,
+    Inflation,
+    SectionedConfig,
+    inflation_section,
+    warn_renamed,
+)
 
 #: rosbag2 metadata version rosbags writes (8 is the oldest it offers; Humble's player reads it).
 BAG_VERSION = 8
@@ -70,7 +78,7 @@ def packed_rgb(colors: np.ndarray) -> np.ndarray:
     return (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
 
 
-class Ros2BagConfig(StageConfig):
+class Ros2BagConfig(SectionedConfig):
     folder: str = Field(
         default="ros2_bag", description="Bag folder in the export folder (metadata.yaml + sqlite3 file)."
     )
@@ -82,18 +90,14 @@ class Ros2BagConfig(StageConfig):
         default="multimap", description="Occupancy layer inflated into the costmap; null: no costmap topic."
     )
     costmap_topic: str = Field(default="/costmap", description="Topic of the costmap (nav_msgs/OccupancyGrid).")
-    inscribed_radius: float = Field(
-        default=0.2, ge=0.0, description="Robot's inscribed radius, metres (as the costmap exporter)."
-    )
-    inflation_radius: float = Field(default=0.55, gt=0.0, description="Inflation radius, metres (Nav2's default).")
-    cost_scaling_factor: float = Field(
-        default=10.0, gt=0.0, description="Exponential decay rate of the inflation (Nav2's default 10)."
-    )
+    inflation: Inflation = inflation_section()
     cloud_topic: str = Field(default="/stratamap/cloud", description="Topic of the map's points (PointCloud2).")
     objects_topic: str = Field(
         default="/stratamap/objects", description="Topic of the objects' boxes, models and labels (MarkerArray)."
     )
     frame_id: str = Field(default="map", description="Frame of every message, the parent of the object frames.")
+
+    renamed: ClassVar[Mapping[str, str]] = RENAMED_INFLATION
 
     @field_validator("folder")
     @classmethod
@@ -238,6 +242,7 @@ class Ros2BagExporter(Exporter[Ros2BagConfig]):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
+        warn_renamed(self)
         messages = _Messages(_typestore(), cfg.frame_id)
         topics = self._topics(data, messages)
         if not topics:
@@ -275,7 +280,10 @@ class Ros2BagExporter(Exporter[Ros2BagConfig]):
             if grid is None:
                 self.warn(f"no occupancy layer {cfg.costmap_layer!r} for the costmap; {cfg.costmap_topic} not written")
             else:
-                costs = costmap_values(grid, cfg.inscribed_radius, cfg.inflation_radius, cfg.cost_scaling_factor)
+                inflation = cfg.inflation
+                costs = costmap_values(
+                    grid, inflation.inscribed_radius, inflation.inflation_radius, inflation.cost_scaling_factor
+                )
                 topics.append(
                     (cfg.costmap_topic, grid_type, messages.occupancy_grid(grid, occupancy_from_costs(costs)))
                 )

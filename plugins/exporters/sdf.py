@@ -1,7 +1,7 @@
 """Exporter ``sdf``: the scene as a Gazebo world (SDFormat 1.9), meshes beside it.
 
 Every object is a model posed in the world; furniture is ``static``, objects of
-``dynamic_classes`` are not (placed to rest on their support by the rest plan, or static where
+``bodies.movable_classes`` are not (placed to rest on their support by the rest plan, or static where
 they cannot rest); articulated models keep revolute and prismatic joints with limits, and fronts
 found by a segmenter hang from the world by their hinge or drawer joint. Floor, walls and ceiling
 are the static model ``room``; collision geometry is the meshes' convex parts.
@@ -10,36 +10,38 @@ are the static model ``room``; collision geometry is the meshes' convex parts.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
+from stratamap.core import Exporter, PipelineData, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK, link_collision
+from stratamap.core.simulation.kinematics import ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
+from stratamap.plugins.exporters._sections import (
+    Bodies,
+    SectionedConfig,
+    bodies_section,
+    renamed_bodies,
+    warn_renamed,
+)
 
 
 def _pose(pose: np.ndarray) -> str:
     return " ".join(f"{float(v):.9g}" for v in (*pose[:3, 3], *rpy_of(pose)))
 
 
-class SDFConfig(StageConfig):
+class SDFConfig(SectionedConfig):
     filename: str = Field(default="scene.sdf", description="Name of the world file in the export folder.")
     mesh_dir: str = Field(default="sdf_meshes", description="Sub-folder (beside the world) for meshes.")
     world_name: str = Field(default="stratamap_scene", description="The <world name>.")
-    dynamic_classes: list[str] = Field(
-        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
-        description="Classes simulated as dynamic (not static) models, placed at rest on their support.",
-    )
-    structure: bool = Field(default=True, description="Add floor, walls and ceiling from the map as a static model.")
-    rest: bool = Field(
-        default=True,
-        description="Place dynamic models to rest on their support (a few mm of settling; static where they cannot).",
-    )
-    density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
+    bodies: Bodies = bodies_section()
+
+    renamed: ClassVar[Mapping[str, str]] = renamed_bodies("dynamic_classes")
 
 
 def _joint(model: ET.Element, j, parent: str) -> None:
@@ -64,8 +66,15 @@ class SDFExporter(Exporter[SDFConfig]):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
+        warn_renamed(self)
+        bodies = cfg.bodies
         tree, plan = scene_tree(
-            data.map, cfg.dynamic_classes, cfg.density, use_graph=False, structure=cfg.structure, rest=cfg.rest
+            data.map,
+            bodies.movable_classes,
+            bodies.density,
+            use_graph=False,
+            structure=bodies.structure,
+            rest=bodies.rest,
         )
         self.note("rest", plan.to_dict())
         sdf = ET.Element("sdf", version="1.9")

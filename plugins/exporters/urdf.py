@@ -2,7 +2,7 @@
 
 One link per object (its completion, or the hull of its observed points), joined to its
 supporter from the contact graph (or to ``world``), each with inertial, visual (the whole mesh)
-and collision blocks (one per convex part). Objects of ``movable_classes`` hang from ``world`` by
+and collision blocks (one per convex part). Objects of ``bodies.movable_classes`` hang from ``world`` by
 floating joints, placed to rest on their support; articulated parts and segmented fronts keep
 revolute and prismatic joints with limits; floor, walls and ceiling are static box links. Mesh
 paths are relative to the URDF (or ``package://`` URIs when ``package_uri`` is set).
@@ -14,17 +14,25 @@ loads each free body as its own multibody.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
+from stratamap.core import Exporter, PipelineData, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES, ROOT_LINK, link_collision
+from stratamap.core.simulation.kinematics import ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
+from stratamap.plugins.exporters._sections import (
+    Bodies,
+    SectionedConfig,
+    bodies_section,
+    renamed_bodies,
+    warn_renamed,
+)
 
 
 def _fmt(values) -> str:
@@ -35,7 +43,7 @@ def _origin(parent: ET.Element, pose: np.ndarray) -> None:
     ET.SubElement(parent, "origin", xyz=_fmt(pose[:3, 3]), rpy=_fmt(rpy_of(pose)))
 
 
-class URDFConfig(StageConfig):
+class URDFConfig(SectionedConfig):
     filename: str = Field(default="scene.urdf", description="Name of the URDF file in the export folder.")
     robot_name: str = Field(default="stratamap_scene", description="The <robot name> of the URDF.")
     mesh_dir: str = Field(default="meshes", description="Sub-folder (beside the URDF) for link meshes.")
@@ -46,16 +54,9 @@ class URDFConfig(StageConfig):
         default=None,
         description="If set (e.g. 'package://my_scene'), mesh paths are written as '<package_uri>/<mesh_dir>/...'.",
     )
-    movable_classes: list[str] = Field(
-        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
-        description="Classes exported as free bodies (floating joints on world, placed at rest); others are fixed.",
-    )
-    structure: bool = Field(default=True, description="Add floor, walls and ceiling from the map as static box links.")
-    rest: bool = Field(
-        default=True,
-        description="Place free bodies to rest on their support (a few mm of settling; static where they cannot).",
-    )
-    density: dict[str, float] = Field(default_factory=dict, description="Per-class density overrides, kg/m^3.")
+    bodies: Bodies = bodies_section()
+
+    renamed: ClassVar[Mapping[str, str]] = renamed_bodies("movable_classes")
 
 
 class URDFExporter(Exporter[URDFConfig]):
@@ -68,7 +69,11 @@ class URDFExporter(Exporter[URDFConfig]):
 
     def export(self, data: PipelineData, out_dir: Path) -> list[Path]:
         cfg = self.config
-        tree, plan = scene_tree(data.map, cfg.movable_classes, cfg.density, structure=cfg.structure, rest=cfg.rest)
+        warn_renamed(self)
+        bodies = cfg.bodies
+        tree, plan = scene_tree(
+            data.map, bodies.movable_classes, bodies.density, structure=bodies.structure, rest=bodies.rest
+        )
         self.note("rest", plan.to_dict())
         robot = ET.Element("robot", name=cfg.robot_name)
         ET.SubElement(robot, "link", name=ROOT_LINK)

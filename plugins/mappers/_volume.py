@@ -144,6 +144,59 @@ class IntegrationConfig(StageConfig):
     )
 
 
+#: Open3D finds the blocks a frame touches from every 4th pixel in x and y (``down_factor`` in
+#: ``VoxelBlockGrid::GetUniqueBlockCoordinates``), and aborts when none is: a frame whose depth in
+#: range lies only between those pixels cannot be integrated either.
+TOUCH_STRIDE = 4
+#: Frame numbers a warning or error lists before it says how many more there are (the run's notes list all).
+LISTED_FRAMES = 12
+
+
+def frame_list(indices: Sequence[int]) -> str:
+    """``3, 4, 7-12`` (runs of consecutive frames as ranges), the first ``LISTED_FRAMES`` of them."""
+    runs: list[list[int]] = []
+    for k in sorted(indices):
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    parts = [str(a) if a == b else f"{a}-{b}" for a, b in runs]
+    more = len(parts) - LISTED_FRAMES
+    return ", ".join(parts[:LISTED_FRAMES]) + (f" and {more} more runs of frames" if more > 0 else "")
+
+
+class FrameSkips:
+    """The frames a mapper left out, by why: one bad frame of a recording (a view down a corridor with
+    nothing within depth_max, a frame odometry lost) is left out and reported, never fatal; only a
+    sequence with no usable frame at all is an error."""
+
+    def __init__(self, mapper: str):
+        self.mapper = mapper
+        self.by_reason: dict[str, list[int]] = {}
+
+    def add(self, reason: str, index: int) -> None:
+        self.by_reason.setdefault(reason, []).append(int(index))
+
+    def __len__(self) -> int:
+        return sum(len(v) for v in self.by_reason.values())
+
+    def summary(self) -> str:
+        return "; ".join(
+            f"{len(idx)} with {reason} (frame{'s' if len(idx) > 1 else ''} {frame_list(idx)})"
+            for reason, idx in self.by_reason.items()
+        )
+
+    def finish(self, stage: Any, used: int, total: int, stream: str) -> None:
+        """Warn and note what was skipped, or raise when no frame was usable."""
+        if used == 0:
+            what = f"its {total} frames" if total != 1 else "its only frame"
+            detail = f": {self.summary()}" if len(self) else ""
+            raise DataError(f"{self.mapper}: no usable RGB-D frame in {what} of {stream!r}{detail}")
+        if len(self):
+            stage.warn(f"skipped {len(self)} of {total} frames: {self.summary()}")
+            stage.note("frames_skipped", {reason: list(idx) for reason, idx in self.by_reason.items()})
+
+
 #: Voxels whose truncated signed distance is under this share of the truncation band lie near a
 #: surface; their weights are the views the surface had.
 NEAR_SURFACE = 0.3
@@ -191,19 +244,55 @@ class TSDFVolume:
             )
         return np.where(np.isfinite(depth) & (depth >= self.cfg.depth_min), depth, 0.0).astype(np.float32)
 
-    def integrate(self, depth: np.ndarray, rgb: np.ndarray, pose: np.ndarray) -> None:
-        """Fuse one frame (depth from :meth:`valid_depth`, camera-to-world ``pose``)."""
+    @property
+    def out_of_range(self) -> str:
+        """Why a frame with no depth Open3D can integrate is skipped."""
+        return f"no depth within depth_min-depth_max ({self.cfg.depth_min:g}-{self.cfg.depth_max:g} m)"
+
+    def usable_depth(self, frame: Any) -> tuple[np.ndarray | None, str]:
+        """The frame's depth as :meth:`valid_depth` gives it, or None and why the frame cannot be
+        integrated: a depth image of another size than the camera's, a colour image of another size
+        than its depth, no depth in range, or no pose (or one with NaNs)."""
+        intr = self.intrinsics
+        size = f"{intr.width}x{intr.height}"
+        depth = np.asarray(frame.depth)
+        if depth.shape != (intr.height, intr.width):
+            return None, f"depth {'x'.join(map(str, depth.shape[::-1]))}, the intrinsics say {size}"
+        rgb = np.asarray(frame.rgb)
+        if rgb.shape[:2] != depth.shape:
+            return None, f"a colour image of {'x'.join(map(str, rgb.shape[1::-1]))}, its depth {size}"
+        depth = self.valid_depth(frame, "tsdf")
+        touched = depth[::TOUCH_STRIDE, ::TOUCH_STRIDE]
+        if not np.any((touched > 0) & (touched < self.cfg.depth_max)):
+            return None, self.out_of_range
+        if frame.pose is None:
+            return None, "no pose (enable odometry, or provide poses)"
+        pose = np.asarray(frame.pose, dtype=np.float64)
+        if pose.shape != (4, 4) or not np.isfinite(pose).all():
+            return None, "a pose that is not a finite 4x4 matrix"
+        return depth, ""
+
+    def integrate(self, depth: np.ndarray, rgb: np.ndarray, pose: np.ndarray) -> bool:
+        """Fuse one frame (depth from :meth:`valid_depth`, camera-to-world ``pose``); False when
+        Open3D found no block the frame touches (nothing was fused)."""
         cfg = self.cfg
         extrinsic = o3c.Tensor(invert(pose), o3c.float64)
         depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
         color_img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb, dtype=np.float32) / 255.0))
-        coords = self.grid.compute_unique_block_coordinates(
-            depth_img, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
-        )
+        try:
+            coords = self.grid.compute_unique_block_coordinates(
+                depth_img, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
+            )
+        except RuntimeError as exc:
+            # usable_depth() checks the pixels Open3D 0.20 samples; another version may sample others.
+            if "No block is touched" in str(exc):
+                return False
+            raise
         self.grid.integrate(
             coords, depth_img, color_img, self._K, self._K, extrinsic, 1.0, cfg.depth_max, cfg.truncation_voxels
         )
         self.frames += 1
+        return True
 
     def _views_needed(self) -> int:
         """Frames that must have seen a surface voxel for it to be kept: ``min_frames``, at most the frames

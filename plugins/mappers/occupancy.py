@@ -28,7 +28,9 @@ from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.geometry.points import FAR_FROM_BULK, far_from_bulk, unit_hint
 from stratamap.core.geometry.transforms import apply
+from stratamap.core.io.nav2 import FREE_THRESH, OCCUPIED_THRESH
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import OccupancyGrid, OccupancyMaps
 from stratamap.core.map.sensors import LaserScan, LidarScan, SensorStream
@@ -91,9 +93,18 @@ class OccupancyConfig(StageConfig):
 LIDAR_BEAMS = 1440
 #: Returns nearer than this to the LiDAR are the robot carrying it, metres (KISS-ICP's min_range here).
 LIDAR_MIN_RANGE = 0.3
-#: A sweep becomes a planar scan once the sensor moved this far (metres) or turned this much (radians)
-#: since the last one, as a SLAM back end keeps keyframes: sweeps at 10 Hz repeat each other.
+#: A sweep starts a new place once the sensor moved this far (metres) or turned this much (radians)
+#: since the last place began, as a SLAM back end keeps keyframes: sweeps at 10 Hz repeat each other.
 LIDAR_KEYFRAME_TRAVEL, LIDAR_KEYFRAME_TURN = 0.2, np.radians(10.0)
+
+
+def sweeps_per_place(cfg: OccupancyConfig) -> int:
+    """How many sweeps of one place become planar scans: one more than the misses that take a cell from
+    unknown to free (``log_odds_miss`` against Nav2's free threshold: 4 at the defaults), since one look
+    makes no cell free: a sensor standing still, or moving less than a keyframe's travel per sweep, would
+    otherwise leave a map with no free cell."""
+    free = np.log(FREE_THRESH / (1.0 - FREE_THRESH))
+    return int(np.ceil(free / cfg.log_odds_miss)) + 1
 
 
 def lidar_planar_scans(
@@ -102,22 +113,29 @@ def lidar_planar_scans(
     """3D LiDAR sweeps as planar laser scans, as ROS's pointcloud_to_laserscan makes them for a 2D
     SLAM back end: each beam's range is its nearest return within the obstacle band (``z_min`` to
     ``robot_height`` above the floor); a beam with none there clears cells as far as its farthest
-    return on the floor (``floor_tolerance``), which a 2D laser could not see. Keyframes only
-    (``LIDAR_KEYFRAME_*``), unless ``keyframes`` is False (a static scan's stations, each a view of its
-    own). Returns the scans, posed at the sensor with a level x axis, and each
-    one's per-beam reach for beams without a return."""
+    return on the floor (``floor_tolerance``), which a 2D laser could not see. With ``keyframes``, the
+    first :func:`sweeps_per_place` sweeps of each place (a new one once the sensor moved or turned
+    ``LIDAR_KEYFRAME_*``), so a long stay costs no more than a pass; without (a static scan's stations,
+    each a view of its own), every one. Returns the scans, posed at the sensor with a level x axis, and
+    each one's per-beam reach for beams without a return."""
     scans: list[LaserScan] = []
     reaches: list[np.ndarray] = []
     increment = 2 * np.pi / LIDAR_BEAMS
     last: np.ndarray | None = None
+    per_place, taken = sweeps_per_place(cfg), 0
     for sweep in sweeps:
         pose = np.asarray(sweep.pose)
         if keyframes and last is not None:
             moved = np.linalg.norm(pose[:2, 3] - last[:2, 3])
             turned = abs(np.arctan2(pose[1, 0], pose[0, 0]) - np.arctan2(last[1, 0], last[0, 0]))
             if moved < LIDAR_KEYFRAME_TRAVEL and min(turned, 2 * np.pi - turned) < LIDAR_KEYFRAME_TURN:
-                continue
-        last = pose
+                if taken >= per_place:
+                    continue
+                taken += 1
+            else:
+                last, taken = pose, 1
+        else:
+            last, taken = pose, 1
         world = apply(pose, np.asarray(sweep.points))
         offset = world[:, :2] - pose[:2, 3]
         distance = np.hypot(offset[:, 0], offset[:, 1])
@@ -135,6 +153,15 @@ def lidar_planar_scans(
         scans.append(LaserScan(sweep.timestamp, -np.pi + increment / 2, increment, ranges, np.inf, level))
         reaches.append(reach)
     return scans, reaches
+
+
+def flat_cells(xy: np.ndarray, origin: np.ndarray, shape: tuple[int, int], resolution: float) -> np.ndarray:
+    """Flat indices (row * columns + column) of the grid cells holding ``xy``; points off the grid are left
+    out before they are flattened (a row past the grid would wrap into another)."""
+    rc = np.floor((xy[:, [1, 0]] - origin[[1, 0]]) / resolution)
+    on = (rc[:, 0] >= 0) & (rc[:, 0] < shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < shape[1])
+    rc = rc[on].astype(np.int64)
+    return rc[:, 0] * shape[1] + rc[:, 1]
 
 
 class _Station(NamedTuple):
@@ -165,7 +192,8 @@ def scanner_stations(stream: SensorStream | None) -> list[_Station]:
 
 
 #: The most cells a layer may hold: a 500 x 500 m floor at 5 cm, about 0.8 GB per layer of counts.
-#: A room scanned in millimetres and read as metres spans kilometres (65 GB of counts).
+#: A room scanned in millimetres and read as metres spans kilometres (65 GB of counts): past it, the
+#: error names the units only where the geometry's bulk says so (:func:`unit_hint`).
 MAX_CELLS = 100_000_000
 
 
@@ -209,7 +237,7 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         if scans:
             slam = self._laser_log_odds(scans, origin, shape, cfg)
             self.note("slam_source", f"{len(scans)} laser scans (log-odds)")
-        elif sweeps:
+        elif sweeps and len(sweeps) >= sweeps_per_place(cfg):
             planar, reaches = lidar_planar_scans(sweeps, floor_z, cfg)
             slam = self._laser_log_odds(planar, origin, shape, cfg, reaches)
             self.note(
@@ -217,14 +245,18 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
                 f"{len(planar)} of {len(sweeps)} LiDAR sweeps as planar scans of the {cfg.z_min:g}-"
                 f"{cfg.robot_height:g} m band (log-odds)",
             )
+        elif sweeps:
+            # Fewer sweeps than it takes a cell to become free: each is taken as one long look, as a station's.
+            planar, reaches = lidar_planar_scans(sweeps, floor_z, cfg, keyframes=False)
+            slam = self._one_look_each(planar, origin, shape, cfg, reaches, floor_seen)
+            self.note(
+                "slam_source",
+                f"{len(planar)} LiDAR sweeps, too few to add up, each one long look as planar scans of the "
+                f"{cfg.z_min:g}-{cfg.robot_height:g} m band (log-odds)",
+            )
         elif stations:
             planar, reaches = lidar_planar_scans(stations, floor_z, cfg, keyframes=False)
-            # A station's scan is one long look from a tripod, not a pass of a moving laser: what its
-            # beams crossed is free, and where they ended occupied, from that one scan (full log-odds).
-            lo, hi = cfg.log_odds_clamp
-            static = cfg.model_copy(update={"log_odds_miss": lo, "log_odds_hit": hi})
-            slam = self._laser_log_odds(planar, origin, shape, static, reaches)
-            slam[floor_seen & (slam < 0)] = 0
+            slam = self._one_look_each(planar, origin, shape, cfg, reaches, floor_seen)
             self.note(
                 "slam_source",
                 f"{len(planar)} scanner station(s) of a static scan as planar scans of the {cfg.z_min:g}-"
@@ -272,8 +304,9 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         self.note("floor_z", float(floor_z))
         return {"occupancy": grids}
 
-    @staticmethod
-    def _extent(cfg: OccupancyConfig, scans: list[LaserScan], geom: Any) -> tuple[np.ndarray, tuple[int, int]]:
+    def _extent(self, cfg: OccupancyConfig, scans: list[LaserScan], geom: Any) -> tuple[np.ndarray, tuple[int, int]]:
+        """The grid's origin and shape: the geometry and the laser scans' beam ends, less those far from
+        the rest (:func:`far_from_bulk`: one stray point 100 km away would make the grid 4e12 cells)."""
         xy = []
         if geom is not None and len(geom):
             xy.append(geom.points[:, :2])
@@ -283,18 +316,48 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             end = s.pose[:2, 3] + np.stack([np.cos(ang), np.sin(ang)], 1) * np.nan_to_num(ranges, nan=0.0)[:, None]
             xy.append(np.vstack([end, s.pose[:2, 3][None]]))
         pts = np.vstack(xy)
+        far = far_from_bulk(np.c_[pts, np.zeros(len(pts))])
+        if far.any() and not far.all():
+            self.warn(
+                f"occupancy: {int(far.sum())} of {len(pts)} points and beam ends lie far from the rest (more than "
+                f"{FAR_FROM_BULK:g} times the extent of their bulk outside it, or not finite): left off the grid"
+            )
+            pts = pts[~far]
         lo = pts.min(0) - cfg.margin
         hi = pts.max(0) + cfg.margin
         origin = np.floor(lo / cfg.resolution) * cfg.resolution
         shape = (int(np.ceil((hi[1] - origin[1]) / cfg.resolution)), int(np.ceil((hi[0] - origin[0]) / cfg.resolution)))
         if shape[0] * shape[1] > MAX_CELLS:
             span = pts.max(0) - pts.min(0)
+            hint = unit_hint(geom.points) if geom is not None and len(geom) else None
             raise DataError(
                 f"occupancy: the map spans {span[0]:,.0f} x {span[1]:,.0f} m, {shape[1]:,} x {shape[0]:,} cells of "
-                f"{cfg.resolution:g} m (at most {MAX_CELLS:,.0f}): a cloud in millimetres or centimetres read as "
-                "metres? set source.params.scale (0.001 or 0.01); else a coarser occupancy resolution"
+                f"{cfg.resolution:g} m (at most {MAX_CELLS:,.0f}): "
+                + (
+                    f"{hint} (else set a coarser occupancy resolution)"
+                    if hint
+                    else "set a coarser occupancy resolution"
+                )
             )
         return origin, shape
+
+    def _one_look_each(
+        self,
+        planar: list[LaserScan],
+        origin: np.ndarray,
+        shape: tuple[int, int],
+        cfg: OccupancyConfig,
+        reaches: list[np.ndarray],
+        floor_seen: np.ndarray,
+    ) -> np.ndarray:
+        """Log-odds of scans that are each one long look from a tripod (a static scan's stations, or a
+        recording of too few sweeps to add up), not a pass of a moving laser: what a beam crossed is free,
+        and where it ended occupied, from that one scan (full log-odds); floor the geometry saw is free."""
+        lo, hi = cfg.log_odds_clamp
+        static = cfg.model_copy(update={"log_odds_miss": lo, "log_odds_hit": hi})
+        slam = self._laser_log_odds(planar, origin, shape, static, reaches)
+        slam[floor_seen & (slam < 0)] = 0
+        return slam
 
     @staticmethod
     def _laser_log_odds(
@@ -315,7 +378,10 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             ang = s.angles + yaw
             ret = np.isfinite(s.ranges) & (s.ranges <= s.range_max)
             missed = min(cfg.max_free_range, s.range_max) if no_return_reach is None else no_return_reach[k]
-            reach = np.where(ret, s.ranges, missed)
+            # Past the grid's farthest corner a beam marks nothing: a bogus range of 1e9 m would cost 4e10 samples.
+            corners = origin + np.array([[0, 0], [0, shape[0]], [shape[1], 0], [shape[1], shape[0]]]) * cfg.resolution
+            beyond = float(np.max(np.hypot(*(corners - s.pose[:2, 3]).T))) + cfg.resolution
+            reach = np.minimum(np.where(ret, s.ranges, missed), beyond)
             if not np.any(reach > 0):
                 continue
             n = int(np.ceil(reach.max() / step)) + 1
@@ -324,14 +390,10 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
             # Free samples along every beam, stopping half a cell before the hit.
             mask = t[None, :] < (reach[:, None] - cfg.resolution / 2)
             pts = s.pose[:2, 3] + dirs[:, None, :] * t[None, :, None]
-            free_rc = np.floor((pts[mask][:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
+            flat_free = np.unique(flat_cells(pts[mask], origin, shape, cfg.resolution))
             hit_xy = s.pose[:2, 3] + dirs[ret] * s.ranges[ret, None]
-            hit_rc = np.floor((hit_xy[:, [1, 0]] - origin[[1, 0]]) / cfg.resolution).astype(np.int64)
-            flat_free = np.unique(free_rc[:, 0] * shape[1] + free_rc[:, 1])
-            flat_hit = np.unique(hit_rc[:, 0] * shape[1] + hit_rc[:, 1])
+            flat_hit = np.unique(flat_cells(hit_xy, origin, shape, cfg.resolution))
             flat_free = np.setdiff1d(flat_free, flat_hit, assume_unique=True)
-            flat_free = flat_free[(flat_free >= 0) & (flat_free < logodds.size)]
-            flat_hit = flat_hit[(flat_hit >= 0) & (flat_hit < logodds.size)]
             lf = logodds.reshape(-1)
             lf[flat_free] = np.clip(lf[flat_free] + cfg.log_odds_miss, lo, hi)
             lf[flat_hit] = np.clip(lf[flat_hit] + cfg.log_odds_hit, lo, hi)
@@ -341,8 +403,8 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
         # Trinary, as map_saver writes a SLAM map for nav2: confident cells are 0 or 100, the rest unknown.
         prob = 1.0 / (1.0 + np.exp(-logodds))
         out = np.full(shape, -1, np.int8)
-        out[seen & (prob > 0.65)] = 100
-        out[seen & (prob < 0.196)] = 0
+        out[seen & (prob > OCCUPIED_THRESH)] = 100
+        out[seen & (prob < FREE_THRESH)] = 0
         return out
 
     @staticmethod

@@ -20,7 +20,7 @@ from stratamap.core.geometry.points import VOXEL_NEIGHBOURS
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Semantics
-from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
+from stratamap.plugins.mappers._volume import FrameSkips, IntegrationConfig, TSDFVolume, label_stride
 
 o3c = lazy_module("open3d.core")
 
@@ -54,13 +54,14 @@ class SemanticTSDFMapper(Mapper[SemanticTSDFConfig]):
         # log p(z|c): the observed class gains log(p / q) over the others (q = (1 - p) / (K - 1)).
         gain = np.float32(np.log(cfg.p_correct * (n_classes - 1) / (1 - cfg.p_correct)))
         intr = stream.intrinsics
+        integrated = 0
+        skips = FrameSkips("semantic_tsdf")
         for frame in self.progress(stream.frames, description="semantic TSDF"):
-            if frame.pose is None:
-                raise DataError(f"semantic_tsdf: frame {frame.index} has no pose")
-            depth = volume.valid_depth(frame, "semantic_tsdf")
-            if not depth.any():
+            depth, reason = volume.usable_depth(frame)
+            if depth is None or not volume.integrate(depth, frame.rgb, frame.pose):
+                skips.add(reason or volume.out_of_range, frame.index)
                 continue
-            volume.integrate(depth, frame.rgb, frame.pose)
+            integrated += 1
             seg = labels.frames[frame.index]
             pts, pix = intr.backproject(
                 np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width)
@@ -76,8 +77,16 @@ class SemanticTSDFMapper(Mapper[SemanticTSDFConfig]):
             table = probs.value_tensor().numpy()
             np.add.at(table, (idx, cls[keep][found.numpy().reshape(-1)]), gain)
 
+        skips.finish(self, integrated, len(stream.frames), stream.name)
+        self.note("frames_integrated", integrated)
+
         geometry = volume.surface()
         points = geometry.points
+        if len(points) == 0:
+            raise DataError(
+                f"semantic_tsdf: no surface of {stream.name!r} was seen by {volume.views_needed} of its "
+                f"{integrated} frames (min_frames); lower min_frames, or give more or larger frames"
+            )
         table = probs.value_tensor().numpy()
         base = np.round(points / cfg.voxel_size).astype(np.int64)
         class_ids = np.zeros(len(points), np.int32)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from stratamap.core.errors import DataError
-from stratamap.core.geometry.points import ransac_plane
+from stratamap.core.geometry.points import far_from_bulk, ransac_plane
 from stratamap.core.geometry.transforms import apply
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.sensors import SensorStream
@@ -109,6 +109,9 @@ def _some_frames(stream: SensorStream, n: int = 16):
     return [stream.frames[int(k)] for k in picks]
 
 
+#: Open3D indexes voxels by 32-bit integers ("voxel_size is too small" past them); far fewer are
+#: anything a floor search needs (a 30 km bulk in 3 cm voxels).
+MAX_VOXELS_PER_AXIS = 1e6
 #: Planes within this angle (degrees) are parallel (a floor and a table top); walls are this close to
 #: perpendicular to up.
 PARALLEL_DEG = 10.0
@@ -136,7 +139,18 @@ def find_planes(
     seed: int = 0,
 ) -> ScenePlanes:
     """Up to ``max_planes`` planes, one after another (seeded RANSAC, inliers removed after each), in
-    the ``voxel`` sample of ``points``; none when the sample has fewer than 100 points."""
+    the ``voxel`` sample of ``points``; none when the sample has fewer than 100 points. Points far from
+    the rest (:func:`far_from_bulk`) are left out: one stray return would stretch the voxel grid past
+    what Open3D can index. A bulk that still spans more than ``MAX_VOXELS_PER_AXIS`` voxels is a DataError."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[~far_from_bulk(points)]
+    if len(points):
+        span = float(np.max(points.max(0) - points.min(0)))
+        if span / voxel > MAX_VOXELS_PER_AXIS:
+            raise DataError(
+                f"its points span {span:.3g} m without their strays, more than {MAX_VOXELS_PER_AXIS:.0e} of the "
+                f"floor search's {voxel:g} m voxels along one axis"
+            )
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     sampled = np.asarray(pcd.voxel_down_sample(voxel).points)
     sampled = sampled[np.lexsort(sampled.T[::-1])]  # a fixed order, whatever the downsampler's
@@ -225,9 +239,13 @@ def _where(stream: SensorStream) -> str:
 def stream_planes(stream: SensorStream) -> ScenePlanes:
     """The planes of a stream's sampled points (:func:`find_planes`), to try up hints on."""
     pts = sample_points(stream)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) < 100:
         raise DataError(f"{_where(stream)}: too few valid points to find the floor ({len(pts)})")
-    return find_planes(pts)
+    try:
+        return find_planes(pts)
+    except DataError as err:
+        raise DataError(f"{_where(stream)}: {err}") from None
 
 
 def estimate_alignment(

@@ -152,22 +152,49 @@ class SequenceSource(Source[SequenceConfigT]):
         assert stream.intrinsics is not None
         raw = PosedFrames(frames.timestamps, frames._read, [None] * len(frames))
         fitness: list[float] = []
-        estimated = rgbd_frame_to_model(
-            self.progress(raw, description="RGB-D odometry"), stream.intrinsics, fitness=fitness
+        tracked: list[int] = []
+        empty: list[int] = []
+
+        def with_depth(read: Any) -> Any:
+            # A frame that measured nothing (a view down a corridor, a covered lens) has nothing to
+            # track: it is left without a pose, which the mappers skip, and the walk goes on past it.
+            for frame in read:
+                depth = np.asarray(frame.depth)
+                if np.any(np.isfinite(depth) & (depth > 0)):
+                    tracked.append(frame.index)
+                    yield frame
+                else:
+                    empty.append(frame.index)
+
+        poses = rgbd_frame_to_model(
+            with_depth(self.progress(raw, description="RGB-D odometry")), stream.intrinsics, fitness=fitness
         )
-        report: dict[str, Any] = {"method": "open3d frame-to-model RGB-D odometry", "frames": len(estimated)}
+        if not poses:
+            raise DataError(f"{self.config.path}: none of its {len(frames)} frames has valid depth to track")
+        if empty:
+            self.warn(
+                f"odometry: {len(empty)} of {len(frames)} frames have no valid depth and no pose "
+                f"(frames {', '.join(map(str, empty[:12]))}{', ...' if len(empty) > 12 else ''})"
+            )
+        report: dict[str, Any] = {"method": "open3d frame-to-model RGB-D odometry", "frames": len(poses)}
+        if empty:
+            report["frames_without_depth"] = empty
         if fitness:
             report["fitness"] = {"min": round(min(fitness), 3), "median": round(float(np.median(fitness)), 3)}
-            self._weak_tracking(fitness)
+            self._weak_tracking(fitness, tracked[1:])
         reference = given if all(p is not None for p in given) else None
         if reference is None and gt is not None and "true_poses" in gt.layout:
             reference = [np.asarray(p) for p in gt.layout["true_poses"]]
-        if reference is not None and len(reference) == len(estimated):
+        if reference is not None and len(reference) == len(frames):
             # Express the estimate in the reference world: the first poses coincide.
-            anchor = reference[0] @ np.linalg.inv(estimated[0])
-            estimated = [anchor @ p for p in estimated]
-            report.update(ate(estimated, reference))
-            report.update(rpe(estimated, reference))
+            reference = [np.asarray(reference[k]) for k in tracked]
+            anchor = reference[0] @ np.linalg.inv(poses[0])
+            poses = [anchor @ p for p in poses]
+            report.update(ate(poses, reference))
+            report.update(rpe(poses, reference))
+        estimated: list[np.ndarray | None] = [None] * len(frames)
+        for k, pose in zip(tracked, poses, strict=True):
+            estimated[k] = pose
         frames.poses[:] = estimated
         stream.metadata["odometry"] = report
         self.note("odometry", report)
@@ -212,10 +239,11 @@ class SequenceSource(Source[SequenceConfigT]):
         alignment.details["camera_held"] = held
         return alignment
 
-    def _weak_tracking(self, fitness: list[float]) -> None:
+    def _weak_tracking(self, fitness: list[float], indices: list[int]) -> None:
         """Warn of frames that matched little of the model built so far: tracked a frame after
-        one that was far from it (a fast camera, a large `stride`), odometry may have lost its way."""
-        weak = [k + 1 for k, f in enumerate(fitness) if f < WEAK_TRACKING]  # fitness[k] is frame k + 1's
+        one that was far from it (a fast camera, a large `stride`), odometry may have lost its way.
+        ``fitness[k]`` is frame ``indices[k]``'s."""
+        weak = [indices[k] for k, f in enumerate(fitness) if f < WEAK_TRACKING]
         if not weak:
             return
         runs: list[list[int]] = []

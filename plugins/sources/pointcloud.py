@@ -9,7 +9,12 @@ LAS file, or any cloud farther than ``FAR_COORDINATES`` from its origin (a geore
 no scanner position; a georeferenced cloud is moved next to the origin (``metadata['origin_offset']``),
 since maps and exports keep coordinates in 32-bit floats.
 
-Invalid points (NaN or inf coordinates) are dropped. Per-point labels become ground truth:
+Invalid points (NaN or inf coordinates) are dropped, and so, with a warning, are points far from the
+rest (:func:`~stratamap.core.geometry.points.far_from_bulk`: one glitch at 1e9 m would otherwise set
+every bound taken from the cloud). A cloud whose bulk spans hundreds of units along every axis is named
+as one in millimetres or centimetres (:func:`~stratamap.core.geometry.points.unit_hint`): in the error
+when no floor is found (a room 1000 times too large has none at 2 cm), else in a warning.
+Per-point labels become ground truth:
 ``label_scheme: raw`` keeps each label as an instance of class ``object`` (0 = unlabelled);
 ``label_scheme: mosd`` reads the Object Segmentation Database convention (0 invalid, 1-9 parts
 of the supporting table, 10k..10k+9 parts of object k-1: label // 10 is the object).
@@ -33,6 +38,7 @@ from pydantic import Field
 
 from stratamap.core import Source, StageConfig, hookimpl
 from stratamap.core.errors import DataError
+from stratamap.core.geometry.points import FAR_FROM_BULK, bulk_box, far_from_bulk, unit_hint
 from stratamap.core.io.mesh import is_mesh_file, read_mesh, read_vertices_only, sample_surface
 from stratamap.core.io.pointcloud import read_point_cloud
 from stratamap.core.io.scans import LAS_NOISE_CLASSES
@@ -315,6 +321,30 @@ class PointCloudSource(Source[PointCloudConfig]):
             noise |= withheld
         return noise if noise.any() else None
 
+    def _with_unit_hint(self, err: DataError, points: np.ndarray) -> DataError:
+        """``err`` (no floor found), with why the cloud looks written in millimetres or centimetres when its
+        bulk says so and no scale was given: a room read 1000 times too large has no floor at 2 cm."""
+        hint = unit_hint(points) if self.config.scale == 1.0 else None
+        return DataError(f"{err}; {hint}") if hint else err
+
+    def _strays(self, path: Path, pts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """Which of the ``valid`` points lie far from the rest (:func:`far_from_bulk`: a glitch at 1e9 m
+        would stretch every bound taken from the cloud, a floor search's voxels and the map's grid), with a
+        warning saying how many."""
+        far = np.zeros(len(pts), bool)
+        if not valid.any():
+            return far
+        far[valid] = far_from_bulk(pts[valid])
+        if far.any():
+            low, high = bulk_box(pts[valid & ~far])
+            reach = float(np.max(np.abs(pts[far]))) * self.config.scale
+            self.warn(
+                f"{path}: {int(far.sum())} of {int(valid.sum())} points lie far from the rest (more than "
+                f"{FAR_FROM_BULK:g} times the {float(np.max(high - low)) * self.config.scale:.3g} m its bulk spans, "
+                f"up to {reach:.3g} m from the origin): left out"
+            )
+        return far
+
     def _near_origin(self, path: Path, pts: np.ndarray, metadata: dict[str, Any]) -> np.ndarray:
         """A cloud in a georeferenced frame (UTM eastings of 500 km) moved next to the origin: maps and
         exports keep coordinates in 32-bit floats, which hold centimetres only within a few kilometres."""
@@ -384,6 +414,8 @@ class PointCloudSource(Source[PointCloudConfig]):
                 )
             valid &= ~noise
         _check_values(path, valid, colors, labels)
+        far = self._strays(path, pts, valid)
+        valid &= ~far
         pts = pts[valid] * cfg.scale
         colors = None if colors is None else np.clip(colors[valid], 0, 1)
         labels = None if labels is None else labels[valid].astype(np.int64)
@@ -403,13 +435,18 @@ class PointCloudSource(Source[PointCloudConfig]):
         points_note = {"valid": len(pts), "dropped_invalid": dropped}
         if noise is not None:
             points_note["dropped_noise"] = int(noise.sum())
+        if far.any():
+            points_note["dropped_far"] = int(far.sum())
         self.note("points", points_note)
         out: dict[str, Any] = {"frames": stream}
         if labels is not None and cfg.label_scheme != "none":
             out["ground_truth"] = self._ground_truth(labels, cfg.label_scheme)
         if cfg.gravity == "auto":
             looked = " then ".join(axis for axis, _ in tries)
-            planes = stream_planes(stream)  # one plane search for every up axis tried
+            try:
+                planes = stream_planes(stream)  # one plane search for every up axis tried
+            except DataError as err:
+                raise self._with_unit_hint(err, stream.points) from None
             for k, (up_axis, up_tolerance) in enumerate(tries):
                 try:
                     alignment = estimate_alignment(
@@ -427,9 +464,9 @@ class PointCloudSource(Source[PointCloudConfig]):
                         ),
                     )
                     break
-                except DataError:
+                except DataError as err:
                     if k == len(tries) - 1:
-                        raise
+                        raise self._with_unit_hint(err, stream.points) from None
             report = {"up_axis": up_axis, "up_tolerance_deg": up_tolerance, **alignment.report()}
             if from_gltf:
                 report["converted_from"] = "glTF y up"
@@ -453,6 +490,9 @@ class PointCloudSource(Source[PointCloudConfig]):
                 self.warn(
                     f"input was not z-up: re-aligned by {alignment.rotation_deg:.1f} deg (support plane moved to z = 0)"
                 )
+        hint = unit_hint(stream.points) if cfg.scale == 1.0 else None
+        if hint:  # mapped all the same (a floor found, or none looked for), 1000 times too large
+            self.warn(f"{path}: {hint}")
         return out
 
     @staticmethod

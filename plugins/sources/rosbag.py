@@ -315,8 +315,8 @@ class BagMessages:
             from rosbags.highlevel import AnyReader
             from rosbags.typesys import Stores, get_typestore
 
-            reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-            try:
+            try:  # the constructor reads a ROS 2 bag's metadata.yaml: a folder without one fails there
+                reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
                 reader.open()
             except Exception as exc:  # rosbags raises several reader errors
                 raise DataError(f"{self.path}: cannot open as a ROS 1 or ROS 2 bag ({brief(exc, True)})") from exc
@@ -352,6 +352,8 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         cfg = self.config
         if not path.exists():
             raise DataError(f"{path}: bag not found")
+        if path.is_dir() and not (path / "metadata.yaml").is_file():
+            raise DataError(f"{path}: a folder without metadata.yaml, so no ROS 2 bag (a ROS 1 bag is one .bag file)")
         if path.is_file() and path.suffix != ".bag" and _starts_with(path, b"#ROSBAG V2.0\n"):
             # rosbags tells a ROS 1 bag by its name: this one would be "Unrecognized storage format ''"
             raise DataError(f"{path}: a ROS 1 bag, whose file name must end in .bag to be read: rename it")
@@ -543,7 +545,8 @@ class RosbagSource(SequenceSource[RosbagConfig]):
         topic = cfg.pointcloud_topic or (clouds[0][0] if clouds else None)
         sweeps = [(t, m) for tp, t, m in clouds if tp == topic]
         if not sweeps:
-            raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {sorted(bag['types'])})")
+            topics = sorted(t for ts in bag["types"].values() for t in ts)
+            raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {topics})")
         sweeps = self._by_stamp(path, topic, sweeps)  # type: ignore[arg-type]
         sweeps = [sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames)]
         messages: BagMessages = bag["messages"]
@@ -584,7 +587,9 @@ class RosbagSource(SequenceSource[RosbagConfig]):
                 from stratamap.plugins.sources._gravity import estimate_alignment, transform_stream
 
                 probe = SensorStream(
-                    name=stream.name, points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]])
+                    name=stream.name,
+                    points=np.vstack([apply(s.pose, s.points) for s in stream.lidar_scans[:10]]),
+                    metadata={"path": stream.metadata["path"]},  # errors name the bag
                 )
                 alignment = estimate_alignment(probe, up_hint=np.array([0.0, 0.0, 1.0]))
                 self.note("gravity_alignment", alignment.report())

@@ -9,12 +9,27 @@ depth timestamps when the file has them (else frame number / ``frame_rate``).
 An export: ``color/N.jpg`` (resampled to the depth size), ``depth/N.png`` (16-bit millimetres),
 ``pose/N.txt`` (4x4 camera-to-world; rows of -inf mark lost tracking and become missing poses),
 ``intrinsic/intrinsic_depth.txt`` (4x4). Frames sort by their number.
+
+Ground truth, for the public benchmarks (docs/public-benchmarks.md), in the scan's frame and
+carried through the source's gravity re-alignment by ``world_transform``:
+
+* ``scan2cad``: Scan2CAD's ``full_annotations.json``; the scan's aligned CAD models are read
+  (:mod:`stratamap.core.io.scan2cad`) and the ``scan2cad`` metric family scores the completed
+  objects against them (:mod:`stratamap.core.evaluation.scan2cad`);
+* ``labels``: the scan's per-vertex NYU40 classes and instances (:mod:`stratamap.core.io.scannet_labels`),
+  from ``scan_folder`` (default: the folder of the ``.sens`` file; of an export, its folder, then
+  its parent); the ``panoptic`` and ``instances`` families are then measured against them
+  (:mod:`stratamap.core.evaluation.scannet_panoptic`).
+
+The scan's id (``scan_id``, default: the ``.sens`` file's stem or the export folder's name) names
+its record in both.
 """
 
 from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 from PIL import Image
@@ -32,6 +47,8 @@ from stratamap.core.io.rgbd import (
     rigid_pose,
     write_scannet,
 )
+from stratamap.core.io.scan2cad import AlignedModel, read_scan2cad
+from stratamap.core.io.scannet_labels import read_scan_labels
 from stratamap.core.io.sens import read_sens, read_sens_frame
 from stratamap.core.map.groundtruth import GroundTruth
 from stratamap.core.map.sensors import SensorStream
@@ -44,6 +61,33 @@ class ScanNetConfig(SequenceConfig):
         default=1000.0, gt=0, description="Depth units per metre (ScanNet: millimetres; a .sens file's own when unset)."
     )
     frame_rate: float = Field(default=30.0, gt=0, description="Timestamps are frame number / frame_rate, seconds.")
+    scan_id: str | None = Field(
+        default=None,
+        description="The ScanNet scan id (e.g. scene0011_00) the annotations name; default: the .sens file's stem, "
+        "or the export folder's name.",
+    )
+    scan2cad: str | None = Field(
+        default=None,
+        description="Scan2CAD's full_annotations.json: its CAD alignments of this scan become ground truth (the "
+        "scan2cad metric family).",
+    )
+    labels: bool = Field(
+        default=False,
+        description="Read the scan's per-vertex NYU40 labels and instances (_vh_clean_2.labels.ply, "
+        "_vh_clean_2.0.010000.segs.json, .aggregation.json) as ground truth: panoptic quality of the map.",
+    )
+    label_set: Literal["nyu40", "scannet20"] = Field(
+        default="nyu40",
+        description="With labels: every NYU40 class the vocabulary has (nyu40), or ScanNet's 20 benchmark classes "
+        "only (scannet20).",
+    )
+    scan_folder: str | None = Field(
+        default=None,
+        description="With labels: the folder of the scan's annotation files; default: the .sens file's folder (an "
+        "export's folder, then its parent).",
+    )
+
+    path_fields = ("scan2cad", "scan_folder")
 
 
 def _number(p: Path) -> int:
@@ -83,8 +127,32 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
     def load(self) -> tuple[SensorStream, PosedFrames, GroundTruth | None]:
         sens = self._sens_file(Path(self.config.path).expanduser())
         if sens is not None:
-            return self._load_sens(sens)
-        return self._load_export()
+            stream, frames, _ = self._load_sens(sens)
+            return stream, frames, self._ground_truth(sens.stem, [sens.parent])
+        stream, frames, _ = self._load_export()
+        root = Path(str(stream.metadata["path"]))
+        return stream, frames, self._ground_truth(root.name, [root, root.parent])
+
+    def _ground_truth(self, default_id: str, folders: list[Path]) -> GroundTruth | None:
+        """The benchmark annotations asked for, in the scan's frame (None when none is)."""
+        cfg = self.config
+        if cfg.scan2cad is None and not cfg.labels:
+            return None
+        scan_id = cfg.scan_id or default_id
+        layout: dict[str, Any] = {"world_transform": np.eye(4).tolist(), "scannet_scan": scan_id}
+        if cfg.scan2cad is not None:
+            models = read_scan2cad(Path(cfg.scan2cad).expanduser(), scan_id)
+            layout["scan2cad"] = [m.to_dict() for m in models]
+            self.note("scan2cad", {"scan": scan_id, "aligned_models": len(models)})
+        if cfg.labels:
+            if cfg.scan_folder is not None:
+                folders = [Path(cfg.scan_folder).expanduser()]
+            found = next((f for f in folders if (f / f"{scan_id}_vh_clean_2.labels.ply").is_file()), folders[0])
+            labels = read_scan_labels(found, scan_id)
+            layout["scannet_labels"] = labels
+            layout["scannet_label_set"] = cfg.label_set
+            self.note("scannet_labels", {"scan": scan_id, "vertices": len(labels.points), "folder": str(found)})
+        return GroundTruth(layout=layout)
 
     @staticmethod
     def _sens_file(path: Path) -> Path | None:
@@ -201,3 +269,40 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
 @hookimpl
 def stratamap_register_sources():
     return [ScanNetSource]
+
+
+@hookimpl
+def stratamap_evaluate(data: Any, details: bool) -> dict[str, Any] | None:
+    """The public benchmarks' families for the annotations this source read: ``scan2cad``, and
+    ``panoptic``/``instances`` against ScanNet's vertex labels (replacing the built-in ones, which
+    have no surface of this ground truth to label points by)."""
+    gt = getattr(data, "ground_truth", None)
+    layout = gt.layout if gt is not None and isinstance(gt.layout, dict) else {}
+    if "scannet_scan" not in layout:
+        return None
+    world = np.asarray(layout.get("world_transform", np.eye(4)), float)
+    out: dict[str, Any] = {}
+    m = data.map
+    if "scan2cad" in layout:
+        from stratamap.core.evaluation.scan2cad import evaluate_scan2cad
+
+        annotations = [AlignedModel.from_dict(d) for d in layout["scan2cad"]]
+        out["scan2cad"] = evaluate_scan2cad(m.instances, annotations, world)
+        if not details:
+            out["scan2cad"].pop("objects")
+    labels = layout.get("scannet_labels")
+    if labels is not None and m.semantics is not None and m.geometry is not None:
+        if len(m.geometry) == len(m.semantics):
+            from stratamap.core.evaluation.scannet_panoptic import evaluate_scannet_panoptic
+
+            out.update(
+                evaluate_scannet_panoptic(
+                    m.geometry.points,
+                    m.semantics,
+                    m.instances,
+                    labels,
+                    world,
+                    layout.get("scannet_label_set", "nyu40"),
+                )
+            )
+    return out

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import textwrap
 import types
@@ -163,3 +164,25 @@ def test_installed_registry_has_every_kind():
 
     reg = default_registry(refresh=True)
     assert {i.kind for i in reg.all()} >= {"sources", "segmenters", "mappers", "completers", "exporters"}
+
+
+def test_a_plugin_that_imports_heavy_libraries_at_load_time_is_named(tmp_path):
+    """A third-party plugin that imports trimesh at module level slows every command; `plugins`
+    names it and says how to fix it, while a lazily importing one gets no note."""
+    import subprocess
+
+    eager = tmp_path / "eager_plugin.py"
+    eager.write_text("import trimesh  # noqa: F401\n")
+    lazy = tmp_path / "lazy_plugin.py"
+    lazy.write_text("from stratamap.core.lazy import lazy_module\n\ntrimesh = lazy_module('trimesh')\n")
+    results = {}
+    for plugin in (eager, lazy):
+        env = {**os.environ, "STRATAMAP_PLUGINS": str(plugin)}
+        cmd = [sys.executable, "-m", "stratamap.core.cli", "plugins", "--json"]
+        results[plugin.name] = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    assert results["eager_plugin.py"].returncode == 0
+    note = [line for line in results["eager_plugin.py"].stderr.splitlines() if line.startswith("note:")]
+    assert (
+        len(note) == 1 and "imports trimesh" in note[0] and "when it is loaded" in note[0] and "lazy_module" in note[0]
+    )
+    assert results["lazy_plugin.py"].returncode == 0 and "note:" not in results["lazy_plugin.py"].stderr

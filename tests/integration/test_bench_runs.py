@@ -165,13 +165,13 @@ def test_tune_walks_cache_keeps_where_each_frame_was_taken(monkeypatch):
     from stratamap.core.map.sensors import sensor_viewpoints
     from stratamap.core.synthetic import SceneSpec
     from stratamap.core.synthetic.generate import generate_sequence
-    from stratamap.plugins.segmenters._sightlines import Sightlines, ray_frames
+    from stratamap.plugins.segmenters.clusters.sightlines import Sightlines, ray_frames
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "tune_walks.py"
     spec = importlib.util.spec_from_file_location("tune_walks", script)
     tune_walks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tune_walks)
-    from stratamap.plugins.segmenters import _sightlines
+    from stratamap.plugins.segmenters.clusters import sightlines as _sightlines
 
     monkeypatch.setattr(_sightlines, "MAX_FRAMES", 5)  # rays from 5 of the 12 frames
     scene = {"type": "office", "camera": {"width": 80, "height": 60}, "trajectory": {"frames": 12}}

@@ -9,11 +9,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import trimesh
 from pydantic import Field
 
 from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
+from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Completion
+
+# stratamap imports every installed plugin to list it (`stratamap plugins`) or check a pipeline
+# (`stratamap validate`): a heavy library imported here would slow those down for everyone who has
+# this plugin installed. As the built-in stages do, import it when the stage first uses it.
+trimesh = lazy_module("trimesh")
 
 
 class HullConfig(StageConfig):

@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, PositiveFloat, PositiveInt
+from pydantic import Field, model_validator
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import ConfigError, DataError
@@ -29,15 +29,9 @@ from stratamap.core.map.instances import (
 )
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
-from stratamap.plugins.mappers._volume import IntegrationConfig, TSDFVolume, label_stride
-from stratamap.plugins.mappers.tsdf.mask_instances import (
-    DEFAULT_MAX_LENGTH,
-    DEFAULT_MIN_POINTS_BY_CLASS,
-    DEFAULT_STACKED_CLASSES,
-    MaskInstanceParams,
-    MaskObservations,
-    mask_instances,
-)
+from stratamap.plugins.mappers._volume import FrameSkips, IntegrationConfig, TSDFVolume, label_stride
+from stratamap.plugins.mappers.tsdf.config import Pieces, read_renamed, warn_renamed
+from stratamap.plugins.mappers.tsdf.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 
 o3c = lazy_module("open3d.core")
@@ -102,116 +96,15 @@ class TSDFConfig(IntegrationConfig):
             "two chairs does not fuse them)."
         ),
     )
-    piece_min_points: int = Field(
-        default=60, ge=1, description="'masks': connected pieces with fewer points join the piece they touch most."
+    pieces: Pieces = Field(
+        default_factory=Pieces,
+        description="With instances: masks, how the label instances are cut into 3D pieces, re-joined and dropped.",
     )
-    piece_min_points_by_class: dict[str, PositiveInt] = Field(
-        default_factory=lambda: dict(DEFAULT_MIN_POINTS_BY_CLASS),
-        description=(
-            "'masks': per class, the points a piece needs to stand alone instead of piece_min_points: a whole cup is "
-            "about a hundred "
-            "points, and the part most frames call 'cup' would otherwise join the table it stands on."
-        ),
-    )
-    piece_merge_ratio: float = Field(
-        default=0.5,
-        gt=0,
-        lt=1,
-        description=(
-            "'masks': same-class pieces merge while frames saw them in one mask more than this share of the time."
-        ),
-    )
-    piece_near_gap: float = Field(
-        default=0.2,
-        ge=0,
-        description=(
-            "'masks': pieces with no points this close (m) merge only at piece_far_ratio (objects are compact); 0: "
-            "no limit."
-        ),
-    )
-    piece_far_ratio: float = Field(
-        default=0.9,
-        gt=0,
-        le=1,
-        description=(
-            "'masks': the share of frames in one mask that pieces farther apart than piece_near_gap need to merge "
-            "(1: never)."
-        ),
-    )
-    piece_min_class_share: float = Field(
-        default=0.1,
-        ge=0,
-        lt=1,
-        description=(
-            "'masks': instances under this share of the typical size of their class's instances "
-            "(piece_fragment_reference) "
-            "are dropped as misfires; 0: keep all."
-        ),
-    )
-    piece_fragment_reference: Literal["median", "point_median"] = Field(
-        default="point_median",
-        description=(
-            "'masks': the size piece_min_class_share is a share of: the class's median instance, or the instance its "
-            "median point is "
-            "in (the size-weighted median: four misfire 'chairs' beside two real ones do not pull it down to a "
-            "misfire's size)."
-        ),
-    )
-    piece_cross_ratio: float = Field(
-        default=0.8,
-        ge=0,
-        le=1,
-        description=(
-            "'masks': near pieces of two classes (one object the segmenter calls by two names) merge when frames saw "
-            "them in one mask "
-            "more than this share of the time, taking their points' majority class; 0: never."
-        ),
-    )
-    piece_cross_share: float = Field(
-        default=0.1,
-        ge=0,
-        le=1,
-        description=(
-            "'masks': pieces of two classes merge only if the smaller has at least this share of the larger's points "
-            "(a book on a shelf stays a book)."
-        ),
-    )
-    piece_stacked_classes: list[str] = Field(
-        default_factory=lambda: list(DEFAULT_STACKED_CLASSES),
-        description=(
-            "'masks': classes whose objects never stand on one another: two instances of one of them, one above the "
-            "other, are one "
-            "object whose thin joining parts the TSDF lost (a swivel chair's base and seat, a table's legs and "
-            "top); []: off."
-        ),
-    )
-    piece_stack_overlap: float = Field(
-        default=0.5,
-        gt=0,
-        le=1,
-        description=(
-            "'masks': the share of the smaller instance's footprint (5 cm cells) that must lie under or over the "
-            "larger one."
-        ),
-    )
-    piece_max_length: dict[str, PositiveFloat] = Field(
-        default_factory=lambda: dict(DEFAULT_MAX_LENGTH),
-        description=(
-            "'masks': per class, the longest horizontal side (m) one object has; a longer instance is several "
-            "touching objects "
-            "(two cups one segment in every frame) and is cut by k-means along its length. Classes left out are "
-            "never cut; {}: off."
-        ),
-    )
-    piece_split_balance: float = Field(
-        default=0.35,
-        ge=0,
-        le=1,
-        description=(
-            "'masks': an over-long instance is cut only if every part holds this share of the largest part's points "
-            "(a monitor that took a scrap of something far beyond it stays whole)."
-        ),
-    )
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _renamed_keys(cls, data: Any, handler: Any) -> Any:
+        return read_renamed(data, handler)
 
 
 class TSDFMapper(Mapper[TSDFConfig]):
@@ -225,6 +118,7 @@ class TSDFMapper(Mapper[TSDFConfig]):
 
     def map(self, data: PipelineData) -> dict[str, Any]:
         cfg = self.config
+        warn_renamed(self)
         stream = data.stream
         assert stream is not None
         if stream.intrinsics is None:
@@ -241,9 +135,9 @@ class TSDFMapper(Mapper[TSDFConfig]):
         vocab = data.ground_truth.vocabulary if data.ground_truth is not None else data.map.vocabulary
         if cfg.instances == "masks":  # before integration, not after minutes of it
             named = {
-                "piece_max_length.{}": cfg.piece_max_length,
-                "piece_min_points_by_class.{}": cfg.piece_min_points_by_class,
-                "piece_stacked_classes: {!r}": cfg.piece_stacked_classes,
+                "pieces.max_length.{}": cfg.pieces.max_length,
+                "pieces.min_points_by_class.{}": cfg.pieces.min_points_by_class,
+                "pieces.stacked_classes: {!r}": cfg.pieces.stacked_classes,
             }
             problems = [
                 (f"tsdf.{key.format(name)}", f"not a class of the map's vocabulary {list(vocab.names)}")
@@ -260,21 +154,16 @@ class TSDFMapper(Mapper[TSDFConfig]):
         observations = MaskObservations()
         intr = stream.intrinsics
         integrated = 0
+        skips = FrameSkips("tsdf")
         for frame in self.progress(stream.frames, description="TSDF integration"):
-            if frame.pose is None:
-                raise DataError(
-                    f"tsdf: frame {frame.index} of {stream.name!r} has no pose; enable odometry or provide poses"
-                )
-            depth = volume.valid_depth(frame, "tsdf")
-            if not np.any(depth > 0):
-                self.warn(f"frame {frame.index} has no valid depth; skipped")
+            depth, reason = volume.usable_depth(frame)
+            if depth is None or not volume.integrate(depth, frame.rgb, frame.pose):
+                skips.add(reason or volume.out_of_range, frame.index)
                 continue
-            volume.integrate(depth, frame.rgb, frame.pose)
             integrated += 1
             if labels is not None:
                 self._fuse_labels(vbg, state, observations, depth, labels.frames[frame.index], intr, frame.pose, cfg)
-        if integrated == 0:
-            raise DataError(f"tsdf: no frame of {stream.name!r} had valid depth and a pose")
+        skips.finish(self, integrated, len(stream.frames), stream.name)
 
         geometry = volume.surface()
         if len(geometry.points) == 0:
@@ -302,7 +191,7 @@ class TSDFMapper(Mapper[TSDFConfig]):
                 observations,
                 vocab,
                 cfg.voxel_size,
-                MaskInstanceParams.from_settings(cfg.model_dump()),
+                MaskInstanceParams(**cfg.pieces.model_dump()),
             )
         elif cfg.fragment_touch > 0:
             fragments = state.merge_fragments(point_class, point_instance, points, cfg.fragment_touch * cfg.voxel_size)

@@ -53,8 +53,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterable
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -146,18 +145,6 @@ class MaskInstanceParams:
 
     def __post_init__(self) -> None:
         self.stacked_classes = tuple(self.stacked_classes)
-
-    @classmethod
-    def from_settings(cls, settings: dict[str, Any], prefix: str = "piece_") -> MaskInstanceParams:
-        """The parameters a stage config holds as ``<prefix><name>`` fields (``piece_merge_ratio``, ...)."""
-        names = {f.name for f in fields(cls)}
-        return cls(
-            **{
-                key[len(prefix) :]: value
-                for key, value in settings.items()
-                if key.startswith(prefix) and key[len(prefix) :] in names
-            }
-        )
 
 
 def point_class_votes(

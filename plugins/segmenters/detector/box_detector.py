@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
 from stratamap.plugins.segmenters.detector import adapters
@@ -103,10 +104,8 @@ class DetectorSidecar(_Strict):
 def read_sidecar(path: str | Path) -> DetectorSidecar:
     path = Path(path)
     try:
-        raw = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise DataError(f"{path}: detector sidecar not found") from exc
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raw = json.loads(read_data_text(path, "detector sidecar"))
+    except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not valid JSON ({exc})") from exc
     try:
         side = DetectorSidecar.model_validate(raw)

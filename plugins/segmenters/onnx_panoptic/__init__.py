@@ -22,6 +22,7 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import upright_turns
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
@@ -165,7 +166,7 @@ def load_sidecar(model: Path) -> dict[str, Any]:
     side = model.with_suffix(".json")
     if side.is_file():
         try:
-            return json.loads(side.read_text())
+            return json.loads(read_data_text(side, "network sidecar"))
         except json.JSONDecodeError as exc:
             raise DataError(f"{side}: not valid JSON ({exc})") from exc
     return {}

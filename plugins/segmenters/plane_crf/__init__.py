@@ -26,6 +26,7 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, OrientedBox, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
@@ -64,7 +65,7 @@ def load_model(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise DataError(f"plane_crf: model file not found: {path} (train one with scripts/train_plane_crf.py)")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(read_data_text(path, "plane_crf model"))
         return {
             "level1": CRF.from_dict(doc["level1"]),
             "level2": CRF.from_dict(doc["level2"]),

@@ -164,7 +164,7 @@ def test_a_body_on_a_tilted_bottom_is_turned_onto_it_and_rests_in_mujoco_and_pyb
     from stratamap.core.simulation import bullet
     from stratamap.plugins.exporters.urdf import URDFExporter
 
-    (urdf, *_) = URDFExporter(movable_classes=["chair"]).run(PipelineData(map=layered), tmp_path / "urdf")
+    (urdf, *_) = URDFExporter(bodies={"movable_classes": ["chair"]}).run(PipelineData(map=layered), tmp_path / "urdf")
     moved = bullet.settle(urdf, seconds=2.0)
     assert set(moved["displacement_m"]) == {"chair_1"} and moved["max_displacement_m"] < 0.005, moved
 
@@ -213,7 +213,7 @@ def test_helper_links_without_geometry_keep_their_joints_in_the_urdf(tmp_path):
 
     data = PipelineData()
     data.map.instances = ObjectInstances([articulated_with_helper()])
-    path = URDFExporter(structure=False).run(data, tmp_path)[0]
+    path = URDFExporter(bodies={"structure": False}).run(data, tmp_path)[0]
     robot = ET.parse(path).getroot()
     links = {el.get("name") for el in robot.findall("link")}
     for joint in robot.findall("joint"):
@@ -335,7 +335,9 @@ def test_coarse_neighbours_and_partial_shapes_do_not_keep_movable_objects_static
     from stratamap.core.simulation import bullet
     from stratamap.plugins.exporters.urdf import URDFExporter
 
-    (urdf, *_) = URDFExporter(movable_classes=["book", "box"]).run(PipelineData(map=layered), tmp_path / "urdf")
+    (urdf, *_) = URDFExporter(bodies={"movable_classes": ["book", "box"]}).run(
+        PipelineData(map=layered), tmp_path / "urdf"
+    )
     moved = bullet.settle(urdf, seconds=2.0)
     assert set(moved["displacement_m"]) == {"book_2", "box_3"} and moved["max_displacement_m"] < 0.02, moved
 

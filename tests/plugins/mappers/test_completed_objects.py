@@ -152,7 +152,9 @@ def test_a_room_in_millimetres_read_as_metres_is_a_one_line_error_naming_the_sca
 
     data = room([])
     data.map.geometry = Geometry(points=data.map.geometry.points * 1000.0)
-    with pytest.raises(DataError, match=r"occupancy: the map spans 4,000 x 4,000 m.*set source\.params\.scale") as err:
+    with pytest.raises(
+        DataError, match=r"occupancy: the map spans 4,000 x 4,000 m.*source\.params\.scale=0\.001"
+    ) as err:
         OccupancyMapper().run(data)
     assert "\n" not in str(err.value)
     assert OccupancyMapper(resolution=1.0).run(data)["occupancy"]["multimap"].data.size < 20_000_000

@@ -93,26 +93,17 @@ def test_vote_stride_gives_every_voxel_in_range_a_vote(fx, voxel_size, depth_max
 
 @pytest.mark.slow
 def test_size_prior_names_a_misspelt_class_before_integrating(tmp_path):
-    with pytest.raises(ConfigError, match=r"piece_max_length\.cupp"):
-        office_pipeline(
-            tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cupp": 0.15}}}]
-        )
-    with pytest.raises(ConfigError, match=r"piece_stacked_classes: 'chiar'"):
-        office_pipeline(
-            tmp_path,
-            "none",
-            [{"plugin": "tsdf", "params": {"instances": "masks", "piece_stacked_classes": ["chair", "chiar"]}}],
-        )
-    with pytest.raises(ConfigError, match=r"piece_min_points_by_class\.cupp"):
-        office_pipeline(
-            tmp_path,
-            "none",
-            [{"plugin": "tsdf", "params": {"instances": "masks", "piece_min_points_by_class": {"cupp": 30}}}],
-        )
-    with pytest.raises(ConfigError, match="piece_max_length"):
-        office_pipeline(
-            tmp_path, "none", [{"plugin": "tsdf", "params": {"instances": "masks", "piece_max_length": {"cup": -0.15}}}]
-        )
+    def masks(**pieces):
+        return [{"plugin": "tsdf", "params": {"instances": "masks", "pieces": pieces}}]
+
+    with pytest.raises(ConfigError, match=r"pieces\.max_length\.cupp"):
+        office_pipeline(tmp_path, "none", masks(max_length={"cupp": 0.15}))
+    with pytest.raises(ConfigError, match=r"pieces\.stacked_classes: 'chiar'"):
+        office_pipeline(tmp_path, "none", masks(stacked_classes=["chair", "chiar"]))
+    with pytest.raises(ConfigError, match=r"pieces\.min_points_by_class\.cupp"):
+        office_pipeline(tmp_path, "none", masks(min_points_by_class={"cupp": 30}))
+    with pytest.raises(ConfigError, match=r"pieces\.max_length"):
+        office_pipeline(tmp_path, "none", masks(max_length={"cup": -0.15}))
 
 
 @pytest.mark.slow

@@ -11,16 +11,18 @@ from stratamap.core.map.instances import naming_text
 from stratamap.core.map.layers import Geometry, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
-from stratamap.plugins.segmenters._recognition import (
+from stratamap.plugins.segmenters.clusters import ClustersSegmenter
+from stratamap.plugins.segmenters.clusters.labelling import Labelling
+from stratamap.plugins.segmenters.clusters.parts import join_parts
+from stratamap.plugins.segmenters.clusters.shapes import (
     Shape,
     describe_shape,
     fits_class,
     on_a_support,
     prior_class,
-    split_at_step,
     typical_rather,
 )
-from stratamap.plugins.segmenters.clusters import ClustersSegmenter
+from stratamap.plugins.segmenters.clusters.units import split_at_step
 from tests.plugins.segmenters.test_layout_planes import ROOM, chair, room_shell, solids, table
 
 VOCAB = Vocabulary.default()
@@ -379,7 +381,7 @@ def test_a_mug_voted_table_on_a_tables_top_is_no_piece_of_the_table():
     """The frames voted a mug on a table's top "table" (a coffee table's box covers what stands on it),
     and the table's own instance holds something as high as the mug (a second mug its mask took along):
     the mug lies within the table's height and footprint. Yet it stands at the top's height, of a mug's
-    size: a thing on the table, not a piece of it (``_join_parts``)."""
+    size: a thing on the table, not a piece of it (``join_parts``)."""
     top = 0.75
     table_points, _ = solids(table(3.0, 2.5) + [("table", (2.6, 2.3, top), (2.7, 2.4, top + 0.12))], 0.02)
     mug, _ = solids([("mug", (3.1, 2.5, top), (3.18, 2.58, top + 0.1))], 0.02)
@@ -387,9 +389,10 @@ def test_a_mug_voted_table_on_a_tables_top_is_no_piece_of_the_table():
     points = np.concatenate([table_points, mug])
     class_ids = np.full(len(points), VOCAB.id("table"), np.int32)
     instance_ids = np.r_[np.ones(len(table_points)), np.full(len(mug), 2)].astype(np.int32)
-    segmenter = ClustersSegmenter(keep_instances=True, recognize=True)
-    segmenter._join_parts(points, class_ids, instance_ids, VOCAB, 0.0, [], None, np.array([top]), 0.02)
-    assert (instance_ids[len(table_points) :] == 2).all()
+    config = ClustersSegmenter(keep_instances=True, recognize=True).config
+    lab = Labelling.of_labels(config, points, VOCAB, class_ids, instance_ids, 0.02, np.array([top]))
+    join_parts(lab)
+    assert (lab.instance_ids[len(table_points) :] == 2).all()
 
 
 def test_seating_is_no_table():
@@ -562,7 +565,7 @@ def test_a_chairs_back_above_a_table_tops_height_joins_its_chair_and_the_cup_on_
     """The frames boxed the top of one half of a chair's back, rising from the height of the table top
     beside it, as a "box": of a box's size, its foot at a support's height. But no support surface lies under
     it, the chair holds none at that height, and it lies within the chair's box: it is part of the
-    chair (``_join_enclosed``). The cup on the table's top stands on a support surface: an object of
+    chair (``join_enclosed``). The cup on the table's top stands on a support surface: an object of
     its own."""
     points, names = kitchen_room(0.02)
     back_top = (names == "chair") & (points[:, 2] > 0.76) & (points[:, 0] > 2.95)  # one post and half the back
@@ -924,7 +927,7 @@ def test_a_counter_sized_unit_where_nothing_says_kitchen_is_a_cabinet():
 def test_a_worktop_run_has_one_top():
     """A worktop over two units is one slab at one level along its whole length; two units side by
     side at 0.82 m and 0.9 m that came out as one object show two tops: no run, no kitchen."""
-    from stratamap.plugins.segmenters._recognition import counter_run
+    from stratamap.plugins.segmenters.clusters.shapes import counter_run
 
     one, _ = storage_unit(1.0, 1.6, 0.9)
     assert counter_run(describe_shape(one, 0.0, []))

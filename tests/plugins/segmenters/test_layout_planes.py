@@ -1,11 +1,11 @@
-"""Gravity-aware layout (plugins/segmenters/_layout.py): floor, walls, ceiling and support surfaces of
+"""Gravity-aware layout (plugins/segmenters/clusters/layout.py): floor, walls, ceiling and support surfaces of
 synthetic rooms and partial maps built here from boxes sampled on a grid, as a fused map's surface."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from stratamap.plugins.segmenters._layout import CEILING, FLOOR, NONE, WALL, LayoutParams, find_layout
+from stratamap.plugins.segmenters.clusters.layout import CEILING, FLOOR, NONE, WALL, LayoutParams, find_layout
 
 ROOM = (6.0, 5.0, 2.6)
 
@@ -173,7 +173,7 @@ def test_without_gravity_nothing_is_named():
 
 def test_given_normals_replace_the_estimate():
     points, names = synthetic_room(0.04)
-    from stratamap.plugins.segmenters._layout import cell_normals
+    from stratamap.plugins.segmenters.clusters.grid import cell_normals
 
     normals = cell_normals(points, 0.12)
     a = find_layout(points, 0.04, normals=normals)

@@ -1,4 +1,4 @@
-"""What the frames' depth rays saw through an object (``_sightlines``): the open space under a coffee
+"""What the frames' depth rays saw through an object (``clusters.sightlines``): the open space under a coffee
 table's top, past its low shelf, against a unit's closed front, when their surface points alike fill
 the middle heights."""
 
@@ -10,8 +10,8 @@ import numpy as np
 
 from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._recognition import describe_shape, fits_class, prior_class
-from stratamap.plugins.segmenters._sightlines import Sightlines
+from stratamap.plugins.segmenters.clusters.shapes import describe_shape, fits_class, prior_class
+from stratamap.plugins.segmenters.clusters.sightlines import Sightlines
 from tests.plugins.segmenters.test_layout_planes import solids
 
 VOCAB = Vocabulary.default()

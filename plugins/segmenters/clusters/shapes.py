@@ -1,9 +1,8 @@
 """Recognition by class size priors and support context, for ``clusters`` (``recognize``,
 ``keep_instances``): what an object's points say of its size and where it stands (``Shape``), which
-classes that shape allows (``fits_class``, ``typical_rather``), the class it makes most likely
-(``prior_class``), and where one instance is two units side by side (``split_at_step``). The
-priors themselves are in ``core/map/priors.py``; how the segmenter applies them is in
-``clusters.py`` and docs/algorithms/segmenters-clusters.md."""
+classes that shape allows (``fits_class``, ``typical_rather``) and the class it makes most likely
+(``prior_class``). The priors themselves are in ``core/map/priors.py``; the passes that apply them
+are the modules beside this one (docs/algorithms/segmenters-clusters.md lists them)."""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from stratamap.core.map.vocabulary import Vocabulary
-from stratamap.plugins.segmenters._sightlines import Sightlines
+from stratamap.plugins.segmenters.clusters.sightlines import Sightlines
 
 
 class Shape(NamedTuple):
@@ -57,7 +56,7 @@ SEAT_HEIGHTS = (0.3, 0.6)
 BACK_ABOVE_SEAT = 0.15
 #: A body whose middle heights at least this share of the depth rays crossing them saw through, of
 #: SEEN_THROUGH_RAYS rays or more, is open (a table's space under its top, a low shelf between its legs),
-#: however many points lie there (``_sightlines``). On the tuning walks closed units gave 0.11 at most,
+#: however many points lie there (``sightlines``). On the tuning walks closed units gave 0.11 at most,
 #: coffee tables with a low shelf 0.34-0.48, tables on legs 0.51-0.97.
 SEEN_THROUGH = 0.25
 SEEN_THROUGH_RAYS = 100
@@ -79,7 +78,7 @@ def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sigh
     """The size and support context of an object's points (world, z up); with ``sight`` (an RGB-D
     stream's rays), a body the sensor saw through at its middle heights is not solid."""
     from stratamap.core.geometry.boxes import gravity_aligned_box
-    from stratamap.plugins.segmenters._layout import footprint_area
+    from stratamap.plugins.segmenters.clusters.grid import footprint_area
 
     box = gravity_aligned_box(pts)
     length, depth = float(max(box.size[:2])), float(min(box.size[:2]))
@@ -168,77 +167,6 @@ def _seat(tops: np.ndarray) -> bool:
     if at_seat.mean() < 1.0 / 3.0:
         return False
     return bool((tops >= np.median(tops[at_seat]) + BACK_ABOVE_SEAT).mean() >= 0.1)
-
-
-#: Units in a row differ in height by at least this (m) where one ends: a tall unit (a fridge, an oven
-#: column, a cupboard) rises far above a worktop; an appliance standing on it (a coffee machine, a
-#: microwave, 0.3-0.45 m) does not.
-STEP_HEIGHT = 0.5
-#: Each unit of a row is at least this long (m) along the row.
-UNIT_LENGTH = 0.3
-
-
-def split_at_step(pts: np.ndarray, base_z: float) -> np.ndarray | None:
-    """Where a floor-standing solid object is two units side by side (a counter against a tall unit,
-    their fronts in one plane, so that neither the frames' depth edges nor the map's convexity part
-    them): its top, along its long axis, is level on each side of one place and steps there by
-    STEP_HEIGHT or more, each side UNIT_LENGTH long or longer, and the taller side's front lies at the
-    same place across the row above and below the lower top (a unit's front from the floor up, not a
-    coffee machine standing back on a worktop). Returns a boolean mask of the taller unit's points,
-    or None."""
-    from stratamap.core.geometry.boxes import gravity_aligned_box
-
-    box = gravity_aligned_box(pts)
-    axis = np.array([np.cos(box.yaw), np.sin(box.yaw)])
-    if box.size[1] > box.size[0]:
-        axis = np.array([-axis[1], axis[0]])
-    length = float(max(box.size[:2]))
-    if length < 2 * UNIT_LENGTH or float(pts[:, 2].min()) - base_z > FLOOR_GAP:
-        return None
-    cell = 0.05
-    along = pts[:, :2] @ axis
-    bins = np.floor((along - along.min()) / cell).astype(np.int64)
-    n_bins = int(bins.max()) + 1
-    top = np.full(n_bins, np.nan)
-    for b in np.unique(bins):
-        z = pts[bins == b, 2]
-        if len(z) >= 5:
-            top[b] = np.percentile(z, 95)
-    # The cut of the best two-level fit of the top profile (least absolute deviation).
-    best: tuple[float, int] | None = None
-    need = int(round(UNIT_LENGTH / cell))
-    for cut in range(need, n_bins - need + 1):
-        left, right = top[:cut], top[cut:]
-        left, right = left[np.isfinite(left)], right[np.isfinite(right)]
-        if len(left) < need or len(right) < need:
-            continue
-        cost = float(np.abs(left - np.median(left)).sum() + np.abs(right - np.median(right)).sum())
-        if best is None or cost < best[0]:
-            best = (cost, cut)
-    if best is None:
-        return None
-    cut = best[1]
-    left, right = top[:cut], top[cut:]
-    left, right = left[np.isfinite(left)], right[np.isfinite(right)]
-    left_top, right_top = float(np.median(left)), float(np.median(right))
-    level = (np.abs(left - left_top) <= 0.1).mean() >= 0.8 and (np.abs(right - right_top) <= 0.1).mean() >= 0.8
-    if abs(right_top - left_top) < STEP_HEIGHT or not level:
-        return None
-    tall = bins >= cut if right_top > left_top else bins < cut
-    lower_top = min(left_top, right_top)
-    across = pts[:, :2] @ np.array([-axis[1], axis[0]])
-    upper = across[tall & (pts[:, 2] > lower_top + 0.05)]
-    below = across[tall & (pts[:, 2] > base_z + 0.2) & (pts[:, 2] < lower_top - 0.1)]
-    if len(upper) < 20 or len(below) < 20:
-        return None
-    # The taller unit's body reaches the floor: its front (the row's side seen most: the back stands
-    # against a wall) lies at the same place across the row above and below the lower top; a coffee
-    # machine's front stands back from the worktop's.
-    back, front = float(across.min()), float(across.max())
-    sign = 1.0 if (across > front - 0.03).sum() >= (across < back + 0.03).sum() else -1.0
-    if abs(np.percentile(sign * upper, 95) - np.percentile(sign * below, 95)) > 0.05:
-        return None
-    return tall
 
 
 def fits_class(name: str, shape: Shape) -> bool:
@@ -383,3 +311,19 @@ def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tup
         if not shape.flat_top and not shape.against_wall and ok("chair"):
             return "chair", "free-standing, no flat top, a chair's size"
     return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), NO_RULE_FITS
+
+
+def thin(pts: np.ndarray) -> bool:
+    """Thinner than THIN across, in height (2-98 % of its points: a single frame's floor bends by
+    centimetres at range) or in depth (a poster on a wall), and flat: at most FLAT times as thick as
+    it is broad. A cup standing against a wall, 10 cm every way, is no piece of that wall."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+
+    low, high = np.percentile(pts[:, 2], [2.0, 98.0])
+    sides = sorted((float(high - low), *map(float, gravity_aligned_box(pts).size[:2])))
+    return sides[0] < THIN and sides[0] <= FLAT * sides[1]
+
+
+def hand_held(shape: Shape) -> bool:
+    """Whether an object of this shape may be a thing of a hand's size (a cup, a bottle)."""
+    return any(fits_class(name, shape) for name in HAND_HELD)

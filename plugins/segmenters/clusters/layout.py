@@ -1,5 +1,5 @@
 """Gravity-aware room layout of a point set: floor, walls, ceiling, and the support surfaces on which
-objects stand (shared by the segmenters that do not know stuff from a model of their own).
+objects stand (the first pass of ``clusters``).
 
 ``find_layout(points, voxel_size)`` takes world points (z up, gravity-aligned, as every stratamap
 map) and returns a :class:`Layout`: a label per point (``NONE``, ``FLOOR``, ``WALL``, ``CEILING``),
@@ -42,6 +42,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.instances import members_of
+from stratamap.plugins.segmenters.clusters.grid import (
+    AREA_CELL,
+    cell_normals,
+    components,
+    footprint_area,
+    neighbour_pairs,
+)
+from stratamap.plugins.segmenters.clusters.walls import through_openings, wall_directions
 
 NONE, FLOOR, WALL, CEILING = 0, 1, 2, 3
 #: Layout label -> class name (the vocabulary's layout classes); ``NONE`` is no layout.
@@ -134,48 +142,6 @@ class Layout:
         return sum(plane.label == WALL for plane in self.planes)
 
 
-def cell_normals(cells: np.ndarray, radius: float) -> np.ndarray:
-    """Unoriented PCA normals of cell centres within ``radius`` (Open3D; each point's own
-    neighbourhood, so the result does not depend on threads)."""
-    import open3d as o3d
-
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cells))
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
-    return np.asarray(cloud.normals).copy()
-
-
-def neighbour_pairs(cells: np.ndarray, radius: float) -> np.ndarray:
-    """Pairs (i < j) of cells closer than ``radius`` (a k-d tree; linear in the cells for a surface)."""
-    from scipy.spatial import cKDTree
-
-    if len(cells) < 2:
-        return np.zeros((0, 2), np.int64)
-    return cKDTree(cells).query_pairs(radius, output_type="ndarray").astype(np.int64)
-
-
-def components(n: int, pairs: np.ndarray) -> np.ndarray:
-    """Connected-component id (int64) per node of an undirected graph given by its edge pairs."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
-
-
-#: Smallest grid cell (m) on which a floor's size is measured.
-AREA_CELL = 0.05
-
-
-def footprint_area(xy: np.ndarray, cell: float) -> float:
-    """Area (m^2) of the grid squares of side ``cell`` that points ``xy`` occupy."""
-    if len(xy) == 0:
-        return 0.0
-    ij = np.floor(xy / cell).astype(np.int64)
-    ij -= ij.min(axis=0)
-    keys = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])  # one integer per square: a 1-D unique
-    return float(len(keys) * cell * cell)
-
-
 def _regions(
     cells: np.ndarray, normals: np.ndarray, pairs: np.ndarray, member: np.ndarray, tol: float, max_turn_deg: float
 ) -> np.ndarray:
@@ -195,71 +161,6 @@ def _regions(
     idx = np.flatnonzero(member)
     _, out[idx] = np.unique(comp[idx], return_inverse=True)
     return out
-
-
-def _wall_directions(normal: np.ndarray, vertical: np.ndarray, spread_deg: float, min_cells: int) -> list[np.ndarray]:
-    """Dominant horizontal normal directions of the vertical cells: peaks of a histogram of their
-    azimuths (modulo 180 degrees), each at least ``min_cells`` strong, peaks ``spread_deg`` apart."""
-    azimuth = np.degrees(np.arctan2(normal[vertical, 1], normal[vertical, 0])) % 180.0
-    hist = np.bincount(np.floor(azimuth).astype(np.int64) % 180, minlength=180).astype(float)
-    width = max(1, int(spread_deg // 3))
-    smooth = sum(np.roll(hist, s) for s in range(-width, width + 1))
-    out = []
-    for _ in range(16):
-        peak = int(np.argmax(smooth))
-        if smooth[peak] < min_cells:
-            break
-        # The peak's direction: the circular mean (of doubled angles, as directions repeat every
-        # 180 degrees) of the azimuths near it, not the histogram bin.
-        near = np.abs((azimuth - peak + 90.0) % 180.0 - 90.0) <= spread_deg
-        doubled = np.radians(2.0 * azimuth[near])
-        angle = 0.5 * np.arctan2(np.sin(doubled).sum(), np.cos(doubled).sum())
-        out.append(np.array([np.cos(angle), np.sin(angle), 0.0]))
-        around = (np.arange(180) - peak + 90) % 180 - 90
-        smooth[np.abs(around) <= 2 * spread_deg] = 0.0
-    return out
-
-
-def through_openings(
-    beyond: np.ndarray,
-    views: np.ndarray,
-    normal: np.ndarray,
-    offset: float,
-    tangent: np.ndarray,
-    wall: np.ndarray,
-    cell: float,
-) -> np.ndarray:
-    """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
-    saw through an opening of it: the sight line crosses the plane within the wall's width, where the
-    wall has no point (``cell``-sized squares along ``tangent`` and up) but has some higher up in that
-    column (a door's or a window's lintel). A sensor also sees over a cabinet's front or a partition,
-    but nothing of them lies above that crossing, so what lies behind those still counts."""
-    along = np.floor(wall @ tangent / cell).astype(np.int64)
-    up = np.floor(wall[:, 2] / cell).astype(np.int64)
-    low = int(up.min()) - 1
-    width = int(up.max()) - low + 2
-    occupied = np.unique((along - along.min()) * width + (up - low))
-    columns, column = np.unique(along, return_inverse=True)
-    top = np.full(len(columns), low, np.int64)
-    np.maximum.at(top, column, up)
-    seen = np.zeros(len(beyond), bool)
-    far = beyond @ normal - offset
-    for view in views:
-        near = float(view @ normal - offset)
-        crossing = near * far < 0
-        if not crossing.any():
-            continue
-        share = near / (near - far[crossing])
-        x = view + share[:, None] * (beyond[crossing] - view)
-        a = np.floor(x @ tangent / cell).astype(np.int64)
-        z = np.floor(x[:, 2] / cell).astype(np.int64)
-        k = np.clip(np.searchsorted(columns, a), 0, len(columns) - 1)
-        lintel = (columns[k] == a) & (top[k] > z)
-        key = (a - along.min()) * width + (z - low)
-        pos = np.clip(np.searchsorted(occupied, key), 0, len(occupied) - 1)
-        empty = (occupied[pos] != key) | (z < low) | (z >= low + width)
-        seen[np.flatnonzero(crossing)[lintel & empty]] = True
-    return seen
 
 
 def find_layout(
@@ -361,7 +262,7 @@ def find_layout(
     # Directions first, not neighbour-to-neighbour normals: the rounded normals of a room's corner
     # would otherwise chain two walls into one region.
     vertical = (nz <= np.sin(np.radians(p.vertical_deg))) & (cell_label == NONE)
-    direction = _wall_directions(normal, vertical, p.vertical_deg, max(3, int(0.5 * p.wall_min_area / area_of_cell)))
+    direction = wall_directions(normal, vertical, p.vertical_deg, max(3, int(0.5 * p.wall_min_area / area_of_cell)))
     for n in direction:
         member = vertical & (np.abs(normal @ n) >= np.cos(np.radians(p.vertical_deg)))
         along_n = cells @ n

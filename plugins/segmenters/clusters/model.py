@@ -1,0 +1,109 @@
+"""Pass ``name_by_model`` (``naming: model``): every thing instance is named by a trained classifier
+over its measured features (``features.instance_features``), run by onnxruntime. The shipped model
+(``models/naming.onnx``, its sidecar ``models/naming.json`` and data card ``models/README.md``) was
+trained by scripts/train_naming.py; scikit-learn is needed to train it, never to run it. Below
+``naming_threshold`` the instance is ``object``; either way its score is in ``naming``."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from stratamap.core.errors import DataError
+from stratamap.core.lazy import lazy_module
+from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
+from stratamap.plugins.segmenters.clusters.labelling import Labelling
+
+ort = lazy_module("onnxruntime")
+
+MODELS = Path(__file__).resolve().parent / "models"
+#: The shipped model's sidecar; the ONNX file it names lies beside it.
+SHIPPED = MODELS / "naming.json"
+#: The catch-all class an instance keeps below the threshold.
+CATCH_ALL = "object"
+
+
+class NamingModel:
+    """A naming classifier: its ONNX session, its classes (the output's columns) and its features."""
+
+    def __init__(self, sidecar: Path) -> None:
+        try:
+            side = json.loads(Path(sidecar).read_text())
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{sidecar}: not a readable naming-model sidecar (JSON) ({exc})") from exc
+        if not isinstance(side, dict) or not {"model", "classes", "vote_classes", "features"} <= side.keys():
+            raise DataError(f"{sidecar}: a naming-model sidecar needs model, classes, vote_classes and features")
+        self.classes = [str(c) for c in side["classes"]]
+        self.vote_classes = [str(c) for c in side["vote_classes"]]
+        if list(side["features"]) != feature_names(self.vote_classes):
+            raise DataError(f"{sidecar}: its features are not those clusters measures (retrain the model)")
+        path = Path(sidecar).parent / str(side["model"])
+        try:
+            blob = path.read_bytes()
+        except OSError as exc:
+            raise DataError(f"{path}: the naming model is missing ({exc.strerror})") from exc
+        if side.get("sha256") and hashlib.sha256(blob).hexdigest() != side["sha256"]:
+            raise DataError(f"{path}: its sha256 is not the sidecar's (a corrupt or replaced model)")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1  # one thread: the same scores on every machine run
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(blob, sess_options=opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf types
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise DataError(f"{path}: not an ONNX model onnxruntime can load ({first})") from exc
+        self.input = self.session.get_inputs()[0].name
+        self.path = path
+
+    def scores(self, features: np.ndarray) -> np.ndarray:
+        """Per row of ``features``, the probability of each of ``classes``."""
+        if not len(features):
+            return np.zeros((0, len(self.classes)), np.float32)
+        outputs = self.session.run(None, {self.input: np.asarray(features, np.float32)})
+        probs = outputs[1] if len(outputs) > 1 else outputs[0]
+        if isinstance(probs, list):  # skl2onnx's ZipMap output: one {class index: probability} per row
+            probs = [[row[k] for k in sorted(row)] for row in probs]
+        return np.asarray(probs, np.float32).reshape(len(features), len(self.classes))
+
+
+@lru_cache(maxsize=4)
+def load_model(sidecar: str) -> NamingModel:
+    """The model of ``sidecar``, loaded once per process."""
+    return NamingModel(Path(sidecar))
+
+
+def name_by_model(lab: Labelling) -> None:
+    """With ``naming: model``: names each thing instance by the model's most likely class where its
+    score reaches ``naming_threshold``, else ``object``. Sets ``class_ids``, ``naming`` and
+    ``scores``; each change of class is noted (``recognition``)."""
+    cfg = lab.cfg
+    if cfg.naming != "model":
+        return
+    model = load_model(str(Path(cfg.naming_model) if cfg.naming_model else SHIPPED))
+    ids, features = instance_features(lab, model.vote_classes)
+    scores = model.scores(features)
+    members = lab.thing_shapes()
+    changes = []
+    for iid, row in zip(ids, scores, strict=True):
+        best = int(np.argmax(row))
+        name, score = model.classes[best], float(row[best])
+        if name not in lab.vocab or not lab.vocab.is_thing[lab.vocab.id(name)]:
+            name, why = CATCH_ALL, f"the model's class {name!r} is none of the vocabulary's things"
+        elif score < cfg.naming_threshold:
+            why = f"the model's best, {name}, scored {score:.2f} < naming_threshold {cfg.naming_threshold:g}"
+            name = CATCH_ALL
+        else:
+            why = f"{name} scored {score:.2f} over measured features"
+        if name not in lab.vocab:
+            continue
+        was = members[iid][0]
+        if name != was:
+            lab.relabel(members[iid][2], cls=lab.vocab.id(name))
+            changes.append({"instance": iid, "from": was, "to": name, "why": why, "score": round(score, 3)})
+        lab.naming[iid] = ("model", f"{why} (was {was})" if name != was else why)
+        lab.scores[iid] = round(score, 4)
+    lab.note("recognition", changes)

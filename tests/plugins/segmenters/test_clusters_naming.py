@@ -1,0 +1,162 @@
+"""Naming by the trained model (``clusters`` ``naming: model``, plugins/segmenters/clusters/model.py):
+the shipped ONNX model names clear furniture of a small synthetic fused map, stays ``object`` below
+its threshold with its score, reads deterministic features, runs without scikit-learn, and a missing
+or corrupt model is a one-line DataError naming the file."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stratamap.core.errors import DataError
+from stratamap.core.map.layers import Geometry, Semantics
+from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.stages import PipelineData
+from stratamap.plugins.segmenters.clusters import ClustersSegmenter
+from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
+from stratamap.plugins.segmenters.clusters.model import SHIPPED, NamingModel, load_model
+from tests.plugins.segmenters.test_layout_planes import chair, room_shell, solids, table
+
+VOCAB = Vocabulary.default()
+
+
+def furnished_map() -> tuple[PipelineData, np.ndarray, np.ndarray]:
+    """A 2 cm fused map of the room with a table, a chair and a cabinet against a wall, each voted its
+    class by a detector's masks (instances 1-3); the floor, walls and ceiling voted theirs."""
+    cabinet = [("cabinet", (0.0, 3.4, 0.0), (0.5, 4.2, 0.8))]
+    furniture, names = solids(table(2.5, 2.0) + chair(4.0, 2.0) + cabinet, 0.02)
+    shell = room_shell(0.02)
+    points = np.concatenate([p for _, p in shell] + [furniture])
+    names = np.concatenate([np.full(len(p), n) for n, p in shell] + [names])
+    classes = np.array([VOCAB.id(n) for n in names], np.int32)
+    instances = np.zeros(len(points), np.int32)
+    for iid, name in enumerate(("table", "chair", "cabinet"), start=1):
+        instances[names == name] = iid
+    data = PipelineData()
+    data.map.geometry = Geometry(points=points, voxel_size=0.02)
+    data.map.semantics = Semantics(classes, instances, VOCAB)
+    return data, points, names
+
+
+def named(threshold: float = 0.4, **params) -> tuple[dict, np.ndarray]:
+    data, points, names = furnished_map()
+    out = ClustersSegmenter(
+        keep_instances=True, recognize=True, naming="model", naming_threshold=threshold, **params
+    ).run(data)
+    return out, names
+
+
+def class_of(out: dict, names: np.ndarray, name: str) -> object:
+    """The instance holding most of the points of the true object ``name``."""
+    iid = np.bincount(out["semantics"].instance_ids[names == name]).argmax()
+    return next(inst for inst in out["instances"] if inst.id == iid)
+
+
+def test_the_shipped_model_names_a_table_a_chair_and_a_cabinet():
+    out, names = named()
+    for name in ("table", "chair", "cabinet"):
+        inst = class_of(out, names, name)
+        assert inst.class_name == name, (name, inst.class_name, inst.attributes["naming"])
+        naming = inst.attributes["naming"]
+        assert naming["by"] == "model" and 0.4 <= naming["score"] <= 1.0, naming
+
+
+def test_below_the_threshold_an_instance_is_object_with_its_score():
+    out, names = named()
+    scores = {inst.id: inst.attributes["naming"]["score"] for inst in out["instances"]}
+    # Just above the cabinet's own score: it falls below, what scored higher keeps its class.
+    cabinet = class_of(out, names, "cabinet")
+    threshold = scores[cabinet.id] + 1e-4
+    assert threshold <= 1.0
+    out, names = named(threshold)
+    inst = class_of(out, names, "cabinet")
+    assert inst.class_name == "object"
+    assert inst.attributes["naming"]["by"] == "model"
+    assert inst.attributes["naming"]["score"] == pytest.approx(scores[cabinet.id], abs=1e-4)
+    assert "naming_threshold" in inst.attributes["naming"]["why"]
+    for other in out["instances"]:
+        if other.attributes["naming"]["score"] >= threshold:
+            assert other.class_name != "object"
+
+
+def test_rules_stay_the_default_and_the_model_changes_no_rule_naming():
+    data, _, names = furnished_map()
+    out = ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    assert all(inst.attributes["naming"]["by"] != "model" for inst in out["instances"])
+    assert all("score" not in inst.attributes["naming"] for inst in out["instances"])
+
+
+def test_features_are_deterministic_and_named():
+    from stratamap.plugins.segmenters.clusters.passes import PASSES
+
+    def features() -> tuple[list[int], np.ndarray]:
+        data, _, _ = furnished_map()
+        seg = ClustersSegmenter(keep_instances=True, recognize=True, naming="model")
+        lab = seg._labelling(data)
+        for name in seg.config.passes[: seg.config.passes.index("name_by_model")]:
+            PASSES[name].run(lab)
+        return instance_features(lab, load_model(str(SHIPPED)).vote_classes)
+
+    ids, first = features()
+    again_ids, again = features()
+    assert ids == again_ids and len(ids) >= 3
+    assert first.dtype == np.float32 and np.array_equal(first, again)
+    assert first.shape[1] == len(feature_names(load_model(str(SHIPPED)).vote_classes))
+    assert np.isfinite(first).all()
+
+
+def test_the_runtime_does_not_import_scikit_learn():
+    code = (
+        "import sys\n"
+        "from tests.plugins.segmenters.test_clusters_naming import named\n"
+        "out, _ = named()\n"
+        "assert any(i.attributes['naming']['by'] == 'model' for i in out['instances'])\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('sklearn', 'skl2onnx')))\n"
+    )
+    root = Path(__file__).resolve().parents[3]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout
+
+
+def copied_model(tmp_path: Path) -> Path:
+    for name in ("naming.json", "naming.onnx"):
+        shutil.copy(SHIPPED.parent / name, tmp_path / name)
+    return tmp_path / "naming.json"
+
+
+def test_a_missing_model_file_is_a_one_line_data_error_naming_it(tmp_path):
+    sidecar = copied_model(tmp_path)
+    (tmp_path / "naming.onnx").unlink()
+    with pytest.raises(DataError) as err:
+        named(naming_model=str(sidecar))
+    message = str(err.value)
+    assert str(tmp_path / "naming.onnx") in message and "\n" not in message
+
+
+@pytest.mark.parametrize("keep_sha", [True, False])
+def test_a_corrupt_model_file_is_a_one_line_data_error_naming_it(tmp_path, keep_sha):
+    sidecar = copied_model(tmp_path)
+    (tmp_path / "naming.onnx").write_bytes(b"not an onnx model")
+    if not keep_sha:  # without a digest to compare, onnxruntime's own check must catch it
+        side = json.loads(sidecar.read_text())
+        del side["sha256"]
+        sidecar.write_text(json.dumps(side))
+    with pytest.raises(DataError) as err:
+        NamingModel(sidecar)
+    message = str(err.value)
+    assert str(tmp_path / "naming.onnx") in message and "\n" not in message
+
+
+def test_a_corrupt_sidecar_is_a_one_line_data_error_naming_it(tmp_path):
+    sidecar = copied_model(tmp_path)
+    sidecar.write_text("{ not json")
+    with pytest.raises(DataError) as err:
+        NamingModel(sidecar)
+    assert str(sidecar) in str(err.value) and "\n" not in str(err.value)
