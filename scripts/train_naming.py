@@ -285,7 +285,11 @@ def fit(features: np.ndarray, labels: np.ndarray, names: np.ndarray, seed: int) 
     rayless[:, list(names).index("seen_through")] = -1.0
     rayless[:, list(names).index("rays")] = 0.0
     both, twice = np.concatenate([features, rayless]), np.concatenate([labels, labels])
-    return classifier(seed).fit(both, twice, sample_weight=balanced(twice))
+    from threadpoolctl import threadpool_limits
+
+    # One thread: scikit-learn's losses sum over OpenMP threads, whose order a busy machine changes.
+    with threadpool_limits(limits=1):
+        return classifier(seed).fit(both, twice, sample_weight=balanced(twice))
 
 
 def macro_f1(truth: np.ndarray, given: np.ndarray) -> float:

@@ -22,7 +22,7 @@ Bodies are grouped by the tree under ``/World/Objects/<model>``, one model per l
 USD joints turn about or slide along one axis of their frames, so each joint frame is turned to
 put the URDF axis on X; revolute limits are degrees, as USD writes them, and every moving joint
 has a drive (``DriveAPI``, damping only, so parts keep still unless pushed). Floor, walls and
-ceiling are static ``Cube`` colliders under ``/World/Room``. ``pxr`` (PyPI ``usd-core``, the
+ceiling are kinematic ``Cube`` bodies with colliders under ``/World/Room``. ``pxr`` (PyPI ``usd-core``, the
 ``usd`` extra) is imported only when a scene is written.
 """
 
@@ -150,9 +150,13 @@ class _Writer:
         if self.tree.statics:
             UsdGeom.Scope.Define(stage, f"{WORLD}/Room")
             for slab in self.tree.statics:
-                cube = UsdGeom.Cube.Define(stage, self.child(f"{WORLD}/Room", slab.name))
+                # A link in the URDF, so a (kinematic) body here: the two files list the same bodies.
+                body = UsdGeom.Xform.Define(stage, self.child(f"{WORLD}/Room", slab.name))
+                self.place(body.GetPrim(), slab.pose)
+                UsdPhysics.RigidBodyAPI.Apply(body.GetPrim()).CreateKinematicEnabledAttr(True)
+                cube = UsdGeom.Cube.Define(stage, self.child(body.GetPath(), slab.name))
                 cube.CreateSizeAttr(1.0)
-                self.place(cube.GetPrim(), slab.pose, np.asarray(slab.size, float))
+                self.place(cube.GetPrim(), np.eye(4), np.asarray(slab.size, float))
                 self.collider(cube.GetPrim())
         UsdGeom.Scope.Define(stage, f"{WORLD}/Objects")
         for top in self.children.get(ROOT_LINK, []):

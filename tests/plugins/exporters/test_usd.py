@@ -163,19 +163,21 @@ def test_the_usd_stage_has_the_urdfs_bodies_colliders_masses_and_poses(exported)
     assert {"floor", "ceiling", "wall_0"} <= slabs
     objects = set(links) - slabs - {"world"}
     bodies = {stage.GetPrimAtPath(p).GetName(): (p, d) for p, d in parsed[kinds.RigidBody].items()}
-    assert set(bodies) == objects and len(parsed[kinds.RigidBody]) == len(objects)
-    for name, (path, desc) in bodies.items():
+    # Every URDF link but the world is a body: the objects' links and the room's (kinematic) slabs.
+    assert set(bodies) == objects | slabs and len(parsed[kinds.RigidBody]) == len(set(links) - {"world"})
+    assert all(bodies[n][1].kinematicBody for n in slabs)
+    for name, (path, desc) in ((n, bodies[n]) for n in objects):
         prim = stage.GetPrimAtPath(path)
         np.testing.assert_allclose(usd_pose(prim), tree["poses"][name], atol=1e-5, err_msg=name)
         assert len(desc.collisions) == len(links[name].findall("collision")), name
         mass = float(links[name].find("inertial/mass").get("value"))
         assert UsdPhysics.MassAPI(prim).GetMassAttr().Get() == pytest.approx(mass, rel=1e-5), name
-    # Static colliders: the room's slabs, boxes of the URDF's sizes at its poses, on no body.
+    # The room's slabs: boxes of the URDF's sizes at its poses, each the collider of its own body.
     cubes = parsed[kinds.CubeShape]
     assert {stage.GetPrimAtPath(p).GetName() for p in cubes} == slabs
     for path, desc in cubes.items():
         name = stage.GetPrimAtPath(path).GetName()
-        assert desc.rigidBody.isEmpty
+        assert str(desc.rigidBody) == str(path).rsplit("/", 1)[0]
         size = [float(v) for v in links[name].find("collision/geometry/box").get("size").split()]
         # A unit cube scaled to the slab's size, at the URDF slab's pose.
         np.testing.assert_allclose(
@@ -192,7 +194,7 @@ def test_the_usd_stage_has_the_urdfs_bodies_colliders_masses_and_poses(exported)
     free = {n for n, (_, d) in bodies.items() if not d.kinematicBody and n not in held}
     assert free == floating
     kinematic = {n for n, (_, d) in bodies.items() if d.kinematicBody}
-    assert kinematic == {"table_1", "monitor_3"}
+    assert kinematic == {"table_1", "monitor_3"} | slabs
 
 
 def test_the_usd_stage_has_the_urdfs_joints_limits_and_articulations(exported):
@@ -268,7 +270,7 @@ def test_a_usdc_file_name_writes_a_binary_crate_with_the_same_scene(tmp_path, ex
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.usdc"]  # no temporary file left
     counts = {k: len(v) for k, v in physics(Usd.Stage.Open(str(path))).items()}
     assert counts == {k: len(v) for k, v in physics(exported[2]).items()}
-    assert counts[UsdPhysics.ObjectType.RigidBody] == 11
+    assert counts[UsdPhysics.ObjectType.RigidBody] == 17  # 11 objects' links and 6 room slabs
 
 
 @pytest.mark.parametrize("filename", ["scene.obj", "scene", "sub/scene.usda"])
@@ -303,7 +305,7 @@ def test_on_a_mapped_synthetic_room_the_usd_stage_has_the_urdfs_bodies_and_colli
     kinds = UsdPhysics.ObjectType
     slabs = {n for n, el in links.items() if el.find("visual/geometry/box") is not None}
     objects = set(links) - slabs - {"world"}
-    assert len(objects) >= 4 and len(parsed[kinds.RigidBody]) == len(objects)
+    assert len(objects) >= 4 and len(parsed[kinds.RigidBody]) == len(objects) + len(slabs)
     assert len(parsed[kinds.CubeShape]) == len(slabs) >= 1
     assert len(parsed[kinds.MeshShape]) == sum(len(links[n].findall("collision")) for n in objects)
     free = [b for b in parsed[kinds.RigidBody].values() if not b.kinematicBody]
