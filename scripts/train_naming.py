@@ -342,7 +342,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         ("rules", rules),
     ):
         names = sorted(set(y[tested]) | set(given[tested].astype(str)))
-        print(f"\nconfusion, {title}: rows true, columns given")
+        print(f"\nconfusion, {title}: rows true, columns given\n")
         print("| true \\ given | " + " | ".join(names) + " |")
         print("|---" * (len(names) + 1) + "|")
         for t in names:

@@ -17,6 +17,7 @@ NAMED_BY = {
     "context": "what else the map holds (a counter's size in a room with nothing of a kitchen is a cabinet's)",
     "size rules": "the segmenter's own class_rules (extent and height) or a support surface on top",
     "matching": "the best-fitting library model over every class (recognition by matching)",
+    "model": "a trained classifier over the object's measured features (clusters' naming: model), with its score",
     "unnamed": "nothing named it: no label, vote or rule fitted, so it keeps the catch-all class (object)",
 }
 

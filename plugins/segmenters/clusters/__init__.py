@@ -49,7 +49,7 @@ from typing import Any
 from stratamap.core import PipelineData, Segmenter, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
-from stratamap.core.map.instances import NAMED_BY, NAMING, set_naming
+from stratamap.core.map.instances import NAMING, set_naming
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.map.vocabulary import Vocabulary
@@ -115,11 +115,7 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         before = data.map.instances if self.config.keep_instances else None
         for inst in instances:
             if inst.id in lab.naming:
-                by, why = lab.naming[inst.id]
-                if by in NAMED_BY:
-                    set_naming(inst, by, why)
-                else:  # "model": core's NAMED_BY does not list it yet
-                    inst.attributes[NAMING] = {"by": by, "why": why}
+                set_naming(inst, *lab.naming[inst.id])
                 if inst.id in lab.scores:
                     inst.attributes[NAMING]["score"] = lab.scores[inst.id]
             elif before is not None and inst.id in before and NAMING in before[inst.id].attributes:
