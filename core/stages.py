@@ -24,12 +24,13 @@ The returned dict maps layer names to values; its keys must be a subset of ``pro
 from __future__ import annotations
 
 import inspect
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Generic, Literal, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic_core import PydanticCustomError
 
 from stratamap.core.hookspecs import configured
 from stratamap.core.map.groundtruth import GroundTruth
@@ -76,6 +77,23 @@ class StageConfig(BaseModel):
     #: Fields that hold a file or folder path: in a pipeline file, a relative one is resolved
     #: against the file's folder (on the command line, ``--set`` values against the working folder).
     path_fields: ClassVar[tuple[str, ...]] = ()
+    #: Flat keys of an earlier release that moved into a nested section, old key -> "section.field"
+    #: (``{"piece_min_points": "pieces.min_points"}``): still read, and the stage warns when it runs
+    #: (:func:`warn_renamed`).
+    renamed: ClassVar[Mapping[str, str]] = {}
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _renamed_keys(cls, data: Any, handler: Any) -> Any:
+        # A wrap, not a before validator: the keys are moved before validation, and the config
+        # then remembers which, so its stage can say so in the run's warnings.
+        data, moved = move_renamed(data, cls.renamed)
+        config = handler(data)
+        if moved:
+            # Kept beside the fields in __dict__ (where a cached_property lives): pydantic leaves it
+            # out of equality and dumps, so a config is the same whichever names it was read from.
+            object.__setattr__(config, "_renamed", moved)
+        return config
 
     @model_validator(mode="before")
     @classmethod
@@ -131,6 +149,44 @@ class PipelineData:
 
 
 ConfigT = TypeVar("ConfigT", bound=StageConfig)
+
+
+def move_renamed(data: Any, renamed: Mapping[str, str]) -> tuple[Any, tuple[tuple[str, str], ...]]:
+    """``data`` with each old flat key of ``renamed`` moved into its section, and the (old, new)
+    pairs moved. The same setting under both names is an error: which one was meant cannot be guessed."""
+    if not renamed or not isinstance(data, dict) or not any(old in data for old in renamed):
+        return data, ()
+    data = dict(data)
+    moved = []
+    for old, new in renamed.items():
+        if old not in data:
+            continue
+        section, name = new.split(".")
+        current = data.get(section)
+        current = {} if current is None else current
+        if not isinstance(current, dict):
+            continue  # the section's own error says what it must be; the old key stays an extra field
+        if name in current:
+            raise PydanticCustomError(
+                "renamed_key", "{old} and {new} are one setting, set twice: keep {new}", {"old": old, "new": new}
+            )
+        data[section] = {**current, name: data.pop(old)}
+        moved.append((old, new))
+    return data, tuple(moved)
+
+
+def renamed_keys(config: BaseModel) -> tuple[tuple[str, str], ...]:
+    """The (old, new) key pairs ``config`` was read with."""
+    return config.__dict__.get("_renamed", ())
+
+
+def warn_renamed(stage: Stage) -> None:
+    """One warning for the old names ``stage``'s config used, each with its new key."""
+    moved = renamed_keys(stage.config)
+    if moved:
+        pairs = ", ".join(f"{old} is now {new}" for old, new in moved)
+        keys = "key" if len(moved) == 1 else "keys"
+        stage.warn(f"deprecated {keys}: {pairs} (the old names stop working in the next release)")
 
 
 class Stage(Generic[ConfigT]):

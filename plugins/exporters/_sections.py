@@ -6,19 +6,16 @@
 
 The flat names of the release before (``movable_classes`` in urdf, ``free_classes`` in mjcf,
 ``dynamic_classes`` in sdf, ``inscribed_radius``, ...) are read into their section for one more
-release: a config lists them in ``renamed``, and the stage warns when it runs, naming the old key
-and the new one.
+release: a config lists them in ``renamed`` (``core/stages.py``: ``StageConfig``), and the stage
+warns when it runs, naming the old key and the new one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
-from pydantic_core import PydanticCustomError
+from pydantic import BaseModel, ConfigDict, Field
 
-from stratamap.core import Stage, StageConfig
 from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
 
 
@@ -92,62 +89,3 @@ def renamed_bodies(classes_key: str) -> dict[str, str]:
 
 #: The flat keys the costmap and ros2_bag exporters had before ``inflation``.
 RENAMED_INFLATION: dict[str, str] = {k: f"inflation.{k}" for k in Inflation.model_fields}
-
-
-def move_renamed(data: Any, renamed: Mapping[str, str]) -> tuple[Any, tuple[tuple[str, str], ...]]:
-    """``data`` with each old flat key of ``renamed`` (``{"free_classes": "bodies.movable_classes"}``)
-    moved into its section, and the (old, new) pairs moved. The same setting under both names is an
-    error: which one was meant cannot be guessed."""
-    if not isinstance(data, dict) or not any(old in data for old in renamed):
-        return data, ()
-    data = dict(data)
-    moved = []
-    for old, new in renamed.items():
-        if old not in data:
-            continue
-        section, name = new.split(".")
-        current = data.get(section)
-        current = {} if current is None else current
-        if not isinstance(current, dict):
-            continue  # the section's own error says what it must be; the old key stays an extra field
-        if name in current:
-            raise PydanticCustomError(
-                "renamed_key", "{old} and {new} are one setting, set twice: keep {new}", {"old": old, "new": new}
-            )
-        data[section] = {**current, name: data.pop(old)}
-        moved.append((old, new))
-    return data, tuple(moved)
-
-
-class SectionedConfig(StageConfig):
-    """A stage config with nested sections that still reads the flat names they replaced."""
-
-    #: old flat key -> "section.field"
-    renamed: ClassVar[Mapping[str, str]] = {}
-
-    @model_validator(mode="wrap")
-    @classmethod
-    def _renamed_keys(cls, data: Any, handler: Any) -> Any:
-        # A wrap, not a before validator: the keys are moved before validation, and the config
-        # then remembers which, so its stage can say so in the run's warnings.
-        data, moved = move_renamed(data, cls.renamed)
-        config = handler(data)
-        if moved:
-            # Kept beside the fields in __dict__ (where a cached_property lives): pydantic leaves it
-            # out of equality and dumps, so a config is the same whichever names it was read from.
-            object.__setattr__(config, "_renamed", moved)
-        return config
-
-
-def renamed_keys(config: StageConfig) -> tuple[tuple[str, str], ...]:
-    """The (old, new) key pairs ``config`` was read with."""
-    return config.__dict__.get("_renamed", ())
-
-
-def warn_renamed(stage: Stage) -> None:
-    """One warning for the old names ``stage``'s config used, each with its new key."""
-    moved = renamed_keys(stage.config)
-    if moved:
-        pairs = ", ".join(f"{old} is now {new}" for old, new in moved)
-        keys = "key" if len(moved) == 1 else "keys"
-        stage.warn(f"deprecated {keys}: {pairs} (the old names stop working in the next release)")

@@ -15,18 +15,17 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, hookimpl
+from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.io.nav2 import costmap_values, no_free_space, write_costmap
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.exporters._sections import (
     RENAMED_INFLATION,
     Inflation,
-    SectionedConfig,
     inflation_section,
-    warn_renamed,
 )
 
 
-class CostmapConfig(SectionedConfig):
+class CostmapConfig(StageConfig):
     layer: str = Field(
         default="multimap", description="Occupancy layer to inflate (multimap keeps the robot off chair seats)."
     )

@@ -10,20 +10,19 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, hookimpl
+from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.simulation.mjcf import write_mjcf
 from stratamap.core.simulation.rest import RestPlan, rest_offsets
 from stratamap.core.simulation.structure import room_structure
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.exporters._sections import (
     Bodies,
-    SectionedConfig,
     bodies_section,
     renamed_bodies,
-    warn_renamed,
 )
 
 
-class MJCFConfig(SectionedConfig):
+class MJCFConfig(StageConfig):
     filename: str = Field(default="scene.xml", description="Name of the MJCF file in the export folder.")
     mesh_dir: str = Field(default="mjcf_meshes", description="Sub-folder for the collision and visual meshes.")
     bodies: Bodies = bodies_section()

@@ -28,17 +28,16 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field, field_validator
 
-from stratamap.core import Exporter, PipelineData, hookimpl
+from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_directory
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw
 from stratamap.core.io.nav2 import COST_INSCRIBED, COST_LETHAL, COST_UNKNOWN, costmap_values
 from stratamap.core.map.colors import id_colors
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.exporters._sections import (
     RENAMED_INFLATION,
     Inflation,
-    SectionedConfig,
     inflation_section,
-    warn_renamed,
 )
 
 #: rosbag2 metadata version rosbags writes (8 is the oldest it offers; Humble's player reads it).
@@ -78,7 +77,7 @@ def packed_rgb(colors: np.ndarray) -> np.ndarray:
     return (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
 
 
-class Ros2BagConfig(SectionedConfig):
+class Ros2BagConfig(StageConfig):
     folder: str = Field(
         default="ros2_bag", description="Bag folder in the export folder (metadata.yaml + sqlite3 file)."
     )

@@ -17,17 +17,16 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, hookimpl
+from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
 from stratamap.core.simulation.kinematics import ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.exporters._sections import (
     Bodies,
-    SectionedConfig,
     bodies_section,
     renamed_bodies,
-    warn_renamed,
 )
 
 
@@ -35,7 +34,7 @@ def _pose(pose: np.ndarray) -> str:
     return " ".join(f"{float(v):.9g}" for v in (*pose[:3, 3], *rpy_of(pose)))
 
 
-class SDFConfig(SectionedConfig):
+class SDFConfig(StageConfig):
     filename: str = Field(default="scene.sdf", description="Name of the world file in the export folder.")
     mesh_dir: str = Field(default="sdf_meshes", description="Sub-folder (beside the world) for meshes.")
     world_name: str = Field(default="stratamap_scene", description="The <world name>.")

@@ -21,17 +21,16 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from stratamap.core import Exporter, PipelineData, hookimpl
+from stratamap.core import Exporter, PipelineData, StageConfig, hookimpl
 from stratamap.core.atomic import atomic_path, write_text
 from stratamap.core.geometry.transforms import rpy_of
 from stratamap.core.simulation.kinematics import ROOT_LINK, link_collision
 from stratamap.core.simulation.scene import scene_tree
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.exporters._sections import (
     Bodies,
-    SectionedConfig,
     bodies_section,
     renamed_bodies,
-    warn_renamed,
 )
 
 
@@ -43,7 +42,7 @@ def _origin(parent: ET.Element, pose: np.ndarray) -> None:
     ET.SubElement(parent, "origin", xyz=_fmt(pose[:3, 3]), rpy=_fmt(rpy_of(pose)))
 
 
-class URDFConfig(SectionedConfig):
+class URDFConfig(StageConfig):
     filename: str = Field(default="scene.urdf", description="Name of the URDF file in the export folder.")
     robot_name: str = Field(default="stratamap_scene", description="The <robot name> of the URDF.")
     mesh_dir: str = Field(default="meshes", description="Sub-folder (beside the URDF) for link meshes.")

@@ -12,10 +12,11 @@ pieces re-joined by the frames' masks (:mod:`stratamap.plugins.mappers.tsdf.mask
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from collections.abc import Mapping
+from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, hookimpl
 from stratamap.core.errors import ConfigError, DataError
@@ -29,8 +30,9 @@ from stratamap.core.map.instances import (
 )
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.stages import warn_renamed
 from stratamap.plugins.mappers._volume import FrameSkips, IntegrationConfig, TSDFVolume, label_stride
-from stratamap.plugins.mappers.tsdf.config import Pieces, read_renamed, warn_renamed
+from stratamap.plugins.mappers.tsdf.config import RENAMED, Pieces
 from stratamap.plugins.mappers.tsdf.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 
@@ -47,6 +49,8 @@ def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size
 
 
 class TSDFConfig(IntegrationConfig):
+    renamed: ClassVar[Mapping[str, str]] = RENAMED  # the flat piece_* keys of the release before
+
     associate_ratio: float = Field(
         default=0.2, gt=0, le=1, description="Min overlap Pi(s, l) / |s| to associate a frame segment with a label."
     )
@@ -100,11 +104,6 @@ class TSDFConfig(IntegrationConfig):
         default_factory=Pieces,
         description="With instances: masks, how the label instances are cut into 3D pieces, re-joined and dropped.",
     )
-
-    @model_validator(mode="wrap")
-    @classmethod
-    def _renamed_keys(cls, data: Any, handler: Any) -> Any:
-        return read_renamed(data, handler)
 
 
 class TSDFMapper(Mapper[TSDFConfig]):

@@ -1,4 +1,4 @@
-"""The ``pieces`` section of the ``tsdf`` config, and the reading of its flat names of old.
+"""The ``pieces`` section of the ``tsdf`` config, and the flat names of old it replaced.
 
 ``pieces`` tunes ``instances: masks`` (:mod:`stratamap.plugins.mappers.tsdf.mask_instances`):
 how the map's label instances are cut into connected 3D pieces and re-joined where the frames'
@@ -9,12 +9,10 @@ release, and the stage warns when it runs, naming the old key and the new one.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
-from pydantic_core import PydanticCustomError
 
-from stratamap.core import Stage
 from stratamap.plugins.mappers.tsdf.mask_instances import (
     DEFAULT_MAX_LENGTH,
     DEFAULT_MIN_POINTS_BY_CLASS,
@@ -128,59 +126,3 @@ class Pieces(BaseModel):
 
 #: The flat keys of the release before: ``piece_min_points`` is ``pieces.min_points``, ...
 RENAMED: dict[str, str] = {f"piece_{name}": f"pieces.{name}" for name in Pieces.model_fields}
-
-
-def move_renamed(data: Any) -> tuple[Any, tuple[tuple[str, str], ...]]:
-    """``data`` with its old ``piece_*`` keys moved into ``pieces``, and the (old, new) pairs moved.
-    The same setting under both names is an error: which one was meant cannot be guessed.
-
-    (The exporters read their flat names of old the same way, in plugins/exporters/_sections.py:
-    a mapper cannot import an exporter's module.)"""
-    if not isinstance(data, dict) or not any(old in data for old in RENAMED):
-        return data, ()
-    data = dict(data)
-    section = data.get("pieces")
-    section = {} if section is None else section
-    if not isinstance(section, dict):
-        return data, ()  # the section's own error says what it must be; the old keys stay extra fields
-    section = dict(section)
-    moved = []
-    for old, new in RENAMED.items():
-        if old not in data:
-            continue
-        name = new.split(".", 1)[1]
-        if name in section:
-            raise PydanticCustomError(
-                "renamed_key", "{old} and {new} are one setting, set twice: keep {new}", {"old": old, "new": new}
-            )
-        section[name] = data.pop(old)
-        moved.append((old, new))
-    data["pieces"] = section
-    return data, tuple(moved)
-
-
-def read_renamed(data: Any, handler: Any) -> Any:
-    """The body of the config's wrap validator: a wrap, not a before validator, so that the old keys
-    are moved before validation and the config then remembers which, for the stage to say so in the
-    run's warnings."""
-    data, moved = move_renamed(data)
-    config = handler(data)
-    if moved:
-        # Kept beside the fields in __dict__ (where a cached_property lives): pydantic leaves it out
-        # of equality and dumps, so a config is the same whichever names it was read from.
-        object.__setattr__(config, "_renamed", moved)
-    return config
-
-
-def renamed_keys(config: BaseModel) -> tuple[tuple[str, str], ...]:
-    """The (old, new) key pairs ``config`` was read with."""
-    return config.__dict__.get("_renamed", ())
-
-
-def warn_renamed(stage: Stage) -> None:
-    """One warning for the old names ``stage``'s config used, each with its new key."""
-    moved = renamed_keys(stage.config)
-    if moved:
-        pairs = ", ".join(f"{old} is now {new}" for old, new in moved)
-        keys = "key" if len(moved) == 1 else "keys"
-        stage.warn(f"deprecated {keys}: {pairs} (the old names stop working in the next release)")
