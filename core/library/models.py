@@ -450,14 +450,8 @@ def _load_mesh_folder(path: Path, up_axis: str) -> ModelLibrary:
         if file.suffix.lower() not in MESH_SUFFIXES:
             lib.problems.append(f"{file}: unsupported mesh format (use one of {', '.join(MESH_SUFFIXES)}); skipped")
             continue
-        part = LibraryPart("mesh", file=file)
         try:
-            mesh = part.load()
-            colors = mesh_face_colors(mesh)
-            if colors is not None:
-                part.albedo = mean_color(mesh, colors)
-                part.face_colors = None if np.ptp(colors, axis=0).max() < 1e-3 else colors.astype(np.float32)
-            mesh = part.mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+            part, mesh = _coloured_part(file)
             if up_axis == "y":
                 mesh.apply_transform(Y_UP_TO_Z_UP)
             elif up_axis != "z":
@@ -529,18 +523,25 @@ def _shapenet_taxonomy(root: Path) -> dict[str, str]:
     }
 
 
-def load_shapenet_model(file: Path, synset: str, model_id: str, class_name: str) -> LibraryModel:
-    """One ShapeNet ``model_normalized.obj`` as a library model: turned from y up to z up, origin at
-    its bottom centre, scaled from ShapeNet's unitless normalisation (unit box diagonal) to the
-    class's typical height. ``params["cad_to_model"]`` is the 4x4 that takes a point of the file
-    (ShapeNet's frame, the one Scan2CAD's alignments use) to the model's frame."""
+def _coloured_part(file: Path) -> tuple[LibraryPart, Any]:
+    """A mesh file as a library part with its colours (mean albedo; per-face colours where they
+    vary), and its mesh as a plain triangle mesh for the caller to turn and scale."""
     part = LibraryPart("mesh", file=file)
     mesh = part.load()
     colors = mesh_face_colors(mesh)
     if colors is not None:
         part.albedo = mean_color(mesh, colors)
         part.face_colors = None if np.ptp(colors, axis=0).max() < 1e-3 else colors.astype(np.float32)
-    mesh = part.mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    part.mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    return part, part.mesh
+
+
+def load_shapenet_model(file: Path, synset: str, model_id: str, class_name: str) -> LibraryModel:
+    """One ShapeNet ``model_normalized.obj`` as a library model: turned from y up to z up, origin at
+    its bottom centre, scaled from ShapeNet's unitless normalisation (unit box diagonal) to the
+    class's typical height. ``params["cad_to_model"]`` is the 4x4 that takes a point of the file
+    (ShapeNet's frame, the one Scan2CAD's alignments use) to the model's frame."""
+    part, mesh = _coloured_part(file)
     mesh.apply_transform(Y_UP_TO_Z_UP)
     lo = mesh.bounds[0].copy()
     bounds = _canonicalize([part], [], "body")
