@@ -51,6 +51,7 @@ def test_one_line_errors():
     assert len(one_line(ValueError("x" * 1000))) == 300
 
 
+@pytest.mark.slow  # a whole benchmark or CLI run
 def test_a_failing_variant_is_listed_and_the_others_results_are_written(tmp_path):
     """The variant whose TSDF sees nothing used to kill the worker: no results.json, no results.md."""
     config = bench_file(tmp_path, [{"name": "good"}, {"name": "empty", "set": [EMPTY]}])
@@ -76,6 +77,7 @@ def test_a_failing_variant_is_listed_and_the_others_results_are_written(tmp_path
     assert record_path(out, "office-s3", "good").stat().st_mtime_ns == good
 
 
+@pytest.mark.slow  # a whole benchmark or CLI run
 def test_a_bench_whose_every_run_failed_is_an_error_after_writing_why(tmp_path):
     config = bench_file(tmp_path, [{"name": "near", "set": [EMPTY]}])
     out = tmp_path / "out"

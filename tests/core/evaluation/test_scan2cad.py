@@ -147,6 +147,7 @@ def test_bad_annotation_files_are_one_line_errors(tmp_path):
         read_scan2cad(path, "s")
 
 
+@pytest.mark.slow  # a whole benchmark or CLI run
 def test_stratamap_bench_scan2cad_on_a_scannet_fixture(scene, tmp_path):
     """A .sens scan tilted off gravity, Scan2CAD's file and the ShapeNet folder, through the bench
     file as shipped: the mapped table is 25 cm from the first annotated table (not aligned) and 15 cm

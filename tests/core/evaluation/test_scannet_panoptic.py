@@ -81,6 +81,7 @@ def test_missing_annotation_files_are_named(tmp_path):
         read_scan_labels(tmp_path, fx.SCAN_ID)
 
 
+@pytest.mark.slow  # a whole benchmark or CLI run
 def test_stratamap_bench_scannet_panoptic_on_exported_frames(scan, tmp_path):
     """Exported frames with the annotation files beside them, tilted off gravity: the mapped floor,
     walls and table match the annotated ones."""

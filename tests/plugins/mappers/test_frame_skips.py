@@ -103,6 +103,7 @@ def test_frames_of_another_size_are_skipped_and_a_sequence_of_them_says_why(labe
         run_stages([TSDFMapper(voxel_size=0.05)], with_frames(labelled, unposed))
 
 
+@pytest.mark.slow  # a whole benchmark or CLI run
 def test_the_cli_maps_around_an_empty_frame_and_fails_in_one_line_when_all_are(tmp_path):
     """configs/demo.yaml's mapping on a short synthetic walk: depth_max 0.11 (the schema accepts it)
     leaves no frame, which is exit 2 with one line and no output folder."""
