@@ -28,6 +28,7 @@ import re
 import resource
 import shutil
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
 
@@ -785,37 +786,39 @@ def failure_line(failure: dict[str, Any]) -> str:
     return f"{failure['scene']} / {failure['variant']} failed{where}: {failure['error']}"
 
 
-def collect_failures(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
-    """The failures of the runs that have no record, in the order of the records."""
-    failures = []
+def _runs(scenes: list[dict[str, Any]], spec: BenchSpec) -> Iterator[tuple[str, str]]:
+    """(scene, variant) of every run the benchmark makes, in the order of the records."""
     for scene in scenes:
         for v in spec.variants:
-            if scene.get("variants") is not None and v.name not in scene["variants"]:
-                continue
-            if record_path(out, scene["name"], v.name).is_file():
-                continue
-            p = failure_path(out, scene["name"], v.name)
-            if p.is_file():
-                try:
-                    failures.append(json.loads(p.read_text()))
-                except json.JSONDecodeError:  # only possible if written by hand: atomic writes never leave halves
-                    p.unlink()
-    return failures
+            if scene.get("variants") is None or v.name in scene["variants"]:
+                yield scene["name"], v.name
+
+
+def _read_kept(path: Path) -> dict[str, Any] | None:
+    """A record or failure file; None where there is none (or a hand-made half, which is removed:
+    atomic writes never leave halves)."""
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        path.unlink()
+        return None
+
+
+def collect_failures(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
+    """The failures of the runs that have no record, in the order of the records."""
+    kept = (
+        _read_kept(failure_path(out, scene, variant))
+        for scene, variant in _runs(scenes, spec)
+        if not record_path(out, scene, variant).is_file()
+    )
+    return [f for f in kept if f is not None]
 
 
 def collect_records(out: Path, scenes: list[dict[str, Any]], spec: BenchSpec) -> list[dict[str, Any]]:
-    records = []
-    for scene in scenes:
-        for v in spec.variants:
-            if scene.get("variants") is not None and v.name not in scene["variants"]:
-                continue
-            p = record_path(out, scene["name"], v.name)
-            if p.is_file():
-                try:
-                    records.append(json.loads(p.read_text()))
-                except json.JSONDecodeError:  # only possible if written by hand: atomic writes never leave halves
-                    p.unlink()
-    return records
+    kept = (_read_kept(record_path(out, scene, variant)) for scene, variant in _runs(scenes, spec))
+    return [r for r in kept if r is not None]
 
 
 def versions() -> dict[str, str]:

@@ -67,8 +67,9 @@ def largest_share(instances: Any, semantics: Any, n_points: int) -> tuple[float,
     if not n_points or instances is None or not len(instances):
         return 0.0, None
     if semantics is not None and len(semantics) == n_points:
-        ids = np.asarray(semantics.instance_ids)
-        counts = {int(i.id): int(np.count_nonzero(ids == i.id)) for i in instances}
+        ids, n = np.unique(np.asarray(semantics.instance_ids), return_counts=True)
+        of_id = dict(zip(ids.tolist(), n.tolist(), strict=True))
+        counts = {int(i.id): of_id.get(int(i.id), 0) for i in instances}
     else:
         counts = {int(i.id): len(i.points) for i in instances}
     best = max(counts, key=lambda k: counts[k])

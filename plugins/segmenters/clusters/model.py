@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
@@ -32,8 +33,8 @@ class NamingModel:
 
     def __init__(self, sidecar: Path) -> None:
         try:
-            side = json.loads(Path(sidecar).read_text())
-        except (OSError, ValueError) as exc:
+            side = json.loads(read_data_text(sidecar, "naming-model sidecar"))
+        except ValueError as exc:
             raise DataError(f"{sidecar}: not a readable naming-model sidecar (JSON) ({exc})") from exc
         if not isinstance(side, dict) or not {"model", "classes", "vote_classes", "features"} <= side.keys():
             raise DataError(f"{sidecar}: a naming-model sidecar needs model, classes, vote_classes and features")
