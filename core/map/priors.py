@@ -37,6 +37,10 @@ class ClassSize:
     #: Largest level surface (m^2) one object holds, where the class has a small one (a chair's seat,
     #: about 0.5 x 0.5 m, an armchair's up to 0.7 x 0.7 m): a desk top in a "chair" is a desk's; None: any.
     max_top_area: float | None = None
+    #: Deepest one object is front to back, for classes whose objects come in any length (ANY_LENGTH):
+    #: a longer one than ``extent`` allows is still one object while it is no deeper than this (a 4 m
+    #: counter run is 0.6-1 m deep); None: its extent bounds it.
+    max_depth: float | None = None
 
     def longest(self, height: float) -> float | None:
         """The longest horizontal side one object of this height may have (None: any)."""
@@ -50,22 +54,24 @@ CLASS_SIZES: dict[str, ClassSize] = {
     # or a bench, and a longer "chair" in a mapper's masks is two (tsdf's size prior splits it).
     "chair": ClassSize((0.2, 0.9), max_length=1.1, max_top_area=0.5),
     # Coffee tables stand 0.35-0.5 m high, far below dining and desk height.
-    "table": ClassSize((0.3, 1.6), min_height=0.35),
-    "desk": ClassSize((0.4, 1.4)),
+    # Dining and conference tables come up to 1.5 m wide, desks (an L-shaped one's arm) to 1 m.
+    "table": ClassSize((0.3, 1.6), min_height=0.35, max_depth=1.5),
+    "desk": ClassSize((0.4, 1.4), max_depth=1.0),
     # One unit: a sideboard, a credenza or a wardrobe reaches 2 m as one object; a longer run of
     # cabinets is several units. Low ones (TV benches, lowboards) come up to 3 m long as one piece.
     "cabinet": ClassSize(
         (0.25, 1.3), max_length=2.0, max_height=2.4, min_height=0.35, min_depth=0.2, low_max_length=3.0
     ),
-    "shelf": ClassSize((0.3, 1.4), max_height=2.4),
+    "shelf": ClassSize((0.3, 1.4), max_height=2.4, max_depth=0.8),
     # Worktops stand 0.85-0.95 m high and reach 0.6 m or more from the wall (base units are 0.56-0.6 m
     # deep): a long low or shallow unit is a sideboard, a cabinet. A map measures a unit's top where it
     # is or a few centimetres higher, so 3 cm under 0.85 m are allowed. The rare lower worktops (for
     # children or wheelchair users, 0.75-0.85 m) are given up: a flat-topped unit that low is far more
     # often a desk, a table, a sideboard or a display cube.
-    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_height=0.82, min_depth=0.55),
-    "sofa": ClassSize((0.5, 1.6)),
-    "bench": ClassSize((0.3, 1.2)),
+    # An island with an overhang is up to 1.3 m deep; each arm of an L-shaped run is a counter of its own.
+    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_height=0.82, min_depth=0.55, max_depth=1.3),
+    "sofa": ClassSize((0.5, 1.6), max_depth=1.2),
+    "bench": ClassSize((0.3, 1.2), max_depth=0.8),
     "fridge": ClassSize((0.4, 1.2)),
     "microwave": ClassSize((0.15, 0.5), max_length=0.7),
     "oven": ClassSize((0.3, 0.8)),

@@ -29,6 +29,7 @@ DEFAULT_PASSES = (
     "assemble_chairs",
     "join_seating",
     "join_enclosed",
+    "split_oversized",
     "name_by_model",
     "rename_by_priors",
     "counters_need_a_kitchen",

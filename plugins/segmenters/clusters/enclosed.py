@@ -25,7 +25,8 @@ def join_enclosed(lab: Labelling) -> None:
     table a chair is pushed under), or at the height of a support surface of the object around it;
     or furniture standing on the floor, whose class its shape fits, within anything but seating (a
     chair under a table or a desk). Sets ``instance_ids`` and ``class_ids``; each join is noted
-    (``enclosed_joined``)."""
+    (``enclosed_joined``); a join that would make an object larger than any class allows is refused
+    and noted (``joins_refused``)."""
     from scipy.spatial import cKDTree
 
     from stratamap.core.geometry.boxes import gravity_aligned_box
@@ -51,7 +52,7 @@ def join_enclosed(lab: Labelling) -> None:
     surfaces = cKDTree(points[on_top]) if len(on_top) else None
     # A seat's surface holds pieces of its chair far more often than things: it spares none.
     seats = [h for h, k in kind.items() if k in SEATING]
-    joined = []
+    joined, refused = [], []
     for iid in sorted(info, key=lambda i: (len(info[i][2]), i)):
         name, shape, sel = info[iid]
         heights = np.zeros(0)
@@ -91,9 +92,13 @@ def join_enclosed(lab: Labelling) -> None:
             merged = np.concatenate([h_sel, sel])
             if kind[holder] != "object" and not fits_class(kind[holder], lab.shape(merged)):
                 continue
+            if lab.too_large(lab.shape(merged)):
+                refused.append({"instance": iid, "into": holder, "why": "larger than any class together"})
+                continue
             lab.relabel(sel, instance=holder, cls=vocab.id(h_name))
             info[holder] = (h_name, info[holder][1], merged)
             holders.pop(iid, None)
             joined.append({"instance": iid, "into": holder, "class": h_name, "was": name})
             break
     lab.note("enclosed_joined", joined)
+    lab.note("joins_refused", refused)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from stratamap.plugins.segmenters.clusters.layout import LAYOUT_NAMES, NONE
-from stratamap.plugins.segmenters.clusters.shapes import Shape, describe_shape, on_a_support, prior_class
+from stratamap.plugins.segmenters.clusters.shapes import SIZE_MARGIN, Shape, describe_shape, on_a_support, prior_class
 
 if TYPE_CHECKING:
     from stratamap.core.map.layers import Semantics
@@ -143,6 +143,30 @@ class Labelling:
             if len(sel) >= 4 and self.vocab.is_thing[cls]:
                 info[iid] = (self.vocab.name(cls), self.shape(sel), sel)
         return info
+
+    def too_large(self, shape: Shape) -> bool:
+        """Whether no thing class of the vocabulary has objects this large by the class size priors
+        (core/map/priors.py, with their SIZE_MARGIN): a class whose objects come in any length
+        (ANY_LENGTH) admits any length no deeper than its ``max_depth`` and no taller than its
+        ``max_height`` (else its plausible heights), another one what reaches no farther from its
+        centroid than its extent. False where no thing class has a size prior."""
+        from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, plausible_heights
+
+        sizes = {
+            name: CLASS_SIZES[name]
+            for name in self.vocab.names
+            if name in CLASS_SIZES and self.vocab.is_thing[self.vocab.id(name)]
+        }
+
+        def admits(name: str) -> bool:
+            size = sizes[name]
+            if name in ANY_LENGTH and size.max_depth is not None:
+                heights = plausible_heights(name)
+                tallest = size.max_height or (heights[1] if heights is not None else np.inf)
+                return shape.depth <= size.max_depth * SIZE_MARGIN and shape.height <= tallest
+            return shape.reach <= size.extent[1] * SIZE_MARGIN
+
+        return bool(sizes) and not any(admits(name) for name in sizes)
 
     @property
     def standing_tolerance(self) -> float:

@@ -39,18 +39,18 @@ def through_openings(
     cell: float,
 ) -> np.ndarray:
     """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
-    saw through an opening of it: the sight line crosses the plane within the wall's width, where the
-    wall has no point (``cell``-sized squares along ``tangent`` and up) but has some higher up in that
-    column (a door's or a window's lintel). A sensor also sees over a cabinet's front or a partition,
-    but nothing of them lies above that crossing, so what lies behind those still counts."""
+    saw through an opening of it: the sight line crosses the plane within the wall's width and below
+    its top (the 95th percentile of its points' heights), where the wall has no point (``cell``-sized
+    squares along ``tangent`` and up): a door or a window, whose lintel the sensor need not have seen
+    (a camera at eye height rarely sees a doorway's top). A sensor also sees over a cabinet's front or
+    a partition, but that crossing lies above its top, so what lies behind those still counts."""
     along = np.floor(wall @ tangent / cell).astype(np.int64)
     up = np.floor(wall[:, 2] / cell).astype(np.int64)
     low = int(up.min()) - 1
     width = int(up.max()) - low + 2
     occupied = np.unique((along - along.min()) * width + (up - low))
-    columns, column = np.unique(along, return_inverse=True)
-    top = np.full(len(columns), low, np.int64)
-    np.maximum.at(top, column, up)
+    columns = np.unique(along)
+    wall_top = np.percentile(up, 95)
     seen = np.zeros(len(beyond), bool)
     far = beyond @ normal - offset
     for view in views:
@@ -62,10 +62,9 @@ def through_openings(
         x = view + share[:, None] * (beyond[crossing] - view)
         a = np.floor(x @ tangent / cell).astype(np.int64)
         z = np.floor(x[:, 2] / cell).astype(np.int64)
-        k = np.clip(np.searchsorted(columns, a), 0, len(columns) - 1)
-        lintel = (columns[k] == a) & (top[k] > z)
+        inside = (a >= columns[0]) & (a <= columns[-1]) & (z < wall_top)
         key = (a - along.min()) * width + (z - low)
         pos = np.clip(np.searchsorted(occupied, key), 0, len(occupied) - 1)
         empty = (occupied[pos] != key) | (z < low) | (z >= low + width)
-        seen[np.flatnonzero(crossing)[lintel & empty]] = True
+        seen[np.flatnonzero(crossing)[inside & empty]] = True
     return seen
