@@ -91,17 +91,21 @@ def _footprint_cut(lab: Labelling, sel: np.ndarray) -> list[np.ndarray]:
     """``sel`` cut by the vertical plane, along either side of its gravity-aligned box, that leaves
     its two pieces' boxes the least empty floor area (an L of two counter runs parts at its inner
     corner); uncut unless that removes at least half of the empty area of its box (a piece that fills
-    its box has no such cut)."""
+    its box has no such cut). Stray points (top-view patches of fewer than STRAY_CELLS cells) neither
+    set the box nor the empty area: one would stretch a piece's box across the room."""
     from stratamap.core.geometry.boxes import gravity_aligned_box
 
-    pts = lab.points[sel]
-    box = gravity_aligned_box(pts, area_slack=0.0)
-    local = (pts - box.center) @ box.pose[:3, :2]
     cell = max(2.0 * lab.voxel, 0.05)
-    grid = np.floor((local - local.min(axis=0)) / cell).astype(np.int64)
-    shape = grid.max(axis=0) + 1
+    pts = lab.points[sel]
+    kept = _not_stray(pts[:, :2], cell)
+    if kept.sum() < 3:
+        return [sel]
+    box = gravity_aligned_box(pts[kept], area_slack=0.0)
+    local = (pts - box.center) @ box.pose[:3, :2]
+    grid = np.floor((local - local[kept].min(axis=0)) / cell).astype(np.int64)
+    shape = grid[kept].max(axis=0) + 1
     occupied = np.zeros(shape, bool)
-    occupied[grid[:, 0], grid[:, 1]] = True
+    occupied[grid[kept, 0], grid[kept, 1]] = True
 
     def empty(block: np.ndarray) -> int:
         rows, cols = np.flatnonzero(block.any(axis=1)), np.flatnonzero(block.any(axis=0))
@@ -124,6 +128,23 @@ def _footprint_cut(lab: Labelling, sel: np.ndarray) -> list[np.ndarray]:
         return [sel]
     side = grid[:, axis] < at
     return [sel[side], sel[~side]]
+
+
+#: A top-view patch of fewer cells than this is a stray (a point or two the mask caught across the room).
+STRAY_CELLS = 3
+
+
+def _not_stray(xy: np.ndarray, cell: float) -> np.ndarray:
+    """Per point, whether its top-view cell lies in a patch (8-connected occupied cells) of at least
+    STRAY_CELLS cells."""
+    from scipy import ndimage
+
+    grid = np.floor((xy - xy.min(axis=0)) / cell).astype(np.int64)
+    occupied = np.zeros(grid.max(axis=0) + 1, bool)
+    occupied[grid[:, 0], grid[:, 1]] = True
+    patches, _ = ndimage.label(occupied, structure=np.ones((3, 3), bool))
+    size = np.bincount(patches.ravel())
+    return size[patches[grid[:, 0], grid[:, 1]]] >= STRAY_CELLS
 
 
 def _name(lab: Labelling, piece: np.ndarray) -> tuple[str, tuple[str, str]]:
