@@ -101,6 +101,91 @@ ON_A_SUPPORT: tuple[str, ...] = ("cup", "bottle", "book", "laptop", "monitor", "
 #: pedestal desk or one with a modesty panel is closed along its length.
 OPEN_BELOW: tuple[str, ...] = ("table",)
 
+#: Appliances that stand in kitchens, not in offices or living rooms.
+KITCHEN_APPLIANCES: tuple[str, ...] = ("fridge", "oven", "sink", "dishwasher")
+
+#: Things the shape rules name when they stand on a support surface, by size.
+ON_SUPPORTS: tuple[str, ...] = ("cup", "bottle", "box")
+
+#: Things of a hand's size among them (a box may be a microwave's size).
+HAND_HELD: tuple[str, ...] = ("cup", "bottle")
+
+#: Things that stand on others besides ON_SUPPORTS: never a piece of a chair.
+STANDS_ON_OTHERS: tuple[str, ...] = ("monitor", "laptop", "book", "microwave")
+
+#: Seating: furniture stands within a table's, a desk's or a unit's box (a chair pushed under it or
+#: close beside it), never within a seat's.
+SEATING: tuple[str, ...] = ("chair", "sofa", "bench")
+
+#: The class of what has lost pieces of one seat (a back, a post) that ``clusters`` puts back together.
+ONE_SEAT = "chair"
+
+#: The class of several seats in a row that came out as one object, or as chairs side by side.
+SEATS_IN_A_ROW = "sofa"
+
+#: The class of a worktop over base units: a kitchen's, which elsewhere is a UNIT.
+WORKTOP = "counter"
+
+#: The class of a storage unit with a body closed at its front (what a WORKTOP outside a kitchen is).
+UNIT = "cabinet"
+
+#: The class of an object holding a support surface that nothing else named (``clusters`` without votes
+#: and without ``recognize``).
+HOLDS_A_TOP = "table"
+
+#: The name of a thing no rule or vote named.
+UNNAMED = "object"
+
+
+@dataclass(frozen=True)
+class ShapeRule:
+    """One rule of naming by shape (``clusters``' ``recognize``): its class, why, and what the
+    object's shape must be (None: either). The first rule in SHAPE_RULES whose conditions an object
+    meets and whose class its size allows (the class size priors) names it."""
+
+    class_name: str
+    why: str
+    #: Its foot on the floor (else raised: on a support, on a wall).
+    on_floor: bool | None = None
+    #: Its foot at a support surface's height.
+    on_support: bool | None = None
+    #: A wall plane close behind it.
+    against_wall: bool | None = None
+    #: Its highest points form a flat top over most of its footprint.
+    flat_top: bool | None = None
+    #: Its body at middle heights spans its length and was not seen through (a front, not legs).
+    solid: bool | None = None
+    #: A seat with a back or arms above it, seen from above.
+    seat: bool | None = None
+    #: Nothing below knee height across the middle of its length.
+    knee_space: bool | None = None
+
+
+#: General rules of indoor objects, in the order they are tried.
+SHAPE_RULES: tuple[ShapeRule, ...] = (
+    *(ShapeRule(name, "on a support, its size", on_floor=False, on_support=True) for name in ON_SUPPORTS),
+    ShapeRule("cabinet", "on a wall, off the floor", on_floor=False, against_wall=True),
+    *(
+        ShapeRule(name, "a seat with a back or arms above it", on_floor=True, seat=True, flat_top=False)
+        for name in ("chair", "sofa")
+    ),
+    ShapeRule(
+        "desk",
+        "flat top over knee space, its body closed above it (drawers, a modesty panel)",
+        on_floor=True,
+        flat_top=True,
+        solid=True,
+        knee_space=True,
+    ),
+    ShapeRule(
+        "counter", "flat top at worktop height, solid body, long and deep", on_floor=True, flat_top=True, solid=True
+    ),
+    ShapeRule("cabinet", "flat top, solid body", on_floor=True, flat_top=True, solid=True),
+    ShapeRule("table", "flat top on legs", on_floor=True, flat_top=True, solid=False),
+    ShapeRule("cabinet", "solid unit against a wall", on_floor=True, against_wall=True, solid=True),
+    ShapeRule("chair", "free-standing, no flat top, a chair's size", on_floor=True, flat_top=False, against_wall=False),
+)
+
 
 #: class -> (low, high) height in metres of the class's objects: what a model of a source without
 #: units is scaled to on load, and how far a matcher may stretch a model to fit an observation.

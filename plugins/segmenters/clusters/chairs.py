@@ -7,9 +7,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from stratamap.core.map.priors import ON_SUPPORTS, ONE_SEAT, STANDS_ON_OTHERS, UNNAMED
 from stratamap.plugins.segmenters.clusters.grid import share_within
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, ON_SUPPORTS, SEAT_HEIGHTS, fits_class
+from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, SEAT_HEIGHTS, fits_class
 
 #: Pieces of one chair lie one over another at most this far apart (m): the part of a swivel chair's
 #: post, or of its legs under the seat, that the map lost.
@@ -23,8 +24,6 @@ OVERLAP = 0.05
 STACK_SHARE = 0.5
 #: Top views of pieces are thinned to about this many points for their hulls.
 HULL_POINTS = 2000
-#: Classes of things that stand on others besides ON_SUPPORTS: never a piece of a chair.
-STANDS_ON_OTHERS = ("monitor", "laptop", "book", "microwave")
 
 
 class _Piece(NamedTuple):
@@ -52,7 +51,7 @@ def assemble_chairs(lab: Labelling) -> None:
     from stratamap.core.map.instances import instance_members
 
     vocab, points, base_z = lab.vocab, lab.points, lab.base_z
-    if not lab.cfg.recognize or "chair" not in vocab:
+    if not lab.cfg.recognize or ONE_SEAT not in vocab:
         return
     stands_on_others = [name for name in (*ON_SUPPORTS, *STANDS_ON_OTHERS) if name in vocab]
     pieces = {}
@@ -67,7 +66,7 @@ def assemble_chairs(lab: Labelling) -> None:
         z = points[sel, 2]
         # On the floor and a whole object of its class by itself (a cabinet, a table): what rests on
         # it stands on it.
-        whole = name != "object" and shape.bottom <= FLOOR_GAP and fits_class(name, shape)
+        whole = name != UNNAMED and shape.bottom <= FLOOR_GAP and fits_class(name, shape)
         xy = points[sel[:: max(1, len(sel) // HULL_POINTS)], :2]  # top views, thinned for the hulls
         if len(np.unique(xy, axis=0)) >= 3:
             pieces[iid] = _Piece(sel, float(z.min()), float(z.max()), whole, xy, xy.min(axis=0), xy.max(axis=0))
@@ -101,7 +100,7 @@ def assemble_chairs(lab: Labelling) -> None:
         shape = lab.shape(sel)
         # Standing on the floor, of a chair's size, its top no flat surface over its footprint (a
         # back rises over one side of the seat). Against a wall or not: chairs stand there too.
-        if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class("chair", shape):
+        if shape.bottom > FLOOR_GAP or shape.flat_top or not fits_class(ONE_SEAT, shape):
             continue
         # A whole object on the floor carries what rests on it (a lamp on a cabinet), unless it is a
         # seat and the rest its back: its top at sitting height, the rest reaching below that top
@@ -114,7 +113,7 @@ def assemble_chairs(lab: Labelling) -> None:
             if not (shape.seat and back and seat_top - base_z <= SEAT_HEIGHTS[1]):
                 continue
         keep = max(group, key=lambda i: (len(pieces[i].points), -i))
-        lab.relabel(sel, instance=keep, cls=vocab.id("chair"))
+        lab.relabel(sel, instance=keep, cls=vocab.id(ONE_SEAT))
         assembled.append({"instance": keep, "pieces": sorted(group)})
         lab.naming[keep] = ("shape", f"{len(group)} pieces stacked into a seat with a back, of a chair's size")
     lab.note("chairs_assembled", assembled)

@@ -7,10 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 from stratamap.core.map.instances import members_of
+from stratamap.core.map.priors import HAND_HELD, UNNAMED
 from stratamap.plugins.segmenters.clusters.instances import ruled_reason, voted_reason
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.layout import LAYOUT_NAMES
-from stratamap.plugins.segmenters.clusters.shapes import HAND_HELD, fits_class, hand_held, on_a_support, thin
+from stratamap.plugins.segmenters.clusters.shapes import fits_class, hand_held, on_a_support, thin
 
 #: A small object standing on a support inside a larger object's mask is an object of its own when it
 #: holds less than this share of that mask's points (a cup in the table's box).
@@ -114,7 +115,7 @@ def complete_instances(
         if carried_by is not None:
             counts.pop(carried_by, None)
         voted = [vocab.name(c) for c in sorted(counts, key=lambda c: -counts[c]) if counts[c] >= VOTE_SHARE * len(rest)]
-        prior, rule = lab.prior(shape) if cfg.recognize else ("object", "")
+        prior, rule = lab.prior(shape) if cfg.recognize else (UNNAMED, "")
         name = voted[0] if voted else prior
         if voted:
             why[next_id] = voted_reason(name, counts[vocab.id(name)] / len(rest))

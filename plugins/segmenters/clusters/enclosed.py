@@ -6,16 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from stratamap.core.map.priors import ON_SUPPORTS, SEATING, UNNAMED
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, ON_SUPPORTS, fits_class, on_a_support, thin
+from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, fits_class, on_a_support, thin
 
 #: A piece with this share of its points inside a larger floor-standing object's box is a part of it,
 #: the box grown by this many voxels on every side (the map's noise at its faces).
 ENCLOSED_SHARE = 0.8
 ENCLOSED_MARGIN_VOXELS = 2.5
-#: Seating: furniture stands within a table's, a desk's or a unit's box (a chair pushed under it or
-#: close beside it), never within a seat's.
-SEATING = ("chair", "sofa", "bench")
 
 
 def join_enclosed(lab: Labelling) -> None:
@@ -43,7 +41,7 @@ def join_enclosed(lab: Labelling) -> None:
     for iid, (name, shape, sel) in info.items():
         if shape.bottom <= FLOOR_GAP:
             holders[iid] = gravity_aligned_box(points[sel])
-            fits = name != "object" and fits_class(name, shape)
+            fits = name != UNNAMED and fits_class(name, shape)
             kind[iid] = name if fits else lab.prior(shape, np.zeros(0))[0]
     if not holders:
         return
@@ -90,7 +88,7 @@ def join_enclosed(lab: Labelling) -> None:
                 if on_a_support(base_z + shape.bottom, points[h_sel[held], 2], tolerance):
                     continue
             merged = np.concatenate([h_sel, sel])
-            if kind[holder] != "object" and not fits_class(kind[holder], lab.shape(merged)):
+            if kind[holder] != UNNAMED and not fits_class(kind[holder], lab.shape(merged)):
                 continue
             if lab.too_large(lab.shape(merged)):
                 refused.append({"instance": iid, "into": holder, "why": "larger than any class together"})

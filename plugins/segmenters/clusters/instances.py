@@ -13,11 +13,12 @@ import numpy as np
 
 from stratamap.core.map.instances import members_of
 from stratamap.core.map.layers import Semantics
+from stratamap.core.map.priors import HOLDS_A_TOP
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters.clusters.config import ClustersConfig
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.layout import LAYOUT_NAMES, WALL
-from stratamap.plugins.segmenters.clusters.shapes import NO_RULE_FITS, thin
+from stratamap.plugins.segmenters.clusters.shapes import NO_RULE_FITS, thin, unnamed
 from stratamap.plugins.segmenters.clusters.sightlines import Sightlines
 
 
@@ -143,8 +144,8 @@ def class_of(
     pts: np.ndarray, top_area: float, base_z: float, vocab: Vocabulary, cfg: ClustersConfig
 ) -> tuple[str, str]:
     """The class clusters' own rules give an object without votes (and why)."""
-    if top_area >= cfg.table_min_area and "table" in vocab and vocab.is_thing[vocab.id("table")]:
-        return "table", f"a support surface of {top_area:.2f} m^2 on it (table_min_area {cfg.table_min_area:g})"
+    if top_area >= cfg.table_min_area and HOLDS_A_TOP in vocab and vocab.is_thing[vocab.id(HOLDS_A_TOP)]:
+        return HOLDS_A_TOP, f"a support surface of {top_area:.2f} m^2 on it (table_min_area {cfg.table_min_area:g})"
     extent = float(np.max(pts.max(axis=0) - pts.min(axis=0)))
     top = float(pts[:, 2].max() - base_z)
     for rule in cfg.class_rules:
@@ -153,5 +154,4 @@ def class_of(
                 f"extent {extent:.2f} m in {rule.min_extent:g}-{rule.max_extent:g}, top {top:.2f} m "
                 f"<= {rule.max_height:g} (class_rules)"
             )
-    fallback = "object" if "object" in vocab else next(vocab.name(i) for i in vocab.thing_ids())
-    return fallback, NO_CLASS_RULE_FITS
+    return unnamed(vocab), NO_CLASS_RULE_FITS

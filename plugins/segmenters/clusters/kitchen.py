@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from stratamap.core.map.priors import KITCHEN_APPLIANCES, UNIT, WORKTOP
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import KITCHEN_APPLIANCES, counter_run, fits_class
+from stratamap.plugins.segmenters.clusters.shapes import counter_run, fits_class
 
 
 def counters_need_a_kitchen(lab: Labelling) -> None:
@@ -18,24 +19,24 @@ def counters_need_a_kitchen(lab: Labelling) -> None:
     from stratamap.core.map.instances import instance_members
 
     vocab = lab.vocab
-    if not lab.cfg.recognize or lab.cfg.naming == "model" or "counter" not in vocab or "cabinet" not in vocab:
+    if not lab.cfg.recognize or lab.cfg.naming == "model" or WORKTOP not in vocab or UNIT not in vocab:
         return
     short = []
     for iid, sel in instance_members(lab.instance_ids).items():
         name = vocab.name(int(np.bincount(lab.class_ids[sel]).argmax()))
         if name in KITCHEN_APPLIANCES:
             return
-        if name != "counter":
+        if name != WORKTOP:
             continue
         shape = lab.shape(sel)
         if counter_run(shape) or lab.naming.get(iid, ("labels", ""))[0] != "shape":
             return
-        if fits_class("cabinet", shape):
+        if fits_class(UNIT, shape):
             short.append((iid, sel))
     changes = []
     reason = "a counter's size, but nothing in the map says kitchen (no counter run, no appliance): a unit"
     for iid, sel in short:
-        lab.relabel(sel, cls=vocab.id("cabinet"))
-        changes.append({"instance": iid, "from": "counter", "to": "cabinet", "why": reason})
-        lab.naming[iid] = ("context", f"{reason} (was counter)")
+        lab.relabel(sel, cls=vocab.id(UNIT))
+        changes.append({"instance": iid, "from": WORKTOP, "to": UNIT, "why": reason})
+        lab.naming[iid] = ("context", f"{reason} (was {WORKTOP})")
     lab.note("recognition", changes)

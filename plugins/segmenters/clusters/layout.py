@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core.geometry.points import voxel_downsample
 from stratamap.core.map.instances import members_of
+from stratamap.core.map.vocabulary import LAYOUT_CLASSES
 from stratamap.plugins.segmenters.clusters.grid import (
     AREA_CELL,
     cell_normals,
@@ -53,7 +54,7 @@ from stratamap.plugins.segmenters.clusters.walls import through_openings, wall_d
 
 NONE, FLOOR, WALL, CEILING = 0, 1, 2, 3
 #: Layout label -> class name (the vocabulary's layout classes); ``NONE`` is no layout.
-LAYOUT_NAMES = ("none", "floor", "wall", "ceiling")
+LAYOUT_NAMES = ("none", *LAYOUT_CLASSES)
 
 
 class LayoutParams(BaseModel):

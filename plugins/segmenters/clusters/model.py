@@ -16,6 +16,7 @@ import numpy as np
 from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.lazy import lazy_module
+from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 
@@ -25,7 +26,7 @@ MODELS = Path(__file__).resolve().parent / "models"
 #: The shipped model's sidecar; the ONNX file it names lies beside it.
 SHIPPED = MODELS / "naming.json"
 #: The catch-all class an instance keeps below the threshold.
-CATCH_ALL = "object"
+CATCH_ALL = UNNAMED
 
 
 class NamingModel:

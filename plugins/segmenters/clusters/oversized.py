@@ -24,7 +24,7 @@ from stratamap.plugins.segmenters.clusters.completion import VOTE_SHARE
 from stratamap.plugins.segmenters.clusters.instances import ruled_reason, voted_reason
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.layout import NONE
-from stratamap.plugins.segmenters.clusters.shapes import fits_class
+from stratamap.plugins.segmenters.clusters.shapes import fits_class, unnamed
 
 
 def split_oversized(lab: Labelling) -> None:
@@ -164,8 +164,7 @@ def _name(lab: Labelling, piece: np.ndarray) -> tuple[str, tuple[str, str]]:
     if lab.cfg.recognize:
         name, rule = lab.prior(lab.shape(piece))
         return name, ruled_reason("shape", rule)
-    fallback = "object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])
-    return fallback, ("unnamed", "a piece of an oversized instance, and recognize is off")
+    return unnamed(vocab), ("unnamed", "a piece of an oversized instance, and recognize is off")
 
 
 def _pieces(lab: Labelling, sel: np.ndarray, group: np.ndarray) -> list[np.ndarray]:

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from stratamap.core.map.priors import ON_SUPPORTS, UNNAMED
 from stratamap.plugins.segmenters.clusters.grid import share_within
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, ON_SUPPORTS, STANDING_GAP, fits_class, on_a_support
+from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, STANDING_GAP, fits_class, on_a_support
 
 #: A piece whose top lies this far (m) below an anchor's lowest point is apart from it.
 BELOW_ANCHOR = 0.15
@@ -42,8 +43,8 @@ def join_parts(lab: Labelling) -> None:
     # priors' (a counter a detector without a 'counter' label framed as a "box").
     anchor_class, standing_class = {}, {}
     for i, (name, shape, _, alone) in info.items():
-        settled = name if name != "object" and fits_class(name, shape) else alone
-        if settled != "object" and fits_class(settled, shape) and shape.bottom <= FLOOR_GAP:
+        settled = name if name != UNNAMED and fits_class(name, shape) else alone
+        if settled != UNNAMED and fits_class(settled, shape) and shape.bottom <= FLOOR_GAP:
             standing_class[i] = settled
         if settled in NOT_STACKED and fits_class(settled, shape):
             anchor_class[i] = settled
@@ -77,7 +78,7 @@ def join_parts(lab: Labelling) -> None:
         # chair or a monitor; a mug voted "table" on the worktop stays a mug).
         lifted = shape.bottom > FLOOR_GAP and not supported
         if (iid in anchor_class and not lifted) or (
-            name != "object" and fits_class(name, shape) and not floating and not lifted
+            name != UNNAMED and fits_class(name, shape) and not floating and not lifted
         ):
             continue
         z = points[sel, 2]
@@ -86,7 +87,7 @@ def join_parts(lab: Labelling) -> None:
         anchors = {**standing_class, **anchor_class} if lifted else anchor_class
         for anchor in sorted(anchors, key=lambda i: -len(info[i][2])):
             a_name, a_sel = anchors[anchor], info[anchor][2]
-            if anchor == iid or (not floating and not lifted and alone != "object" and a_name != name):
+            if anchor == iid or (not floating and not lifted and alone != UNNAMED and a_name != name):
                 continue
             # A small thing standing at a support's height stands on a table's top, whatever the table's
             # mask made of it: not a piece of the table.
@@ -120,7 +121,7 @@ def join_parts(lab: Labelling) -> None:
                 # piece's top and its footprint over it: one object (a swivel chair's seat under its
                 # back, their post unseen).
                 if (
-                    alone == "object"
+                    alone == UNNAMED
                     and anchor in anchor_class
                     and a_name in NOT_STACKED
                     and z.max() - ABOVE_ANCHOR <= az.min() <= z.max() + FLOOR_GAP

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.grid import share_within
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, THIN, fits_class, typical_rather
@@ -68,7 +69,7 @@ def rename_by_priors(lab: Labelling) -> None:
             > most_top
         )
         if (
-            name != "object"
+            name != UNNAMED
             and fits_class(name, shape)
             and not carried
             and not too_large_top

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stratamap.core.map.priors import ONE_SEAT, SEATS_IN_A_ROW, UNNAMED
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, fits_class
 
@@ -22,16 +23,16 @@ def join_seating(lab: Labelling) -> None:
     from stratamap.core.map.instances import instance_members
 
     vocab, points = lab.vocab, lab.points
-    if not lab.cfg.recognize or "sofa" not in vocab:
+    if not lab.cfg.recognize or SEATS_IN_A_ROW not in vocab:
         return
     seats = {}
     for iid, sel in instance_members(lab.instance_ids).items():
         name = vocab.name(int(np.bincount(lab.class_ids[sel]).argmax()))
-        if len(sel) < 4 or name not in ("chair", "sofa", "object"):
+        if len(sel) < 4 or name not in (ONE_SEAT, SEATS_IN_A_ROW, UNNAMED):
             continue
         shape = lab.shape(sel)
         # Seating by its votes or, with none, by its shape.
-        if shape.bottom <= FLOOR_GAP and not shape.flat_top and (shape.seat or name != "object"):
+        if shape.bottom <= FLOOR_GAP and not shape.flat_top and (shape.seat or name != UNNAMED):
             seats[iid] = sel
 
     def sofa_pair() -> tuple[int, int] | None:
@@ -45,7 +46,7 @@ def join_seating(lab: Labelling) -> None:
                     continue
                 union = np.concatenate([seats[first], seats[second]])
                 shape = lab.shape(union)
-                is_sofa = fits_class("sofa", shape) and not fits_class("chair", shape)
+                is_sofa = fits_class(SEATS_IN_A_ROW, shape) and not fits_class(ONE_SEAT, shape)
                 if shape.seat and not shape.flat_top and is_sofa:
                     return first, second
         return None
@@ -54,7 +55,7 @@ def join_seating(lab: Labelling) -> None:
     while (pair := sofa_pair()) is not None:
         first, second = pair
         union = np.concatenate([seats[first], seats.pop(second)])
-        lab.relabel(union, instance=first, cls=vocab.id("sofa"))
+        lab.relabel(union, instance=first, cls=vocab.id(SEATS_IN_A_ROW))
         seats[first] = union
         joined.append({"instance": first, "joined": second})
         lab.naming[first] = ("shape", "seating side by side, too long for one chair: a sofa")

@@ -10,6 +10,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from stratamap.core.map.priors import HAND_HELD
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters.clusters.sightlines import Sightlines
 
@@ -66,12 +67,6 @@ SINGLE_UNIT_LENGTH = 1.2
 #: A worktop is one slab: its level covers at least this share of the run's length (two units side by
 #: side that came out as one object show two tops, at two heights).
 RUN_TOP_SPAN = 0.9
-#: Appliances that stand in kitchens, not in offices or living rooms.
-KITCHEN_APPLIANCES = ("fridge", "oven", "sink", "dishwasher")
-#: Things the priors name when they stand on a support surface, by size.
-ON_SUPPORTS = ("cup", "bottle", "box")
-#: Things of a hand's size among them (a box may be a microwave's size).
-HAND_HELD = ("cup", "bottle")
 
 
 def describe_shape(pts: np.ndarray, base_z: float, walls: list[Any], sight: Sightlines | None = None) -> Shape:
@@ -254,7 +249,9 @@ def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05
 def counter_run(shape: Shape) -> bool:
     """Whether an object of this shape is a worktop over two base units or more (longer than
     SINGLE_UNIT_LENGTH, a counter's size): no storage unit of an office or a living room is that."""
-    return shape.length > SINGLE_UNIT_LENGTH and shape.top_span >= RUN_TOP_SPAN and fits_class("counter", shape)
+    from stratamap.core.map.priors import WORKTOP
+
+    return shape.length > SINGLE_UNIT_LENGTH and shape.top_span >= RUN_TOP_SPAN and fits_class(WORKTOP, shape)
 
 
 def on_a_support(foot: float, support_heights: np.ndarray, tolerance: float) -> bool:
@@ -268,49 +265,36 @@ NO_RULE_FITS = "no rule fits"
 
 def prior_class(shape: Shape, vocab: Vocabulary, on_support: bool = True) -> tuple[str, str]:
     """The class an object's shape and support context make most likely (and why), among the
-    vocabulary's thing classes; ``object`` when no rule fits. General rules of indoor objects, each
-    checked against the class size priors (``fits_class``):
+    vocabulary's thing classes: the first of the shape rules (``SHAPE_RULES``, class facts in
+    core/map/priors.py) whose conditions the shape meets and whose class its size allows
+    (``fits_class``); ``on_floor`` is a foot within FLOOR_GAP of the floor, ``on_support`` a foot at a
+    support surface's height (a small piece resting on no support, such as a fragment of a chair, is
+    no cup). ``UNNAMED`` (``object``) when no rule fits."""
+    from stratamap.core.map.priors import SHAPE_RULES
 
-    * on a support surface (not the floor; ``on_support``: its foot at a support's height): a cup, a
-      bottle or a box by size (a small piece resting on no support, such as a fragment of a chair,
-      is none of these); on a wall, off the floor: a (wall) cabinet;
-    * on the floor, seating seen from above (``seat``: a seat with a back or arms above it) without a
-      flat top: a chair of a chair's size, else a sofa;
-    * on the floor with a flat top and a solid body (a front, not legs): a desk over knee space (legs
-      or pedestals at its ends, drawers above), a counter when long, deep and at worktop height, else
-      a cabinet;
-    * on the floor with a flat top on legs: a table;
-    * on the floor against a wall, solid, its top unseen (a tall unit): a cabinet;
-    * on the floor, free-standing, no flat top, of a chair's size: a chair."""
+    facts = {
+        "on_floor": shape.bottom <= FLOOR_GAP,
+        "on_support": on_support,
+        "against_wall": shape.against_wall,
+        "flat_top": shape.flat_top,
+        "solid": shape.solid,
+        "seat": shape.seat,
+        "knee_space": shape.knee_space,
+    }
+    for rule in SHAPE_RULES:
+        name = rule.class_name
+        if any(getattr(rule, fact) not in (None, value) for fact, value in facts.items()):
+            continue
+        if name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape):
+            return name, rule.why
+    return unnamed(vocab), NO_RULE_FITS
 
-    def ok(name: str) -> bool:
-        return name in vocab and vocab.is_thing[vocab.id(name)] and fits_class(name, shape)
 
-    if shape.bottom > FLOOR_GAP:
-        for name in ON_SUPPORTS if on_support else ():
-            if ok(name):
-                return name, "on a support, its size"
-        if shape.against_wall and ok("cabinet"):
-            return "cabinet", "on a wall, off the floor"
-    else:
-        if shape.seat and not shape.flat_top:
-            for name in ("chair", "sofa"):
-                if ok(name):
-                    return name, "a seat with a back or arms above it"
-        if shape.flat_top and shape.solid and shape.knee_space and ok("desk"):
-            return "desk", "flat top over knee space, its body closed above it (drawers, a modesty panel)"
-        if shape.flat_top and shape.solid:
-            if ok("counter"):
-                return "counter", "flat top at worktop height, solid body, long and deep"
-            if ok("cabinet"):
-                return "cabinet", "flat top, solid body"
-        if shape.flat_top and not shape.solid and ok("table"):
-            return "table", "flat top on legs"
-        if shape.against_wall and shape.solid and ok("cabinet"):
-            return "cabinet", "solid unit against a wall"
-        if not shape.flat_top and not shape.against_wall and ok("chair"):
-            return "chair", "free-standing, no flat top, a chair's size"
-    return ("object" if "object" in vocab else vocab.name(vocab.thing_ids()[0])), NO_RULE_FITS
+def unnamed(vocab: Vocabulary) -> str:
+    """The class of a thing nothing named: ``UNNAMED`` where the vocabulary has it, else its first thing."""
+    from stratamap.core.map.priors import UNNAMED
+
+    return UNNAMED if UNNAMED in vocab else vocab.name(vocab.thing_ids()[0])
 
 
 def thin(pts: np.ndarray) -> bool:

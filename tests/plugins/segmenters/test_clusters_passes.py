@@ -87,3 +87,28 @@ def test_no_module_of_the_package_is_over_400_lines():
     folder = REPO / "plugins" / "segmenters" / "clusters"
     lengths = {p.name: len(p.read_text().splitlines()) for p in folder.glob("*.py")}
     assert len(lengths) > 10 and max(lengths.values()) <= 400, lengths
+
+
+def test_no_class_name_in_the_package_code():
+    """Class facts are data (core/map/priors.py, the vocabulary): no string in the package's code, its
+    docstrings aside, names a class of the default vocabulary."""
+    import ast
+
+    names = set(VOCAB.names)
+    found = []
+    for path in sorted((REPO / "plugins" / "segmenters" / "clusters").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        docstrings = {
+            id(node.body[0].value)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Module | ast.FunctionDef | ast.ClassDef)
+            and node.body
+            and isinstance(node.body[0], ast.Expr)
+            and isinstance(node.body[0].value, ast.Constant)
+        }
+        found += [
+            f"{path.name}:{node.lineno} {node.value!r}"
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and node.value in names and id(node) not in docstrings
+        ]
+    assert len(names) > 10 and not found, found
