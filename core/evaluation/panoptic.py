@@ -35,15 +35,20 @@ VOID = -1
 
 
 def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -> dict[str, Any]:
-    """2D segmentation quality over every ``stride``-th frame: mIoU over classes present (None when none is), and PQ
-    (things, stuff) with all sampled frames pooled as one image (instance ids kept apart per frame).
+    """2D segmentation quality over every ``stride``-th frame the segmenter labelled (``frames``: how
+    many): mIoU over classes present (None when none is), and PQ (things, stuff) with all sampled
+    frames pooled as one image (instance ids kept apart per frame).
     Pixels the ground truth leaves unknown (class 0) are not counted. The pooled image is never built:
     its segment sizes and overlaps are sums over frames, so memory does not grow with the frames."""
     n = len(vocab.names)
     inter, union = np.zeros(n), np.zeros(n)
     counts = SegmentCounts()
+    scored = 0
     for k in range(0, len(truth), stride):
         p, g = pred[k], truth[k]
+        if not p.labelled:
+            continue  # a frame the segmenter did not label (not a keyframe)
+        scored += 1
         pcls = np.asarray(p.class_ids, np.int64)
         if pcls.shape != g.class_ids.shape:
             raise ValueError(f"frame {k}: predicted labels are {pcls.shape}, the ground truth {g.class_ids.shape}")
@@ -75,7 +80,7 @@ def frame_quality(pred: list, truth: list, vocab: Vocabulary, stride: int = 5) -
         "pq_things": pq["pq_things"],
         "pq_stuff": pq["pq_stuff"],
         "by_class": pq["by_class"],
-        "frames": len(range(0, len(truth), stride)),
+        "frames": scored,
     }
 
 

@@ -193,6 +193,16 @@ class FrameSegmentation:
     instance_ids: np.ndarray  # (H, W) int32, unique per frame; consistent across frames only if the segmenter tracks
     scores: np.ndarray | None = None  # (H, W) float32 confidence, optional
 
+    @classmethod
+    def unlabelled(cls, frame_index: int) -> FrameSegmentation:
+        """A frame the segmenter did not label (not a keyframe): mappers fuse its depth, not its labels."""
+        return cls(frame_index, np.zeros((0, 0), np.uint16), np.zeros((0, 0), np.int32))
+
+    @property
+    def labelled(self) -> bool:
+        """False for a frame the segmenter left unlabelled (:meth:`unlabelled`)."""
+        return bool(np.asarray(self.class_ids).size)
+
 
 @dataclass
 class FrameLabels:

@@ -63,6 +63,8 @@ class SemanticTSDFMapper(Mapper[SemanticTSDFConfig]):
                 continue
             integrated += 1
             seg = labels.frames[frame.index]
+            if not seg.labelled:
+                continue
             pts, pix = intr.backproject(
                 np.where(depth <= cfg.depth_max, depth, 0), stride=label_stride(cfg.label_stride, intr.width)
             )

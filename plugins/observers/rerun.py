@@ -204,7 +204,7 @@ class RerunObserver(Observer[RerunConfig]):
     def _log_segmentation(self, labels: Any) -> None:
         rr = self._rr
         for seg in labels.frames:
-            if self._frame_indices and int(seg.frame_index) not in self._frame_indices:
+            if not seg.labelled or (self._frame_indices and int(seg.frame_index) not in self._frame_indices):
                 continue
             self._at("frame", seg.frame_index)
             self._stream.log("world/camera/classes", rr.SegmentationImage(np.asarray(seg.class_ids, np.uint16)))

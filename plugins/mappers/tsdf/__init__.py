@@ -160,8 +160,9 @@ class TSDFMapper(Mapper[TSDFConfig]):
                 skips.add(reason or volume.out_of_range, frame.index)
                 continue
             integrated += 1
-            if labels is not None:
-                self._fuse_labels(vbg, state, observations, depth, labels.frames[frame.index], intr, frame.pose, cfg)
+            seg = labels.frames[frame.index] if labels is not None else None
+            if seg is not None and seg.labelled:
+                self._fuse_labels(vbg, state, observations, depth, seg, intr, frame.pose, cfg)
         skips.finish(self, integrated, len(stream.frames), stream.name)
 
         geometry = volume.surface()

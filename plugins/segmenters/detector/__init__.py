@@ -20,11 +20,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.transforms import upright_turns
+from stratamap.core.map.keyframes import KeyframeChooser
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters import _depth
@@ -45,6 +46,22 @@ OPEN_IMAGES_TO_MAP = {
     "Book": "book",
     "Box": "box",
 }
+
+
+class KeyframesConfig(BaseModel):
+    """Label only frames that see enough new surface: the detector and the depth segmentation cost far more a
+    frame than the fusion of its depth."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    new_surface: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="A frame is labelled when at least this share of its depth pixels lies in cells no labelled "
+        "frame saw before it (0: every frame).",
+    )
+    cell: float = Field(default=0.1, gt=0.0, description="Side (m) of the cells surface is counted in.")
 
 
 class DetectorConfig(StageConfig):
@@ -96,6 +113,10 @@ class DetectorConfig(StageConfig):
         ),
     )
     threads: int = Field(default=1, ge=1, description="onnxruntime intra-op threads (1: bit-for-bit repeatable).")
+    keyframes: KeyframesConfig = Field(
+        default_factory=KeyframesConfig,
+        description="Which frames are labelled (core/map/keyframes.py); every frame is still fused into the geometry.",
+    )
 
 
 def detect_tiled(detector: Any, rgb: np.ndarray, score_threshold: float, nms_iou: float, tiles: int) -> Any:
@@ -213,7 +234,13 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         stuff = _depth.stuff_class_ids(vocab)
         out = FrameLabels(segmenter=self.name, frames=PackedFrames(), tracked_instances=False)
         counts: dict[str, int] = {}
+        keyframe = KeyframeChooser(stream.intrinsics, cfg.keyframes.new_surface, cfg.keyframes.cell)
+        labelled = 0
         for frame in self.progress(stream.frames, description="detector"):
+            if not keyframe(np.asarray(frame.depth), np.asarray(frame.pose)):
+                out.frames.append(FrameSegmentation.unlabelled(frame.index))
+                continue
+            labelled += 1
             detections = detect_upright(
                 detector, np.asarray(frame.rgb), upright_turns(frame.pose), cfg.score_threshold, cfg.nms_iou, cfg.tiles
             )
@@ -238,6 +265,9 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
             )
             out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note("model", {"path": str(path), "floor_height": round(float(floor), 4), "detections": counts})
+        self.note(
+            "keyframes", {"labelled": labelled, "frames": len(out.frames), "new_surface": cfg.keyframes.new_surface}
+        )
         return {"frame_labels": out}
 
 
