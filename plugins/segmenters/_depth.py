@@ -15,6 +15,7 @@ stride 2: 320 x 240 cells), then labels are taken back to the frame's resolution
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass
 
 import numpy as np
@@ -430,24 +431,45 @@ def assign_regions(
             near[key] = float(trees[a].query(points[b], k=1)[0].min())
         return near[key]
 
-    members = {int(k): [int(core[k])] for k in np.flatnonzero(core >= 0)}
+    # Nearest first across all regions: a heap of (distance, segment, region), each pair's distance
+    # the least to what the region holds so far, lowered as the region grows (stale entries skipped).
+    # It takes the pairs in the order a scan of every open pair per step would, at a fraction of the
+    # distance queries (the scan took 60 % of the detector's time on a real kitchen).
+    reachable: dict[int, list[int]] = {}
+    for seg in sorted(claims):
+        for k in claims[seg]:
+            if np.linalg.norm(stats.centroid[seg] - stats.centroid[core[k]]) <= regions[k].extent:
+                reachable.setdefault(k, []).append(seg)
     open_segments = set(claims)
-    while open_segments:
-        best = None
-        for seg in open_segments:
-            for k in claims[seg]:
-                if np.linalg.norm(stats.centroid[seg] - stats.centroid[core[k]]) > regions[k].extent:
-                    continue
-                d = min(distance(seg, m) for m in members[k])
-                if d <= gap and (best is None or (d, seg, k) < best):
-                    best = (d, seg, k)
-        if best is None:
-            break
-        _, seg, k = best
-        members[k].append(seg)
+    nearest: dict[tuple[int, int], float] = {}
+    heap: list[tuple[float, int, int]] = []
+
+    low = {seg: points[seg].min(axis=0) for seg in involved}
+    high = {seg: points[seg].max(axis=0) for seg in involved}
+
+    def offer(seg: int, k: int, member: int) -> None:
+        # Boxes farther apart than the gap hold no points within it: no k-d tree query needed.
+        apart = np.maximum(np.maximum(low[seg] - high[member], low[member] - high[seg]), 0.0)
+        if float(apart @ apart) > gap * gap:
+            return
+        d = distance(seg, member)
+        if d <= gap and d < nearest.get((seg, k), np.inf):
+            nearest[seg, k] = d
+            heapq.heappush(heap, (d, seg, k))
+
+    for k in np.flatnonzero(core >= 0):
+        for seg in reachable.get(int(k), []):
+            offer(seg, int(k), int(core[k]))
+    while heap:
+        d, seg, k = heapq.heappop(heap)
+        if seg not in open_segments or nearest[seg, k] != d:
+            continue
         seg_class[seg] = regions[k].class_id
         seg_instance[seg] = k + 1
         open_segments.discard(seg)
+        for other in reachable[k]:
+            if other in open_segments:
+                offer(other, k, seg)
     return seg_class, seg_instance
 
 
