@@ -88,9 +88,10 @@ def join_enclosed(lab: Labelling) -> None:
                 if on_a_support(base_z + shape.bottom, points[h_sel[held], 2], tolerance):
                     continue
             merged = np.concatenate([h_sel, sel])
-            if kind[holder] != UNNAMED and not fits_class(kind[holder], lab.shape(merged)):
+            merged_shape = lab.shape(merged)
+            if kind[holder] != UNNAMED and not fits_class(kind[holder], merged_shape):
                 continue
-            if lab.too_large(lab.shape(merged)):
+            if lab.too_large(merged_shape):
                 refused.append({"instance": iid, "into": holder, "why": "larger than any class together"})
                 continue
             lab.relabel(sel, instance=holder, cls=vocab.id(h_name))

@@ -7,6 +7,7 @@ object's shape cached. A pass changes it only by assigning a field a new array o
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -150,23 +151,29 @@ class Labelling:
         (ANY_LENGTH) admits any length no deeper than its ``max_depth`` and no taller than its
         ``max_height`` (else its plausible heights), another one what reaches no farther from its
         centroid than its extent. False where no thing class has a size prior."""
+        bounds = self._largest_objects
+        return bool(bounds) and not any(
+            shape.reach <= reach and shape.depth <= depth and shape.height <= height for reach, depth, height in bounds
+        )
+
+    @cached_property
+    def _largest_objects(self) -> list[tuple[float, float, float]]:
+        """Per thing class of the vocabulary with a size prior: the farthest reach, the greatest depth
+        and the greatest height one object has (inf: unbounded), for ``too_large``."""
         from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, plausible_heights
 
-        sizes = {
-            name: CLASS_SIZES[name]
-            for name in self.vocab.names
-            if name in CLASS_SIZES and self.vocab.is_thing[self.vocab.id(name)]
-        }
-
-        def admits(name: str) -> bool:
-            size = sizes[name]
+        bounds = []
+        for name in self.vocab.names:
+            size = CLASS_SIZES.get(name)
+            if size is None or not self.vocab.is_thing[self.vocab.id(name)]:
+                continue
             if name in ANY_LENGTH and size.max_depth is not None:
                 heights = plausible_heights(name)
                 tallest = size.max_height or (heights[1] if heights is not None else np.inf)
-                return shape.depth <= size.max_depth * SIZE_MARGIN and shape.height <= tallest
-            return shape.reach <= size.extent[1] * SIZE_MARGIN
-
-        return bool(sizes) and not any(admits(name) for name in sizes)
+                bounds.append((np.inf, size.max_depth * SIZE_MARGIN, tallest))
+            else:
+                bounds.append((size.extent[1] * SIZE_MARGIN, np.inf, np.inf))
+        return bounds
 
     @property
     def standing_tolerance(self) -> float:

@@ -1,17 +1,17 @@
 """Pass ``split_oversized``: no instance is larger than any class of the vocabulary allows.
 
 A thing instance larger than any class of the vocabulary has objects (``Labelling.too_large``: it
-reaches farther than every class's extent and is deeper than every any-length class's ``max_depth``,
-core/map/priors.py) is several objects
-that a mapper's masks or a join took together: on a real kitchen, a table, two counter runs and a
-shelf wall touching through the walls the layout missed. It is split back, never kept silently:
-points the fused map's layout calls floor, wall or ceiling go to that stuff; the rest is cut where
-its footprint parts into rectangles (an L of two counter runs at its inner corner), then, where a
-piece is still too large, into the geometric objects it holds (the clustering's ``obj``), then into
-their segments. Each piece is named as the ``instances`` pass names an object (its fused
-votes where they hold most of it, else the priors with ``recognize``, else ``object``); pieces
-smaller than a scrap join the nearest piece. Each split, and each oversized instance with nothing
-to split by, is noted (``oversized``) with its size and what it became."""
+reaches farther than every class's extent and is deeper or taller than every any-length class
+allows, core/map/priors.py) is several objects that a mapper's masks or a join took together: on a
+real kitchen, a table, two counter runs and a shelf wall touching through the walls the layout
+missed. It is split back, never kept silently: points the fused map's layout calls floor, wall or
+ceiling go to that stuff; the rest is cut where its footprint parts into rectangles (an L of two
+counter runs at its inner corner), then, where a piece is still too large, into the geometric
+objects it holds (the clustering's ``obj``), then into their segments. Each piece is named as the
+``instances`` pass names an object (its fused votes where they hold most of it and its size allows
+that class, else the priors with ``recognize``, else ``object``); pieces smaller than a scrap join
+the nearest piece. Each split, and each oversized instance with nothing to split by, is noted
+(``oversized``) with its size and what it became."""
 
 from __future__ import annotations
 
@@ -43,11 +43,16 @@ def split_oversized(lab: Labelling) -> None:
     for iid, (name, shape, sel) in sorted(lab.thing_shapes().items()):
         if not lab.too_large(shape):
             continue
-        stuff = sel[point_layout[sel] != NONE]
-        rest = sel[point_layout[sel] == NONE]
+        on_layout = point_layout[sel] != NONE
+        stuff, rest = sel[on_layout], sel[~on_layout]
         if len(stuff):
             lab.relabel(stuff, instance=0, cls=lab.stuff_ids[point_layout[stuff]])
-        pieces = _split(lab, rest, levels) if lab.too_large(lab.shape(rest)) else [rest]
+        if not len(rest):
+            pieces = []
+        elif lab.too_large(lab.shape(rest)):
+            pieces = _split(lab, rest, levels)
+        else:
+            pieces = [rest]
         note: dict[str, Any] = {
             "instance": iid,
             "class": name,

@@ -49,7 +49,7 @@ def through_openings(
     low = int(up.min()) - 1
     width = int(up.max()) - low + 2
     occupied = np.unique((along - along.min()) * width + (up - low))
-    columns = np.unique(along)
+    first, last = along.min(), along.max()
     wall_top = np.percentile(up, 95)
     seen = np.zeros(len(beyond), bool)
     far = beyond @ normal - offset
@@ -62,8 +62,8 @@ def through_openings(
         x = view + share[:, None] * (beyond[crossing] - view)
         a = np.floor(x @ tangent / cell).astype(np.int64)
         z = np.floor(x[:, 2] / cell).astype(np.int64)
-        inside = (a >= columns[0]) & (a <= columns[-1]) & (z < wall_top)
-        key = (a - along.min()) * width + (z - low)
+        inside = (a >= first) & (a <= last) & (z < wall_top)
+        key = (a - first) * width + (z - low)
         pos = np.clip(np.searchsorted(occupied, key), 0, len(occupied) - 1)
         empty = (occupied[pos] != key) | (z < low) | (z >= low + width)
         seen[np.flatnonzero(crossing)[inside & empty]] = True
