@@ -8,7 +8,7 @@ level 2 from the fronts found on the true furniture faces. Both CRFs are fitted 
 pseudo-likelihood; held-out kitchens (seeds 0..9) are scored with Table IV's metrics. Seeded and
 deterministic; on 2 CPU cores the default run took 10 minutes (588 s of training data and fitting).
 
-    python scripts/train_plane_crf.py --out plugins/segmenters/plane_crf/models
+    python scripts/train_plane_crf.py --out core/furniture/models
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ def scan_kitchen(seed: int, resolution_deg: float = 0.4):
 
 def training_graphs(seed: int, params):
     """(level-1 graph, level-2 graph) of one kitchen, each (X, E, relations, labels)."""
+    from stratamap.core.furniture import faces
     from stratamap.plugins.segmenters.plane_crf import fronts as fu
 
     _, scan, labels, views = scan_kitchen(seed)
@@ -52,8 +53,8 @@ def training_graphs(seed: int, params):
     E1, rel1 = fu.region_graph(res.points, res.regions)
     fu.label_regions(res, scan.points, None, None, params, level1_override=y1)
     y2 = fu.mode_per_group([f.indices for f in res.fronts], l2_cells)
-    X2 = fu.level2_features(res.fronts, res.floor_z)
-    E2, rel2 = fu.front_graph(res.fronts)
+    X2 = faces.level2_features(res.fronts, res.floor_z)
+    E2, rel2 = faces.front_graph(res.fronts)
     return (X1, E1, rel1, y1), (X2, E2, rel2, y2)
 
 
@@ -85,16 +86,17 @@ def evaluate(seeds: list[int], crf1, crf2, params) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("plugins/segmenters/plane_crf/models"))
+    parser.add_argument("--out", type=Path, default=Path("core/furniture/models"))
     parser.add_argument("--kitchens", type=int, default=40, help="Training kitchens (seeds 100, 101, ...).")
     parser.add_argument("--held-out", type=int, default=8, help="Evaluation kitchens (seeds 0, 1, ...).")
     parser.add_argument("--l2", type=float, default=1.0, help="L2 prior on the node weights.")
     parser.add_argument("--edge-l2", type=float, default=1.0, help="L2 prior on the edge weights.")
     args = parser.parse_args()
 
+    from stratamap.core.furniture import faces
+    from stratamap.core.furniture.crf import CRF
     from stratamap.core.simulation.virtual_scan import LEVEL1, LEVEL2
     from stratamap.plugins.segmenters.plane_crf import fronts as fu
-    from stratamap.plugins.segmenters.plane_crf.crf import CRF
 
     params = fu.FurnitureParams(voxel_size=0.02)
     t0 = time.perf_counter()
@@ -109,7 +111,7 @@ def main() -> None:
             flush=True,
         )
     crf1 = CRF(LEVEL1, fu.level1_feature_count(), len(fu.L1_RELATIONS)).fit(g1, args.l2, args.edge_l2)
-    crf2 = CRF(LEVEL2, fu.level2_feature_count(), len(fu.L2_RELATIONS)).fit(g2, args.l2, args.edge_l2)
+    crf2 = CRF(LEVEL2, faces.level2_feature_count(), len(faces.L2_RELATIONS)).fit(g2, args.l2, args.edge_l2)
     t_train = time.perf_counter() - t0
     scores = evaluate(list(range(args.held_out)), crf1, crf2, params)
     doc = {

@@ -35,6 +35,7 @@ CORE_RANKS = {
     "simulation": 3,
     "library": 3,
     "synthetic": 3,
+    "furniture": 3,
     # the framework: stage protocols carry map layers; the kit and pipeline run stages
     "hookspecs": 4,
     "stages": 4,

@@ -11,7 +11,7 @@ Input: the geometry layer (a laser scan or a mapped cloud, z up). Output:
   appliances), ``joint`` (revolute or prismatic), ``handles`` and ``knobs`` (fitted centres,
   directions and lengths or radii), ``plane_id``.
 
-The CRF weights ship in ``models/plane_crf.json`` (trained on virtual scans of procedural
+The CRF weights ship in ``stratamap/core/furniture/models/plane_crf.json`` (trained on virtual scans of procedural
 kitchens: ``python scripts/train_plane_crf.py``). The algorithms live in
 :mod:`stratamap.plugins.segmenters.plane_crf.fronts` and :mod:`stratamap.plugins.segmenters.plane_crf.planes`.
 """
@@ -28,23 +28,24 @@ from pydantic import Field
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
+from stratamap.core.furniture.faces import SHIPPED_CRF as SHIPPED
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, OrientedBox, Semantics
+from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.simulation.virtual_scan import LEVEL1_CLASS, LEVEL2_CLASS
-
-SHIPPED = Path(__file__).resolve().parent / "models" / "plane_crf.json"
 
 
 class PlaneCRFConfig(StageConfig):
     path_fields = ("model",)
 
     model: str | None = Field(
-        default=None, description="CRF weights (JSON); default: the shipped models/plane_crf.json."
+        default=None, description="CRF weights (JSON); default: the shipped core/furniture/models/plane_crf.json."
     )
     viewpoints: list[tuple[float, float, float]] | None = Field(
         default=None,
         description=(
-            "Scanner positions [x, y, z]; default: the source's (stream metadata), else 1.4 m above the cloud's centre."
+            "Scanner positions [x, y, z]; default: the source's (stream metadata; an RGB-D walk's camera "
+            "positions), else 1.4 m above the cloud's centre."
         ),
     )
     voxel_size: float | None = Field(
@@ -60,7 +61,7 @@ class PlaneCRFConfig(StageConfig):
 
 
 def load_model(path: Path) -> dict[str, Any]:
-    from stratamap.plugins.segmenters.plane_crf.crf import CRF
+    from stratamap.core.furniture.crf import CRF
 
     if not path.is_file():
         raise DataError(f"plane_crf: model file not found: {path} (train one with scripts/train_plane_crf.py)")
@@ -84,12 +85,8 @@ class PlaneCRFSegmenter(Segmenter[PlaneCRFConfig]):
     provides = frozenset({"semantics", "instances"})
 
     def segment(self, data: PipelineData) -> dict[str, Any]:
-        from stratamap.plugins.segmenters.plane_crf.fronts import (
-            FurnitureParams,
-            analyse,
-            level1_feature_count,
-            level2_feature_count,
-        )
+        from stratamap.core.furniture.faces import level2_feature_count
+        from stratamap.plugins.segmenters.plane_crf.fronts import FurnitureParams, analyse, level1_feature_count
 
         cfg = self.config
         geometry = data.map.geometry
@@ -112,6 +109,9 @@ class PlaneCRFSegmenter(Segmenter[PlaneCRFConfig]):
         points = np.asarray(geometry.points, float)
         stream = data.stream
         views = cfg.viewpoints or (stream.metadata.get("viewpoints") if stream is not None else None)
+        if not views and stream is not None and (stream.frames or stream.metadata.get("sensor_positions")):
+            # An RGB-D walk or a scanner file: where its frames were taken, or its stations.
+            views = sensor_viewpoints(stream, points).tolist()
         if not views:
             views = [tuple(points.mean(0)[:2]) + (float(np.percentile(points[:, 2], 5)) + 1.4,)]
             self.warn(

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stratamap.core.furniture.faces import plane_axes, radius_components
 from stratamap.core.geometry.points import cell_keys
 from stratamap.core.lazy import lazy_module
 
@@ -150,20 +151,6 @@ def _largest_components(points: np.ndarray, idx: np.ndarray, radius: float, min_
     return idx[sizes[comp] >= min_points]
 
 
-def radius_components(points: np.ndarray, radius: float) -> np.ndarray:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pairs = spatial.cKDTree(points).query_pairs(radius, output_type="ndarray")
-    n = len(points)
-    graph = (
-        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        if len(pairs)
-        else coo_matrix((n, n))
-    )
-    return connected_components(graph, directed=False)[1]
-
-
 def merge_planes(
     points: np.ndarray, planes: list[Plane], merge_deg: float, merge_offset: float, adjacency: float
 ) -> list[Plane]:
@@ -200,19 +187,6 @@ def merge_planes(
         n, d = _fit_plane(points[idx]) if len(members) > 1 else (planes[members[0]].normal, planes[members[0]].d)
         out.append(Plane(n, d, idx))
     return out
-
-
-def plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two in-plane unit axes: for vertical planes, horizontal then +z; otherwise any pair."""
-    n = normal / np.linalg.norm(normal)
-    up = np.array([0.0, 0.0, 1.0])
-    if abs(n[2]) < 0.9:
-        u = np.cross(up, n)
-        u /= np.linalg.norm(u)
-        return u, np.cross(n, u)
-    u = np.cross(n, [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    return u, np.cross(n, u)
 
 
 def boundary_points(

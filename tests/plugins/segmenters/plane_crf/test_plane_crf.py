@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from stratamap.core.evaluation.classification import kitchen_tables, per_label
+from stratamap.core.furniture import faces
+from stratamap.core.furniture.crf import CRF
+from stratamap.core.furniture.fixtures import Fixture, fit_circle, fit_line
 from stratamap.core.io.urdf import read_urdf
 from stratamap.core.simulation import virtual_scan as ks
 from stratamap.core.synthetic.kitchens import generate_kitchen
 from stratamap.plugins.segmenters.plane_crf import fronts as fu
-from stratamap.plugins.segmenters.plane_crf.crf import CRF
-from stratamap.plugins.segmenters.plane_crf.fixtures import Fixture, fit_circle, fit_line
 from stratamap.plugins.segmenters.plane_crf.planes import boundary_points, multilod_planes, region_grow
 from tests.conftest import REPO
 
@@ -154,19 +155,19 @@ def test_crf_learns_pairwise_agreement_and_bp_is_exact_on_a_chain():
 
 
 def _front(u, z, fixtures, face=None):
-    return fu.FrontCandidate(0, 0, np.arange(10), np.array([1.0, 0, 0]), -0.5, u, z, face or u, fixtures)
+    return faces.FrontCandidate(0, 0, np.arange(10), np.array([1.0, 0, 0]), -0.5, u, z, face or u, fixtures)
 
 
 def test_hinge_opposite_the_handle_and_flaps_hinge_on_top():
     # face normal +x: facing it, +y is to the right
     right_handle = Fixture("handle", np.array([0.52, 0.55, 0.8]), np.array([0, 0, 1.0]), 0.15)
-    assert fu.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [right_handle])) == "left"
+    assert faces.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [right_handle])) == "left"
     left_handle = Fixture("handle", np.array([0.52, 0.05, 0.8]), np.array([0, 0, 1.0]), 0.15)
-    assert fu.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [left_handle])) == "right"
+    assert faces.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [left_handle])) == "right"
     top_centre = Fixture("handle", np.array([0.52, 0.3, 0.85]), np.array([0, 1.0, 0]), 0.3)
-    assert fu.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [top_centre])) == "bottom"  # a dishwasher
-    assert fu.hinge_side(_front((0.0, 1.0), (1.5, 1.9), [])) == "top"  # a flap without handle
-    assert fu.hinge_side(_front((0.4, 0.8), (0.1, 0.9), [], face=(0.0, 0.8))) == "right"  # at the face's right end
+    assert faces.hinge_side(_front((0.0, 0.6), (0.1, 0.9), [top_centre])) == "bottom"  # a dishwasher
+    assert faces.hinge_side(_front((0.0, 1.0), (1.5, 1.9), [])) == "top"  # a flap without handle
+    assert faces.hinge_side(_front((0.4, 0.8), (0.1, 0.9), [], face=(0.0, 0.8))) == "right"  # at the face's right end
 
 
 def test_table_iv_counts_segments_and_fronts():
@@ -220,13 +221,13 @@ def test_plane_crf_on_a_held_out_synthetic_kitchen(tmp_path):
 
 
 def test_shipped_plane_crf_model_is_small_and_documented():
-    path = REPO / "plugins" / "segmenters" / "plane_crf" / "models" / "plane_crf.json"
+    path = REPO / "core" / "furniture" / "models" / "plane_crf.json"
     doc = json.loads(path.read_text())
     assert path.stat().st_size < 200_000
     assert doc["trained_on"].startswith("virtual laser scans") and "held_out" in doc
     assert (
         fu.level1_feature_count() == doc["level1"]["n_features"]
-        and fu.level2_feature_count() == doc["level2"]["n_features"]
+        and faces.level2_feature_count() == doc["level2"]["n_features"]
     )
 
 

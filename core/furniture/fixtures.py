@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stratamap.core.furniture.faces import plane_axes, radius_components
 from stratamap.core.lazy import lazy_module
-from stratamap.plugins.segmenters.plane_crf.planes import plane_axes, radius_components
 
 spatial = lazy_module("scipy.spatial")
 
