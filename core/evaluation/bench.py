@@ -129,6 +129,14 @@ class BenchSpec(BaseModel):
         default=True, description="Measure physical plausibility (overlap volume; settling in MuJoCo when installed)."
     )
     physics_seconds: float = Field(default=2.0, gt=0.0, description="Simulated seconds of settling.")
+    articulation_check: bool = Field(
+        default=False,
+        description=(
+            "Open every door and drawer of the scene in MuJoCo (the MJCF the mjcf exporter writes by default: room "
+            "slabs, free bodies at rest) and look for collisions, then settle it (`physics_seconds`): "
+            "articulation.opens_clean_share, articulation.rest_max_displacement_m."
+        ),
+    )
 
 
 def load_bench(path: str | Path, overrides: list[str] | None = None) -> tuple[BenchSpec, Path]:
@@ -524,6 +532,8 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
                     truth_origin=np.asarray(gt["objects"].origin, dtype=float),
                     truth_resolution=float(gt["objects"].resolution),
                 )
+    if "articulation" in metrics:
+        details["articulation_joints"] = metrics["articulation"].pop("per_joint", [])
     if "panoptic" in metrics:
         details["pq_by_class"] = {c: v["pq"] for c, v in metrics["panoptic"].get("by_class", {}).items()}
     instances = data.map.instances
@@ -546,6 +556,35 @@ def measure(hook: Any, data: Any, spec: BenchSpec, run_dir: Path) -> tuple[dict[
             phys["max_displacement_m"] = None if settled["diverged"] else settled["max_displacement_m"]
             phys["free_bodies"] = settled["free_bodies"]
         metrics["physics"] = phys
+    if spec.articulation_check and instances is not None and len(instances):
+        try:
+            import mujoco  # noqa: F401
+        except ImportError:
+            mujoco = None
+        if mujoco is not None:
+            from stratamap.core.evaluation.articulation import opening_check
+            from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
+            from stratamap.core.simulation.mjcf import write_mjcf
+            from stratamap.core.simulation.rest import rest_offsets
+            from stratamap.core.simulation.structure import room_structure
+
+            # The scene the mjcf exporter writes by default: the room's slabs (a door hinged on the
+            # wrong side swings into the wall) and free bodies placed at rest by its plan (the same
+            # inputs: the plan the exporter made is reused).
+            statics = room_structure(data.map)
+            graph = data.map.contact_graph
+            plan = rest_offsets(instances, graph, DEFAULT_MOVABLE_CLASSES, statics)
+            path = write_mjcf(
+                instances,
+                run_dir / "articulation",
+                free_classes=DEFAULT_MOVABLE_CLASSES,
+                graph=graph,
+                statics=statics,
+                plan=plan,
+            )[0]
+            opening = opening_check(path, settle_seconds=spec.physics_seconds)
+            details["opening_failures"] = opening.pop("failures")
+            metrics.setdefault("articulation", {}).update(opening)
     return json.loads(json.dumps(metrics, default=_plain)), json.loads(json.dumps(details, default=_plain))
 
 

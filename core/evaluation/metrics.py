@@ -47,6 +47,10 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
             from stratamap.core.evaluation.graph import evaluate_graph
 
             out["graph"] = evaluate_graph(m.contact_graph, m.instances, gt.contact_graph, gt.objects)
+    from stratamap.core.evaluation.articulation import evaluate_articulation, has_articulation
+
+    if has_articulation(gt.objects):  # doors and drawers to find: scored even when the map has none
+        out["articulation"] = evaluate_articulation(m.instances, gt.objects)
     if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
         if gt.point_class_ids is not None and data.stream is not None and data.stream.points is not None:
             gt_cls, gt_inst = panoptic.transfer_point_labels(

@@ -85,6 +85,11 @@ def _object(rec: object, n: int, gt_dir: Path, scene_file: Path) -> GroundTruthO
             raise ValueError(f"pose must be a 4x4 matrix of finite numbers, got shape {pose.shape}")
         joints = [Joint.from_dict(j) for j in rec.get("joints", [])]
         params = dict(rec.get("params", {}))
+        # Optional (files written before it existed have none): moving part -> [lo, hi] in the object frame.
+        part_boxes = {
+            str(name): np.asarray(box, float).reshape(2, 3).tolist()
+            for name, box in dict(rec.get("part_boxes") or {}).items()
+        }
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise _malformed(scene_file, f"objects[{n}]", exc) from exc
     mesh = read_mesh(gt_dir / rec["mesh"], f"mesh of ground-truth object {oid}")
@@ -98,6 +103,7 @@ def _object(rec: object, n: int, gt_dir: Path, scene_file: Path) -> GroundTruthO
         parent=rec.get("parent", "floor"),
         joints=joints,
         params=params,
+        part_boxes=part_boxes,
     )
 
 

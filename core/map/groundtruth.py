@@ -28,6 +28,10 @@ class GroundTruthObject:
     parent: int | str = "floor"  # the id of the supporting object, or a layout node name
     joints: list[Joint] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
+    #: The box of each moving part at joint positions 0, in the object frame: a joint's child link
+    #: (its geometry and that of the links below it) -> ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
+    #: Empty where the source does not say (ground truth written before 2026-12, hand labels).
+    part_boxes: dict[str, list[list[float]]] = field(default_factory=dict)
 
     def world_mesh(self) -> trimesh.Trimesh:
         mesh = self.mesh.copy()

@@ -51,7 +51,34 @@ class PlacedObject:
             parent=self.parent,
             joints=list(self.model.joints),
             params=dict(self.model.params),
+            part_boxes=part_boxes(self.model),
         )
+
+
+def part_boxes(model: Model) -> dict[str, list[list[float]]]:
+    """Each joint's child link as a box in the model frame at joint positions 0 (its own parts and
+    those of the links below it, a drawer's handle on a fixed joint included): link name ->
+    ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``; links without geometry below them are left out."""
+    children: dict[str, list[str]] = {}
+    for j in model.joints:
+        children.setdefault(j.parent, []).append(j.child)
+    meshes: dict[str, list] = {}
+    for part in model.parts:
+        meshes.setdefault(part.link, []).append(part.mesh)
+    out: dict[str, list[list[float]]] = {}
+    for link in dict.fromkeys(j.child for j in model.joints):
+        below, stack = {link}, [link]
+        while stack:
+            for child in children.get(stack.pop(), []):
+                if child not in below:
+                    below.add(child)
+                    stack.append(child)
+        bounds = [m.bounds for name in below for m in meshes.get(name, []) if len(m.vertices)]
+        if bounds:
+            lo = np.min([b[0] for b in bounds], axis=0)
+            hi = np.max([b[1] for b in bounds], axis=0)
+            out[link] = [np.round(lo, 9).tolist(), np.round(hi, 9).tolist()]
+    return out
 
 
 @dataclass

@@ -15,7 +15,8 @@
     DIR/gt/instance/<t>.png    16-bit instance ids (0 = stuff)
     DIR/gt/trajectory.txt      the true camera poses again (for trajectory error when groundtruth.txt is withheld)
     DIR/gt/scene.json          spec, room layout, vocabulary, objects (id, class, family, model,
-                               params, pose, parent, joints, mesh)
+                               params, pose, parent, joints, part_boxes: each moving part's box
+                               in the object frame, mesh)
     DIR/gt/meshes/<id>.ply     each object's full mesh in its object frame
     DIR/gt/contact_graph.json  node-link JSON of the support graph
     DIR/gt/occupancy_objects.{yaml,pgm}  obstacles in [z_min, robot_height] (Nav2 map files)
@@ -40,6 +41,7 @@ from stratamap.core.atomic import atomic_directory, check_output_folder, write_j
 from stratamap.core.geometry.transforms import matrix_to_quat_xyzw, yaw_of
 from stratamap.core.io.nav2 import write_map
 from stratamap.core.synthetic.generate import SyntheticWorld
+from stratamap.core.synthetic.scene import part_boxes
 
 DEPTH_SCALE = 5000.0
 
@@ -153,6 +155,7 @@ def _write_ground_truth(world: SyntheticWorld, gt_dir: Path) -> None:
                 "pose": np.round(obj.pose, 12).tolist(),
                 "parent": obj.parent,
                 "joints": [j.to_dict() for j in obj.model.joints],
+                "part_boxes": part_boxes(obj.model),
                 "mesh": f"meshes/{obj.id}.ply",
             }
         )
