@@ -30,6 +30,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "stratamap.plugins.completers.icp_match",
     "stratamap.plugins.completers.plane_box_match",
     "stratamap.plugins.completers.pcn",
+    "stratamap.plugins.completers.fronts",
     "stratamap.plugins.exporters.urdf",
     "stratamap.plugins.exporters.nav2_map",
     "stratamap.plugins.exporters.ply",

@@ -145,6 +145,46 @@ def occupancy_layers(data: Any) -> str | None:
     return png_data_uri(fig)
 
 
+#: How fronts are drawn: colour by label.
+FRONT_COLOURS = {"cupboard": "#4c9be8", "appliance": "#9b6ad6", "drawer": "#f0a030", "panel": "#cccccc"}
+
+
+def fronts_figure(data: Any, most: int = 12) -> str | None:
+    """Each storage object's face as the ``fronts`` completer saw it (``attributes['fronts']``):
+    its fronts by label, the hinge side of every door as a thick edge, handles and knobs; None when
+    no object has fronts."""
+    objects = [inst for inst in data.map.instances or [] if inst.attributes.get("fronts")][:most]
+    if not objects:
+        return None
+    import matplotlib.pyplot as plt
+
+    cols = min(3, len(objects))
+    rows = (len(objects) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    for ax in axes.ravel()[len(objects) :]:
+        ax.axis("off")
+    for ax, inst in zip(axes.ravel(), objects, strict=False):
+        for front in inst.attributes["fronts"]:
+            x0, x1, z0, z1 = front["rect"]
+            colour = FRONT_COLOURS.get(front["label"], "#cccccc")
+            ax.add_patch(plt.Rectangle((x0, z0), x1 - x0, z1 - z0, fc=colour, ec="k", lw=0.8, alpha=0.8))
+            edge = {
+                "left": ([x0, x0], [z0, z1]),
+                "right": ([x1, x1], [z0, z1]),
+                "top": ([x0, x1], [z1, z1]),
+                "bottom": ([x0, x1], [z0, z0]),
+            }.get(front.get("hinge") or "")
+            if edge is not None:
+                ax.plot(*edge, color="#b00020", lw=3)
+            ax.text((x0 + x1) / 2, (z0 + z1) / 2, front["label"], ha="center", va="center", fontsize=7)
+            for fx in front.get("fixtures", []):
+                ax.plot(fx["x"], fx["z"], "ks" if fx["kind"] == "handle" else "ko", ms=4)
+        ax.autoscale()
+        ax.set_aspect("equal")
+        ax.set_title(f"{inst.class_name} {inst.id} (seen from the front; red: hinge side)", fontsize=8)
+    return png_data_uri(fig)
+
+
 def object_rows(data: Any) -> list[dict[str, Any]]:
     """One row per object of the map: what a person checks first."""
     supporters = _supporters(data)
@@ -194,6 +234,7 @@ def render(data: Any, report: dict[str, Any]) -> str:
         f"layers: {html.escape(json_line(report.get('layers', {})))}</p>",
     ]
     parts += [figure(title, image) for title, image in figures]
+    parts.append(figure("Fronts of storage objects", drawn(fronts_figure, data)))
     parts.append("<h2>Objects</h2>" + dict_table(object_rows(data), "objects"))
     parts.append("<h2>Metrics</h2>" + dict_table(_metric_rows(report.get("metrics", {})), "metrics"))
     parts.append("<h2>Stages</h2>" + dict_table(stages, "stages"))

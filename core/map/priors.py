@@ -104,6 +104,14 @@ OPEN_BELOW: tuple[str, ...] = ("table",)
 #: Appliances that stand in kitchens, not in offices or living rooms.
 KITCHEN_APPLIANCES: tuple[str, ...] = ("fridge", "oven", "sink", "dishwasher")
 
+#: Furniture that keeps things behind fronts (doors, drawers, flaps): ``fronts`` looks for its face.
+WITH_FRONTS: tuple[str, ...] = ("cabinet", "counter", "fridge", "oven", "microwave", "dishwasher")
+
+#: The widest one front of each kind opens (m): a wider "door" is two doors or a fixed panel that
+#: no gap or handle split, and is not exported as one joint (kitchen doors come 0.3-0.6 m wide, a
+#: fridge's or a wardrobe's up to 0.9 m; drawers up to 1.2 m).
+FRONT_MAX_WIDTH: dict[str, float] = {"cupboard": 1.0, "appliance": 1.0, "drawer": 1.2}
+
 #: Things the shape rules name when they stand on a support surface, by size.
 ON_SUPPORTS: tuple[str, ...] = ("cup", "bottle", "box")
 

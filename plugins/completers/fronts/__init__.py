@@ -1,0 +1,244 @@
+"""Completer ``fronts``: doors and drawers that open, on any fused map (the kitchen paper's fronts,
+handles and hinge sides; the functional-objects paper's articulated replacement).
+
+For every storage object (``priors.WITH_FRONTS``: cabinets, counters, appliances with doors) it
+finds the front face among the map's points (:mod:`.face`), its height map (:mod:`.relief`), finds
+handles and knobs standing off it, cuts it into fronts at gaps and between handles, labels each
+front door, drawer, appliance door or fixed panel with the kitchen paper's level-2 CRF (refitted on
+RGB-D walks of procedural kitchens: ``models/fronts_crf.json``, ``scripts/train_fronts.py``) and
+gives each door a hinge side opposite its handle.
+The object's completion becomes articulated (:mod:`.body`): a carcass open at the front, every
+door on a revolute joint, every drawer (with a drawer box behind its front) on a prismatic one.
+The URDF, MJCF and SDF exporters write these joints as they are.
+
+Where fronts were found they replace a library model's joints (the observed fronts win where a
+model disagrees); where the face was seen and nothing on it opens, a library model stays rigid
+(``notes.fronts.rigid``); an object whose face was not seen keeps its completion
+(``keep_articulated`` keeps every library model's joints instead).
+Each object's fronts are kept in ``attributes['fronts']`` (label, hinge side, rectangle in the
+object frame, handles and knobs) and summed up under ``notes.fronts``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
+from stratamap.core.documents import read_data_text
+from stratamap.core.errors import DataError
+from stratamap.core.furniture.faces import level2_feature_count
+from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.priors import UNNAMED, WITH_FRONTS
+from stratamap.core.map.sensors import sensor_viewpoints
+
+#: The shipped front classifier (models/README.md).
+SHIPPED = Path(__file__).resolve().parent / "models" / "fronts_crf.json"
+
+
+class FrontsConfig(StageConfig):
+    path_fields = ("model",)
+
+    classes: list[str] | None = Field(
+        default=None,
+        description=(
+            "Classes whose objects may have fronts; default: priors.WITH_FRONTS and priors.UNNAMED (a unit no "
+            "rule or vote named)."
+        ),
+    )
+    model: str | None = Field(
+        default=None,
+        description=(
+            "Front CRF weights (JSON with a 'level2' CRF); default: the shipped models/fronts_crf.json "
+            "(core/furniture/models/plane_crf.json: the laser-trained one of plane_crf)."
+        ),
+    )
+    min_coverage: float = Field(
+        default=0.35, gt=0.0, le=1.0, description="Share of a side the map must cover for it to be a front face."
+    )
+    fixture_standoff: tuple[float, float] = Field(
+        default=(0.012, 0.07), description="Handles and knobs stand this far (m, min and max) off the face."
+    )
+    gap_depth: tuple[float, float] = Field(
+        default=(0.008, 0.06), description="Gaps between fronts lie this far (m, min and max) behind the face."
+    )
+    min_front: float = Field(default=0.06, gt=0.0, description="Narrowest and lowest front kept, metres.")
+    door_opening: float = Field(
+        default=1.6, gt=0.0, le=3.1, description="Upper limit of door and flap joints, radians (1.6: 92 degrees)."
+    )
+    drawer_travel: float = Field(
+        default=0.8, gt=0.0, le=1.0, description="Share of its box's depth a drawer slides out."
+    )
+    max_frames: int = Field(
+        default=40,
+        ge=0,
+        description=(
+            "Depth frames (those that saw a face most squarely and closest) fused into a 5 mm cloud of it, where "
+            "handles and gaps show; 0: the map's points only."
+        ),
+    )
+    max_range: float = Field(default=5.0, gt=0.0, description="Farthest depth (m) used from a frame for a face.")
+    keep_articulated: bool = Field(
+        default=False,
+        description=(
+            "Leave objects whose completion already has joints (a library model's) as they are; by default the "
+            "fronts observed on an object's face replace a library model's joints where any were found."
+        ),
+    )
+
+
+def load_front_crf(path: Path):
+    from stratamap.core.furniture.crf import CRF
+
+    if not path.is_file():
+        raise DataError(f"fronts: model file not found: {path}")
+    try:
+        crf = CRF.from_dict(json.loads(read_data_text(path, "fronts model"))["level2"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"fronts: {path} is not a front CRF model ({exc})") from exc
+    if crf.n_features != level2_feature_count():
+        raise DataError(f"fronts: {path} was trained on other front features; retrain it (scripts/train_plane_crf.py)")
+    return crf
+
+
+def floor_height(data: PipelineData) -> float | None:
+    """The floor's height: the median of the map's floor points, None when the map names none."""
+    m = data.map
+    sem, geo = m.semantics, m.geometry
+    if sem is None or geo is None or len(sem) != len(geo) or "floor" not in sem.vocabulary:
+        return None
+    on_floor = sem.class_ids == sem.vocabulary.id("floor")
+    return float(np.median(np.asarray(geo.points)[on_floor, 2])) if on_floor.sum() >= 50 else None
+
+
+class FrontsCompleter(Completer[FrontsConfig]):
+    """Storage objects as articulated bodies: doors on hinges and drawers on slides, from their faces."""
+
+    name = "fronts"
+    Config = FrontsConfig
+    requires = frozenset({"instances", "geometry"})
+
+    def complete(self, data: PipelineData) -> dict[str, Any]:
+        from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body
+        from stratamap.plugins.completers.fronts.fronts import FaceParams, label_fronts, observe_front
+
+        cfg = self.config
+        crf = load_front_crf(Path(cfg.model).expanduser() if cfg.model else SHIPPED)
+        insts = data.map.instances.copy()  # type: ignore[union-attr]
+        cloud = np.asarray(data.map.geometry.points, float)  # type: ignore[union-attr]
+        views = sensor_viewpoints(data.stream, cloud) if len(cloud) else np.zeros((0, 3))
+        floor_z = floor_height(data)
+        classes = set(cfg.classes if cfg.classes is not None else (*WITH_FRONTS, UNNAMED))
+        params = BodyParams(door_opening=cfg.door_opening, drawer_travel=cfg.drawer_travel)
+        face_params = FaceParams(
+            cfg.min_coverage,
+            tuple(cfg.fixture_standoff),
+            tuple(cfg.gap_depth),
+            cfg.min_front,
+            cfg.max_frames,
+            cfg.max_range,
+        )
+        summary: dict[str, Any] = {
+            "objects": 0,
+            "articulated": 0,
+            "rigid": 0,
+            "joints": {"revolute": 0, "prismatic": 0},
+        }
+        per_object = {}
+        for inst in insts:
+            if inst.class_name not in classes:
+                continue
+            if cfg.keep_articulated and inst.completion is not None and inst.completion.joints:
+                continue
+            summary["objects"] += 1
+            box = inst.box
+            local = (cloud - box.center) @ box.pose[:3, :3]
+            reach = np.asarray(box.size, float)[:2] / 2 + 0.15
+            near = np.flatnonzero(
+                (np.abs(local[:, 0]) <= reach[0])
+                & (np.abs(local[:, 1]) <= reach[1])
+                & (cloud[:, 2] >= box.bottom_z - 0.02)
+                & (cloud[:, 2] <= box.bottom_z + box.size[2] + 0.02)
+            )
+            bottom = box.bottom_z if floor_z is None else floor_z
+            found = observe_front(box, cloud[near], views, data.stream, bottom, face_params)
+            if found is None:
+                per_object[inst.id] = {"class": inst.class_name, "face": None}
+                continue
+            face, _, candidates = found
+            fronts = label_fronts(candidates, bottom, crf)
+            # The object frame: -y out of the face, origin at the bottom centre between the face's
+            # ends and between the face and the object's back.
+            u0, u1 = face.rect[:2]
+            behind = -(np.asarray(inst.points, float) @ face.normal + face.d)
+            behind = behind[behind > 0]
+            depth = float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
+            depth = float(np.clip(depth, 0.15, 1.5))
+            y_axis = -face.normal
+            x_axis = np.cross(y_axis, [0.0, 0.0, 1.0])
+            pose = np.eye(4)
+            pose[:3, :3] = np.stack([x_axis, y_axis, [0.0, 0.0, 1.0]], axis=1)
+            pose[:3, 3] = (u0 + u1) / 2 * face.u_axis - (face.d + depth / 2) * face.normal
+            pose[2, 3] = box.bottom_z
+            size = np.array([u1 - u0, depth, float(box.size[2])])
+            u_center = float(pose[:3, 3] @ face.u_axis)
+            rects = [
+                (
+                    (f.rect[0] - u_center, f.rect[1] - u_center, f.rect[2] - box.bottom_z, f.rect[3] - box.bottom_z),
+                    f.label,
+                    f.hinge,
+                    f.fixtures,
+                )
+                for f in fronts
+            ]
+            completion = articulated_body(size, rects, invert(pose), pose, self.name, face.coverage, params)
+            per_object[inst.id] = {
+                "class": inst.class_name,
+                "coverage": round(face.coverage, 3),
+                "fronts": [f.label for f in fronts],
+                "fixtures": len(face.fixtures),
+            }
+            to_object = invert(pose)
+            inst.attributes["fronts"] = [
+                {
+                    "label": label,
+                    "hinge": hinge,
+                    "rect": [round(float(v), 4) for v in rect],
+                    "handles": sum(x.kind == "handle" for x in fix),
+                    "knobs": sum(x.kind == "knob" for x in fix),
+                    # Where each fixture sits on the face: x along it, z up (object frame).
+                    "fixtures": [
+                        {"kind": x.kind, "x": round(float(q[0]), 4), "z": round(float(q[2]), 4)}
+                        for x in fix
+                        for q in [to_object[:3, :3] @ np.asarray(x.center, float) + to_object[:3, 3]]
+                    ],
+                }
+                for rect, label, hinge, fix in rects
+            ]
+            if completion is None:
+                if inst.completion is not None and inst.completion.joints:
+                    # The face was seen and nothing on it opens: a library model's doors and drawers
+                    # are guesses the observation does not bear out; the model stays, rigid.
+                    inst.completion = replace(inst.completion, parts=[], joints=[], alternatives=[])
+                    summary["rigid"] += 1
+                continue
+            inst.completion = completion
+            summary["articulated"] += 1
+            for j in completion.joints:
+                summary["joints"][j.type] += 1
+        self.note("fronts", {**summary, "per_object": per_object})
+        return {"instances": insts}
+
+    @classmethod
+    def example_params(cls) -> dict:
+        return {}
+
+
+@hookimpl
+def stratamap_register_completers():
+    return [FrontsCompleter]

@@ -1,0 +1,162 @@
+"""The `fronts` completer: faces, fixtures and gaps on height maps, articulated bodies, and doors and
+drawers that open in MuJoCo on a rendered walk past storage furniture."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stratamap.core.furniture.fixtures import Fixture
+from stratamap.core.map.layers import OrientedBox
+from stratamap.plugins.completers.fronts.body import articulated_body
+from stratamap.plugins.completers.fronts.face import Face, find_faces
+from stratamap.plugins.completers.fronts.fronts import candidate_fronts, contrast_handles, fixtures_of
+from stratamap.plugins.completers.fronts.relief import height_map
+
+
+def _face_points(relief, cell=0.01):
+    """A face in the plane x = 1 (normal +x, so u runs along +y): one point per cell at the
+    given height out of it, with a little noise."""
+    rng = np.random.default_rng(0)
+    nz, nu = relief.shape
+    zz, uu = np.mgrid[0:nz, 0:nu]
+    u, z = (uu.ravel() + 0.5) * cell, (zz.ravel() + 0.5) * cell + 0.1
+    h = relief.ravel() + rng.normal(0.0, 0.001, u.size)
+    return np.stack([1.0 + h, u, z], axis=1)
+
+
+def _face(width, height):
+    return Face(np.array([1.0, 0.0, 0.0]), -1.0, (0.0, width, 0.1, 0.1 + height), 1.0, 0.0, 0, 1.0)
+
+
+def test_a_handle_and_a_gap_on_a_height_map_make_two_fronts():
+    relief = np.zeros((60, 100))  # 1.0 m wide, 0.6 m high, 1 cm cells
+    relief[40, 10:35] = 0.03  # a horizontal bar handle on the left front
+    relief[29:32, 70:73] = 0.025  # a knob 3 cm across on the right front
+    relief[:, 50] = -0.02  # the gap between the two fronts
+    face = _face(1.0, 0.6)
+    hm = height_map(_face_points(relief), face, 0.01)
+    fixtures = fixtures_of(hm, face, (0.012, 0.07))
+    kinds = sorted(f.kind for f in fixtures)
+    assert kinds == ["handle", "knob"]
+    handle = next(f for f in fixtures if f.kind == "handle")
+    assert abs(handle.direction[2]) < 0.2 and 0.2 < handle.length < 0.3  # horizontal, 25 cm
+    fronts = candidate_fronts(face, hm, floor_z=0.0, standoff=(0.012, 0.07), gap_depth=(0.008, 0.06), min_front=0.06)
+    assert len(fronts) == 2
+    cut = sorted(f.u_range for f in fronts)[0][1]
+    assert abs(cut - 0.5) < 0.03
+
+
+def test_a_flush_handle_is_found_in_the_colour_images():
+    relief = np.zeros((60, 100))
+    points = _face_points(relief)
+    shade = np.full(len(points), 0.6)
+    u, z = points[:, 1], points[:, 2]
+    shade[(np.abs(z - 0.5) < 0.012) & (u > 0.3) & (u < 0.6)] = 0.1  # a dark bar, flush with the face
+    face = _face(1.0, 0.6)
+    hm = height_map(np.column_stack([points, shade]), face, 0.01)
+    assert fixtures_of(hm, face, (0.012, 0.07)) == []  # the depth shows nothing
+    handles = contrast_handles(hm, face, [])
+    assert len(handles) == 1 and abs(handles[0].direction[2]) < 0.2 and 0.25 < handles[0].length < 0.35
+    # Without colour, no contrast handle; with one already found by depth there, no second one.
+    assert contrast_handles(height_map(points, face, 0.01), face, []) == []
+    assert contrast_handles(hm, face, handles) == []
+
+
+def test_noise_alone_makes_no_fixture():
+    rng = np.random.default_rng(1)
+    relief = rng.normal(0.0, 0.006, (60, 100))
+    face = _face(1.0, 0.6)
+    hm = height_map(_face_points(relief), face, 0.01)
+    assert fixtures_of(hm, face, (0.012, 0.07)) == []
+
+
+def test_the_face_is_a_side_the_sensor_stood_in_front_of():
+    rng = np.random.default_rng(2)
+    box = OrientedBox(np.array([0.0, 0.0, 0.4]), 0.0, np.array([1.0, 0.6, 0.8]))
+    # Points on the -y side (the front) and the +x side; the sensor stands in front of -y only.
+    front = np.stack([rng.uniform(-0.5, 0.5, 4000), np.full(4000, -0.3), rng.uniform(0.0, 0.8, 4000)], 1)
+    side = np.stack([np.full(3000, 0.5), rng.uniform(-0.3, 0.3, 3000), rng.uniform(0.0, 0.8, 3000)], 1)
+    faces = find_faces(box, np.vstack([front, side]), np.array([[0.0, -2.0, 1.2]]), 0.35, floor_z=-1.0)
+    assert len(faces) == 1
+    assert np.allclose(faces[0][0].normal, [0.0, -1.0, 0.0], atol=0.02)
+
+
+def test_an_articulated_body_opens_its_doors_about_the_edge_opposite_the_handle():
+    size = np.array([1.0, 0.6, 0.8])
+    fixture = Fixture("handle", np.array([0.25, -0.33, 0.64]), np.array([1.0, 0.0, 0.0]), 0.2)
+    fronts = [
+        ((-0.5, 0.0, 0.05, 0.78), "cupboard", "left", []),
+        ((0.0, 0.5, 0.5, 0.78), "drawer", None, [fixture]),
+        ((0.0, 0.5, 0.05, 0.5), "panel", None, []),
+    ]
+    completion = articulated_body(size, fronts, np.eye(4), np.eye(4), "fronts", 1.0)
+    assert [p.name for p in completion.parts][0] == "body" and len(completion.parts) == 3
+    door, drawer = completion.joints
+    assert door.type == "revolute" and np.allclose(door.axis, [0, 0, -1]) and door.upper >= np.pi / 2
+    assert np.allclose(door.origin[:3, 3][:2], [-0.5 + 0.0015, -0.3])  # the left edge, on the face
+    assert drawer.type == "prismatic" and np.allclose(drawer.axis, [0, -1, 0])
+    assert 0.2 < drawer.upper < 0.6  # most of its box's depth
+    lo, hi = completion.mesh.bounds
+    assert np.all(lo >= [-0.5 - 1e-6, -0.3 - 0.031, -1e-6]) and np.all(hi <= [0.5 + 1e-6, 0.3 + 1e-6, 0.8 + 1e-6])
+    # The drawer's box fits inside the carcass: it neither pokes through the back nor the sides.
+    part = next(p for p in completion.parts if p.name.startswith("front_1"))
+    vertices = np.asarray(part.mesh.vertices) + drawer.origin[:3, 3]
+    inside = vertices[vertices[:, 1] > -0.3 + 0.019 + 1e-6]
+    assert len(inside) and inside[:, 1].max() < 0.3 - 0.018
+    assert inside[:, 0].min() > -0.5 + 0.018 and inside[:, 0].max() < 0.5 - 0.018
+
+
+def test_no_moving_front_no_articulated_body():
+    fronts = [((-0.5, 0.5, 0.05, 0.78), "panel", None, [])]
+    assert articulated_body(np.array([1.0, 0.6, 0.8]), fronts, np.eye(4), np.eye(4), "fronts", 1.0) is None
+
+
+@pytest.fixture(scope="module")
+def kitchen_run(tmp_path_factory):
+    """A rendered walk through a procedural kitchen, mapped, its storage furniture given fronts,
+    exported to MJCF."""
+    from stratamap.core.pipeline import run_stages
+    from stratamap.core.stages import PipelineData
+    from stratamap.core.synthetic import SceneSpec, SyntheticWorld
+    from stratamap.plugins.completers.fronts import FrontsCompleter
+    from stratamap.plugins.exporters.mjcf import MJCFExporter
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.segmenters.oracle import OracleSegmenter
+
+    spec = SceneSpec.model_validate(
+        {
+            "type": "kitchen",
+            "seed": 3,
+            "camera": {"width": 320, "height": 240},
+            "trajectory": {"type": "walk", "frames": 40, "height": 1.3, "look_height": 0.6},
+        }
+    )
+    world = SyntheticWorld(spec)
+    data = PipelineData(stream=world.stream(), ground_truth=world.ground_truth())
+    data = run_stages([OracleSegmenter(), TSDFMapper(voxel_size=0.02), FrontsCompleter()], data)
+    out = tmp_path_factory.mktemp("fronts")
+    MJCFExporter().run(data, out)
+    return data, out / "scene.xml"
+
+
+@pytest.mark.slow
+def test_doors_and_drawers_of_a_rendered_kitchen_are_found_and_open(kitchen_run):
+    from stratamap.core.evaluation.articulation import evaluate_articulation, opening_check
+
+    data, scene = kitchen_run
+    joints = [j for inst in data.map.instances if inst.completion is not None for j in inst.completion.joints]
+    fronted = [inst for inst in data.map.instances if inst.completion and inst.completion.completer == "fronts"]
+    assert fronted and {j.type for inst in fronted for j in inst.completion.joints} <= {"revolute", "prismatic"}
+    assert len(joints) >= 3
+    scores = evaluate_articulation(data.map.instances, data.ground_truth.objects)
+    assert scores["matched_joints"] >= 2
+    opened = opening_check(scene)
+    assert opened["joints_checked"] >= 3 and opened["opens_clean_share"] >= 0.9
+    note = data.notes["fronts"]["fronts"]
+    assert note["articulated"] == len(fronted)
+    # report.html draws every storage object's face with its fronts and hinge sides.
+    from stratamap.core.evaluation.html_report import fronts_figure
+
+    assert all(inst.attributes.get("fronts") for inst in fronted)
+    assert fronts_figure(data).startswith("data:image/png")
