@@ -125,6 +125,10 @@ STANDS_ON_OTHERS: tuple[str, ...] = ("monitor", "laptop", "book", "microwave")
 #: close beside it), never within a seat's.
 SEATING: tuple[str, ...] = ("chair", "sofa", "bench")
 
+#: Classes whose objects have no doors or drawers: ``fronts`` does not look at them (a chair's back
+#: is a flat panel, and a bar across it looks like a handle).
+WITHOUT_FRONTS: tuple[str, ...] = SEATING
+
 #: The class of what has lost pieces of one seat (a back, a post) that ``clusters`` puts back together.
 ONE_SEAT = "chair"
 

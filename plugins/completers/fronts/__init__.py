@@ -1,13 +1,13 @@
 """Completer ``fronts``: doors and drawers that open, on any fused map (the kitchen paper's fronts,
 handles and hinge sides; the functional-objects paper's articulated replacement).
 
-For every storage object (``priors.WITH_FRONTS``: cabinets, counters, appliances with doors) it
-finds the front face among the map's points (:mod:`.face`), its height map (:mod:`.relief`), finds
-handles and knobs standing off it, cuts it into fronts at gaps and between handles, labels each
-front door, drawer, appliance door or fixed panel with the kitchen paper's level-2 CRF (refitted on
-RGB-D walks of procedural kitchens: ``models/fronts_crf.json``, ``scripts/train_fronts.py``) and
-gives each door a hinge side opposite its handle.
-The object's completion becomes articulated (:mod:`.body`): a carcass open at the front, every
+For every object but seating (``priors.WITHOUT_FRONTS``; a face with flat fronts and handles is
+storage whatever the object was named) it finds the front face among the map's points
+(:mod:`.face`) and its height map (:mod:`.relief`), finds handles and knobs standing off it, cuts
+it into fronts at gaps and between handles, labels each front door, drawer, appliance door or
+fixed panel with the kitchen paper's level-2 CRF (refitted on RGB-D walks of procedural kitchens:
+``models/fronts_crf.json``, ``scripts/train_fronts.py``) and gives each door a hinge side opposite
+its handle. The object's completion becomes articulated (:mod:`.body`): a carcass open at the front, every
 door on a revolute joint, every drawer (with a drawer box behind its front) on a prismatic one.
 The URDF, MJCF and SDF exporters write these joints as they are.
 
@@ -34,7 +34,7 @@ from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.furniture.faces import level2_feature_count
 from stratamap.core.geometry.transforms import invert
-from stratamap.core.map.priors import UNNAMED, WITH_FRONTS
+from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
 
 #: The shipped front classifier (models/README.md).
@@ -47,8 +47,8 @@ class FrontsConfig(StageConfig):
     classes: list[str] | None = Field(
         default=None,
         description=(
-            "Classes whose objects may have fronts; default: priors.WITH_FRONTS and priors.UNNAMED (a unit no "
-            "rule or vote named)."
+            "Classes whose objects may have fronts; default: every object but those of priors.WITHOUT_FRONTS (a "
+            "face with flat fronts and handles is storage whatever the object was named)."
         ),
     )
     model: str | None = Field(
@@ -133,7 +133,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
         cloud = np.asarray(data.map.geometry.points, float)  # type: ignore[union-attr]
         views = sensor_viewpoints(data.stream, cloud) if len(cloud) else np.zeros((0, 3))
         floor_z = floor_height(data)
-        classes = set(cfg.classes if cfg.classes is not None else (*WITH_FRONTS, UNNAMED))
+        classes = set(cfg.classes) if cfg.classes is not None else None
         params = BodyParams(door_opening=cfg.door_opening, drawer_travel=cfg.drawer_travel)
         face_params = FaceParams(
             cfg.min_coverage,
@@ -151,7 +151,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
         }
         per_object = {}
         for inst in insts:
-            if inst.class_name not in classes:
+            if inst.class_name not in classes if classes is not None else inst.class_name in WITHOUT_FRONTS:
                 continue
             if cfg.keep_articulated and inst.completion is not None and inst.completion.joints:
                 continue

@@ -160,3 +160,26 @@ def test_doors_and_drawers_of_a_rendered_kitchen_are_found_and_open(kitchen_run)
 
     assert all(inst.attributes.get("fronts") for inst in fronted)
     assert fronts_figure(data).startswith("data:image/png")
+
+
+def test_every_object_but_seating_is_looked_at():
+    from stratamap.core.map.layers import Geometry, ObjectInstance, ObjectInstances
+    from stratamap.core.stages import PipelineData
+    from stratamap.plugins.completers.fronts import FrontsCompleter
+
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([0.0, 0.0, 0.0], [1.0, 0.6, 0.8], (2000, 3))
+    box = OrientedBox(np.array([0.5, 0.3, 0.4]), 0.0, np.array([1.0, 0.6, 0.8]))
+    data = PipelineData()
+    data.map.geometry = Geometry(pts)
+    data.map.instances = ObjectInstances(
+        [
+            ObjectInstance(1, "chair", pts, box),
+            ObjectInstance(2, "object", pts, box),
+            ObjectInstance(3, "cup", pts, box),
+        ]
+    )
+    FrontsCompleter().run(data)
+    assert sorted(data.notes["fronts"]["fronts"]["per_object"]) == [2, 3]
+    FrontsCompleter(classes=["cup"]).run(data)
+    assert sorted(data.notes["fronts"]["fronts"]["per_object"]) == [3]
