@@ -65,6 +65,10 @@ CENTER_FALLBACK_M = 0.25
 #: Joint types scored, and what each counts as.
 KINDS = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
 
+#: A front this large (m²: a 0.5 x 0.2 m drawer, a 0.3 x 0.35 m door) counts among the large ones
+#: (``recall_large``).
+LARGE_FRONT_M2 = 0.1
+
 #: The opening check: share of the range a joint is opened to, and the penetration (metres) that fails it.
 OPEN_SHARE = 0.9
 OPEN_PENETRATION_M = 0.01
@@ -315,6 +319,18 @@ def _prf(matched: int, predicted: int, true: int) -> dict[str, float]:
     return {"precision": precision, "recall": recall, "f1": f1}
 
 
+def front_area(joint: WorldJoint) -> float | None:
+    """The area (m²) of the moving part's front: across a drawer's slide, a door's largest side;
+    None where the part's box is unknown."""
+    if joint.part_size is None or joint.part_axes is None:
+        return None
+    size = np.asarray(joint.part_size, float)
+    if joint.type == "prismatic":
+        along = int(np.argmax(np.abs(np.asarray(joint.part_axes, float).T @ joint.axis)))
+        return float(np.prod(np.delete(size, along)))
+    return float(np.prod(np.sort(size)[1:]))
+
+
 def score_joints(truth: list[WorldJoint], predicted: list[WorldJoint]) -> dict[str, Any]:
     """The family's figures for these joints (see the module's docstring); ``per_joint`` lists
     every true joint with its match, then the predictions that matched none."""
@@ -329,6 +345,11 @@ def score_joints(truth: list[WorldJoint], predicted: list[WorldJoint]) -> dict[s
         by_type[kind] = {"true_joints": n_true, "predicted_joints": n_pred, "matched_joints": n_match}
         by_type[kind].update(_prf(n_match, n_pred, n_true))
     out["by_type"] = by_type
+    # Large doors and drawers (every one, seen or not: the walk's coverage is not known here).
+    large = [t for t, tj in enumerate(truth) if (front_area(tj) or 0.0) >= LARGE_FRONT_M2]
+    matched_large = sum(t in {m[0] for m in matches} for t in large)
+    out["large_joints"] = len(large)
+    out["recall_large"] = matched_large / len(large) if large else None
     # The axes match as lines: whether the matched joints also open the same way (a drawer put in
     # backwards, a door hinged on the right edge of the wrong face) is counted apart.
     agrees = {}

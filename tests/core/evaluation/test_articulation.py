@@ -283,3 +283,13 @@ def test_opening_check_counts_only_what_opening_causes(tmp_path):
     scene.write_text(DOOR_SCENE.format(wall='<geom name="trim" type="box" size="0.02 0.2 0.05" pos="0.805 -0.1 0.6"/>'))
     result = opening_check(scene, settle_seconds=None)
     assert result["opens_clean"] == 2, result["failures"]
+
+
+def test_recall_on_large_fronts_counts_doors_and_drawers_by_their_front():
+    from stratamap.core.evaluation.articulation import front_area
+
+    assert front_area(door()) == pytest.approx(0.5 * 0.7)
+    assert front_area(drawer(0.3, height=0.18)) == pytest.approx(0.5 * 0.18)  # across the slide
+    truth = [door(), drawer(0.3, height=0.25, name="deep"), drawer(0.6, height=0.1, name="shallow")]
+    scores = score_joints(truth, [door()])
+    assert scores["large_joints"] == 2 and scores["recall_large"] == pytest.approx(0.5)
