@@ -27,12 +27,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "configs" / "scenes" / "kitchen.yaml"
-#: Classes whose revolute fronts are appliance doors.
-APPLIANCES = ("fridge", "oven", "microwave", "dishwasher")
 
 
 def moving_parts(scene) -> list[dict]:
     """Every moving link of the scene's objects: its world box corners and its front's label."""
+    from stratamap.core.map.priors import DOOR_APPLIANCES
     from stratamap.core.synthetic.models import ROOT_LINK
 
     out = []
@@ -53,7 +52,9 @@ def moving_parts(scene) -> list[dict]:
                 continue
             pts = np.concatenate([np.asarray(m.vertices) for m in meshes])
             world = pts @ obj.pose[:3, :3].T + obj.pose[:3, 3]
-            label = "drawer" if kind == "prismatic" else ("appliance" if obj.class_name in APPLIANCES else "cupboard")
+            label = (
+                "drawer" if kind == "prismatic" else ("appliance" if obj.class_name in DOOR_APPLIANCES else "cupboard")
+            )
             out.append({"points": world, "label": label})
     return out
 
@@ -84,11 +85,11 @@ def kitchen_graphs(seed: int, frames: int) -> list[tuple]:
     from stratamap.core.map.priors import WITH_FRONTS
     from stratamap.core.map.sensors import sensor_viewpoints
     from stratamap.core.pipeline import Pipeline
+    from stratamap.core.simulation.structure import floor_height
     from stratamap.core.simulation.virtual_scan import LEVEL2
     from stratamap.core.synthetic.scene import generate_scene
     from stratamap.core.synthetic.spec import SceneSpec
-    from stratamap.plugins.completers.fronts import floor_height
-    from stratamap.plugins.completers.fronts.fronts import FaceParams, observe_front
+    from stratamap.plugins.completers.fronts.fronts import FaceParams, observe_object
 
     doc = {
         "source": {"plugin": "synthetic", "params": {"scene_file": str(SCENE), "seed": seed, "frames": frames}},
@@ -102,28 +103,18 @@ def kitchen_graphs(seed: int, frames: int) -> list[tuple]:
     parts = moving_parts(generate_scene(spec))
     cloud = np.asarray(data.map.geometry.points, float)
     views = sensor_viewpoints(data.stream, cloud)
-    floor = floor_height(data)
+    floor = floor_height(data.map)
     graphs = []
     for inst in data.map.instances:
         if inst.class_name not in WITH_FRONTS:
             continue
-        box = inst.box
-        local = (cloud - box.center) @ box.pose[:3, :3]
-        reach = np.asarray(box.size, float)[:2] / 2 + 0.15
-        near = (
-            (np.abs(local[:, 0]) <= reach[0])
-            & (np.abs(local[:, 1]) <= reach[1])
-            & (cloud[:, 2] >= box.bottom_z - 0.02)
-            & (cloud[:, 2] <= box.bottom_z + box.size[2] + 0.02)
-        )
-        bottom = box.bottom_z if floor is None else floor
-        found = observe_front(box, cloud[near], views, data.stream, bottom, FaceParams())
+        found = observe_object(inst.box, cloud, views, data.stream, floor, FaceParams())
         if found is None or not found[2]:
             continue
         face, _, fronts = found
         y = np.array([LEVEL2.index(label_of(f, face, parts)) for f in fronts], np.int64)
         E, rel = front_graph(fronts)
-        graphs.append((level2_features(fronts, bottom), E, rel, y))
+        graphs.append((level2_features(fronts, floor), E, rel, y))
     return graphs
 
 

@@ -24,6 +24,11 @@ if TYPE_CHECKING:
 
 spatial = lazy_module("scipy.spatial")
 
+#: The kitchen paper's front labels (``virtual_scan.LEVEL2``) of fronts that open, and of those
+#: that open on a hinge.
+OPENS = ("cupboard", "drawer", "appliance")
+HINGED = ("cupboard", "appliance")
+
 #: The CRF weights both stages ship (trained on virtual scans of procedural kitchens by
 #: ``scripts/train_plane_crf.py``): level 1 labels planes, level 2 labels fronts.
 SHIPPED_CRF = Path(__file__).resolve().parent / "models" / "plane_crf.json"

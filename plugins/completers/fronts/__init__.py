@@ -36,6 +36,7 @@ from stratamap.core.furniture.faces import level2_feature_count
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
+from stratamap.core.simulation.structure import floor_height
 
 #: The shipped front classifier (models/README.md).
 SHIPPED = Path(__file__).resolve().parent / "models" / "fronts_crf.json"
@@ -106,16 +107,6 @@ def load_front_crf(path: Path):
     return crf
 
 
-def floor_height(data: PipelineData) -> float | None:
-    """The floor's height: the median of the map's floor points, None when the map names none."""
-    m = data.map
-    sem, geo = m.semantics, m.geometry
-    if sem is None or geo is None or len(sem) != len(geo) or "floor" not in sem.vocabulary:
-        return None
-    on_floor = sem.class_ids == sem.vocabulary.id("floor")
-    return float(np.median(np.asarray(geo.points)[on_floor, 2])) if on_floor.sum() >= 50 else None
-
-
 class FrontsCompleter(Completer[FrontsConfig]):
     """Storage objects as articulated bodies: doors on hinges and drawers on slides, from their faces."""
 
@@ -124,15 +115,15 @@ class FrontsCompleter(Completer[FrontsConfig]):
     requires = frozenset({"instances", "geometry"})
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body
-        from stratamap.plugins.completers.fronts.fronts import FaceParams, label_fronts, observe_front
+        from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body, object_frame
+        from stratamap.plugins.completers.fronts.fronts import FaceParams, label_fronts, observe_object
 
         cfg = self.config
         crf = load_front_crf(Path(cfg.model).expanduser() if cfg.model else SHIPPED)
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         cloud = np.asarray(data.map.geometry.points, float)  # type: ignore[union-attr]
         views = sensor_viewpoints(data.stream, cloud) if len(cloud) else np.zeros((0, 3))
-        floor_z = floor_height(data)
+        floor_z = floor_height(data.map)
         classes = set(cfg.classes) if cfg.classes is not None else None
         params = BodyParams(door_opening=cfg.door_opening, drawer_travel=cfg.drawer_travel)
         face_params = FaceParams(
@@ -157,35 +148,14 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 continue
             summary["objects"] += 1
             box = inst.box
-            local = (cloud - box.center) @ box.pose[:3, :3]
-            reach = np.asarray(box.size, float)[:2] / 2 + 0.15
-            near = np.flatnonzero(
-                (np.abs(local[:, 0]) <= reach[0])
-                & (np.abs(local[:, 1]) <= reach[1])
-                & (cloud[:, 2] >= box.bottom_z - 0.02)
-                & (cloud[:, 2] <= box.bottom_z + box.size[2] + 0.02)
-            )
-            bottom = box.bottom_z if floor_z is None else floor_z
-            found = observe_front(box, cloud[near], views, data.stream, bottom, face_params)
+            found = observe_object(box, cloud, views, data.stream, floor_z, face_params)
             if found is None:
                 per_object[inst.id] = {"class": inst.class_name, "face": None}
                 continue
             face, _, candidates = found
-            fronts = label_fronts(candidates, bottom, crf)
-            # The object frame: -y out of the face, origin at the bottom centre between the face's
-            # ends and between the face and the object's back.
-            u0, u1 = face.rect[:2]
-            behind = -(np.asarray(inst.points, float) @ face.normal + face.d)
-            behind = behind[behind > 0]
-            depth = float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
-            depth = float(np.clip(depth, 0.15, 1.5))
-            y_axis = -face.normal
-            x_axis = np.cross(y_axis, [0.0, 0.0, 1.0])
-            pose = np.eye(4)
-            pose[:3, :3] = np.stack([x_axis, y_axis, [0.0, 0.0, 1.0]], axis=1)
-            pose[:3, 3] = (u0 + u1) / 2 * face.u_axis - (face.d + depth / 2) * face.normal
-            pose[2, 3] = box.bottom_z
-            size = np.array([u1 - u0, depth, float(box.size[2])])
+            fronts = label_fronts(candidates, floor_z, crf)
+            pose, size = object_frame(face, box, inst.points)
+            to_object = invert(pose)
             u_center = float(pose[:3, 3] @ face.u_axis)
             rects = [
                 (
@@ -196,14 +166,13 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 )
                 for f in fronts
             ]
-            completion = articulated_body(size, rects, invert(pose), pose, self.name, face.coverage, params)
+            completion = articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
             per_object[inst.id] = {
                 "class": inst.class_name,
                 "coverage": round(face.coverage, 3),
                 "fronts": [f.label for f in fronts],
                 "fixtures": len(face.fixtures),
             }
-            to_object = invert(pose)
             inst.attributes["fronts"] = [
                 {
                     "label": label,

@@ -16,9 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stratamap.core.furniture.faces import OPENS
 from stratamap.core.furniture.fixtures import Fixture
 from stratamap.core.lazy import lazy_module
-from stratamap.core.map.layers import Completion, Joint, Part
+from stratamap.core.map.layers import Completion, Joint, OrientedBox, Part
+from stratamap.plugins.completers.fronts.face import Face
 
 trimesh = lazy_module("trimesh")
 
@@ -61,6 +63,24 @@ def _fixture_boxes(fixtures: list[Fixture], to_object: np.ndarray, y_face: float
     return boxes
 
 
+def object_frame(face: Face, box: OrientedBox, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The object frame of an object seen on ``face`` (-y out of the face, origin at the bottom
+    centre between the face's ends and between the face and the object's back) as object-to-world,
+    and the object's size in it. The depth is how far its observed ``points`` reach behind the face
+    (98th percentile), else its box's."""
+    u0, u1 = face.rect[:2]
+    behind = -(np.asarray(points, float) @ face.normal + face.d)
+    behind = behind[behind > 0]
+    depth = float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
+    depth = float(np.clip(depth, 0.15, 1.5))
+    y_axis = -face.normal
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([np.cross(y_axis, [0.0, 0.0, 1.0]), y_axis, [0.0, 0.0, 1.0]], axis=1)
+    pose[:3, 3] = (u0 + u1) / 2 * face.u_axis - (face.d + depth / 2) * face.normal
+    pose[2, 3] = box.bottom_z
+    return pose, np.array([u1 - u0, depth, float(box.size[2])])
+
+
 def articulated_body(
     size: np.ndarray,
     fronts: list[tuple[tuple[float, float, float, float], str, str | None, list[Fixture]]],
@@ -81,7 +101,7 @@ def articulated_body(
     y_carcass = y_face + t + gap
     if y_back - y_carcass < 2 * c:
         return None
-    moving = [f for f in fronts if f[1] in ("cupboard", "drawer", "appliance")]
+    moving = [f for f in fronts if f[1] in OPENS]
     if not moving:
         return None
     z_fronts = [f[0][2] for f in fronts], [f[0][3] for f in fronts]
@@ -104,7 +124,7 @@ def articulated_body(
         if x1 - x0 < 0.05 or z1 - z0 < 0.05:
             continue
         panel = [_box([x0, y_face, z0], [x1, y_face + t, z1]), *_fixture_boxes(fixtures, to_object, y_face)]
-        if label not in ("cupboard", "drawer", "appliance"):
+        if label not in OPENS:
             body.extend(panel)
             continue
         name = f"front_{k}"

@@ -15,6 +15,7 @@ import numpy as np
 
 from stratamap.core.furniture.crf import CRF
 from stratamap.core.furniture.faces import (
+    HINGED,
     FrontCandidate,
     fixture_groups,
     front_graph,
@@ -215,7 +216,7 @@ def label_fronts(candidates: list[FrontCandidate], floor_z: float, crf: CRF) -> 
         cand.label = LEVEL2[int(lab)]
         if cand.width > FRONT_MAX_WIDTH.get(cand.label, np.inf):
             cand.label = "panel"
-        hinge = hinge_side(cand) if cand.label in ("cupboard", "appliance") else None
+        hinge = hinge_side(cand) if cand.label in HINGED else None
         fronts.append(Front((*cand.u_range, *cand.z_range), cand.label, hinge, cand.fixtures))
     return fronts
 
@@ -228,6 +229,26 @@ class FaceParams:
     min_front: float = 0.06
     max_frames: int = 40
     max_range: float = 5.0
+
+
+#: How far (m) beyond an object's box its face's points are looked for.
+OBJECT_REACH = 0.15
+
+
+def observe_object(
+    box: OrientedBox, cloud: np.ndarray, viewpoints: np.ndarray, stream, floor_z: float, p: FaceParams
+) -> tuple[Face, HeightMap, list[FrontCandidate]] | None:
+    """:func:`observe_front` on the map's points ``cloud`` around the object in ``box``: up to
+    OBJECT_REACH beyond its sides (handles stand out of a face a fitted box may stop at)."""
+    local = (cloud - box.center) @ box.pose[:3, :3]
+    reach = np.asarray(box.size, float)[:2] / 2 + OBJECT_REACH
+    near = (
+        (np.abs(local[:, 0]) <= reach[0])
+        & (np.abs(local[:, 1]) <= reach[1])
+        & (cloud[:, 2] >= box.bottom_z - 0.02)
+        & (cloud[:, 2] <= box.bottom_z + box.size[2] + 0.02)
+    )
+    return observe_front(box, cloud[near], viewpoints, stream, floor_z, p)
 
 
 def observe_front(

@@ -28,6 +28,7 @@ from pydantic import Field
 from stratamap.core import PipelineData, Segmenter, StageConfig, hookimpl
 from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
+from stratamap.core.furniture.faces import OPENS
 from stratamap.core.furniture.faces import SHIPPED_CRF as SHIPPED
 from stratamap.core.map.layers import ObjectInstance, ObjectInstances, OrientedBox, Semantics
 from stratamap.core.map.sensors import sensor_viewpoints
@@ -145,7 +146,7 @@ class PlaneCRFSegmenter(Segmenter[PlaneCRFConfig]):
             cell_class[f.indices] = vocab.id(cname)
             cell_inst[f.indices] = next_id
             front_ids[f.id] = next_id
-            if f.label in ("cupboard", "drawer", "appliance"):
+            if f.label in OPENS:
                 u = np.cross([0.0, 0.0, 1.0], f.normal)
                 box = OrientedBox(
                     f.center() - 0.01 * f.normal, float(np.arctan2(u[1], u[0])), np.array([f.width, 0.02, f.height])
