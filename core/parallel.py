@@ -239,3 +239,33 @@ def open3d_threads(n: int) -> Iterator[None]:
         yield
     finally:
         o3d.utility.set_max_threads(0 if previous == default else previous)
+
+
+def ahead(items: Iterator[S] | Sequence[S], fn: Callable[[S], R], depth: int = 2) -> Iterator[tuple[S, R]]:
+    """``(item, fn(item))`` for each item, in order, with ``fn`` run up to ``depth`` items ahead in one
+    background thread while the caller works on the current one.
+
+    Worth it where ``fn`` spends its time outside the GIL (onnxruntime inference, image decoding,
+    file reads) and the caller in numpy: on two cores the two overlap. One thread calls ``fn`` on
+    the items in their order, so an ``fn`` with state (a keyframe chooser) sees them as a plain
+    loop would, and the results are the same. An exception from ``fn`` is raised here, at its item.
+    """
+    if depth < 1:
+        raise ValueError("depth must be at least 1")
+    from collections import deque
+
+    iterator = iter(items)
+    pending: deque = deque()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="stratamap-ahead") as pool:
+        try:
+            for item in iterator:
+                pending.append((item, pool.submit(fn, item)))
+                if len(pending) > depth:
+                    first, future = pending.popleft()
+                    yield first, future.result()
+            while pending:
+                first, future = pending.popleft()
+                yield first, future.result()
+        finally:
+            for _, future in pending:  # the caller stopped early (or failed): drop what is queued
+                future.cancel()

@@ -413,6 +413,31 @@ _PLANS: OrderedDict[str, RestPlan] = OrderedDict()
 _PLANS_KEPT = 4
 
 
+class _ContentPickler(pickle.Pickler):
+    """Pickles a mesh as its vertices and faces only: trimesh pickles the values it has cached
+    (normals, areas), which an exporter fills in, so the same scene would digest differently before
+    and after the URDF exporter ran."""
+
+    def reducer_override(self, obj):
+        if isinstance(obj, trimesh.Trimesh):
+            return tuple, ((np.asarray(obj.vertices).tobytes(), np.asarray(obj.faces).tobytes()),)
+        return NotImplemented
+
+
+def content_digest(value) -> str | None:
+    """A digest of what ``value`` holds (None where it cannot be pickled)."""
+    digest = hashlib.blake2b(digest_size=20)
+
+    class _Sink:
+        write = digest.update
+
+    try:
+        _ContentPickler(_Sink(), protocol=pickle.HIGHEST_PROTOCOL).dump(value)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+    return digest.hexdigest()
+
+
 def rest_offsets(
     instances: ObjectInstances,
     graph: ContactGraph | None,
@@ -422,13 +447,7 @@ def rest_offsets(
     """Plan where each object of a ``movable`` class starts so that it rests (see the module doc).
     The same inputs give the same plan (a copy of the one made first)."""
     movable = set(movable)
-    try:
-        key = hashlib.blake2b(
-            pickle.dumps((instances, graph, sorted(movable), statics), protocol=pickle.HIGHEST_PROTOCOL),
-            digest_size=20,
-        ).hexdigest()
-    except (pickle.PicklingError, TypeError, AttributeError):
-        key = None
+    key = content_digest((instances, graph, sorted(movable), statics))
     if key is not None and key in _PLANS:
         _PLANS.move_to_end(key)
         return copy.deepcopy(_PLANS[key])

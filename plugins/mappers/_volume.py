@@ -72,8 +72,13 @@ def canonical_mesh(
     inverse = inverse.reshape(-1)
     colors = None
     if vertex_colors is not None:
-        acc = np.zeros((len(unique), vertex_colors.shape[1]), np.int64)
-        np.add.at(acc, inverse, vertex_colors.astype(np.int64))
+        acc = np.stack(
+            [
+                np.bincount(inverse, weights=vertex_colors[:, k], minlength=len(unique)).astype(np.int64)
+                for k in range(vertex_colors.shape[1])
+            ],
+            axis=1,
+        )
         count = np.bincount(inverse, minlength=len(unique))[:, None]
         colors = ((2 * acc + count) // (2 * count)).astype(vertex_colors.dtype)
     faces = inverse[faces]

@@ -223,8 +223,7 @@ class OccupancyMapper(Mapper[OccupancyConfig]):
 
         def hits(xy: np.ndarray) -> np.ndarray:
             r, c = cells(xy)
-            counts = np.zeros(shape, np.int64)
-            np.add.at(counts, (r, c), 1)
+            counts = np.bincount(r * shape[1] + c, minlength=shape[0] * shape[1]).reshape(shape)
             return counts >= cfg.min_points_per_cell
 
         floor_seen = np.zeros(shape, bool)

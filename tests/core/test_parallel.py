@@ -145,3 +145,44 @@ def test_no_cluster_at_the_address_is_a_one_line_config_error(monkeypatch):
     with pytest.raises(ConfigError, match="ray_address: cannot reach a Ray cluster at 'auto'") as err:
         ensure_ray()
     assert "\n" not in str(err.value)
+
+
+def test_ahead_gives_every_result_in_order_and_calls_fn_in_order_in_one_thread():
+    import threading
+
+    from stratamap.core.parallel import ahead
+
+    seen: list[tuple[int, str]] = []
+
+    def fn(k: int) -> int:
+        seen.append((k, threading.current_thread().name))
+        return k * k
+
+    assert list(ahead(range(7), fn, depth=2)) == [(k, k * k) for k in range(7)]
+    assert [k for k, _ in seen] == list(range(7))
+    assert len({name for _, name in seen}) == 1 and seen[0][1] != threading.current_thread().name
+
+
+def test_ahead_raises_at_the_failing_item_and_stops_when_the_caller_stops():
+    from stratamap.core.parallel import ahead
+
+    calls: list[int] = []
+
+    def fn(k: int) -> int:
+        calls.append(k)
+        if k == 3:
+            raise ValueError("bad frame 3")
+        return k
+
+    got = []
+    with pytest.raises(ValueError, match="bad frame 3"):
+        for item, _ in ahead(range(10), fn, depth=1):
+            got.append(item)
+    assert got == [0, 1, 2]
+    calls.clear()
+    for item, _ in ahead(range(100), lambda k: calls.append(k) or k, depth=2):
+        if item == 1:
+            break
+    assert max(calls) <= 4  # at most depth items beyond the last one taken (plus the one running)
+    with pytest.raises(ValueError, match="depth"):
+        list(ahead(range(3), fn, depth=0))

@@ -30,11 +30,16 @@ from stratamap.core.map.instances import (
 )
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import CameraIntrinsics
+from stratamap.core.parallel import ahead
 from stratamap.core.stages import warn_renamed
 from stratamap.plugins.mappers._volume import FrameSkips, IntegrationConfig, TSDFVolume, label_stride
 from stratamap.plugins.mappers.tsdf.config import RENAMED, Pieces
 from stratamap.plugins.mappers.tsdf.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
+
+#: Frames read ahead of the integration in a thread (0: none). Decoding images, unpacking labels and
+#: checking depth leave the GIL or are numpy, while Open3D integrates the frame before.
+READ_AHEAD = 2
 
 o3c = lazy_module("open3d.core")
 
@@ -154,13 +159,25 @@ class TSDFMapper(Mapper[TSDFConfig]):
         intr = stream.intrinsics
         integrated = 0
         skips = FrameSkips("tsdf")
-        for frame in self.progress(stream.frames, description="TSDF integration"):
-            depth, reason = volume.usable_depth(frame)
+
+        def read(k: int) -> tuple[Any, tuple[np.ndarray | None, str], Any]:
+            """Frame ``k``, its usable depth and its labels, read (and decoded, unpacked) a few frames
+            ahead of the integration in a thread."""
+            frame = stream.frames[k]
+            return frame, volume.usable_depth(frame), labels.frames[frame.index] if labels is not None else None
+
+        frames = (
+            ahead(range(len(stream.frames)), read, depth=READ_AHEAD)
+            if READ_AHEAD
+            else ((k, read(k)) for k in range(len(stream.frames)))
+        )
+        for _, (frame, (depth, reason), seg) in self.progress(
+            frames, total=len(stream.frames), description="TSDF integration"
+        ):
             if depth is None or not volume.integrate(depth, frame.rgb, frame.pose):
                 skips.add(reason or volume.out_of_range, frame.index)
                 continue
             integrated += 1
-            seg = labels.frames[frame.index] if labels is not None else None
             if seg is not None and seg.labelled:
                 self._fuse_labels(vbg, state, observations, depth, seg, intr, frame.pose, cfg)
         skips.finish(self, integrated, len(stream.frames), stream.name)

@@ -153,8 +153,12 @@ def point_class_votes(
     """Per map point, how many frames gave each class to its voxel (or, if it has none, to the
     nearest observed voxel of its 26 neighbours). ``voxels`` is ``obs.voxels()``."""
     uniq, inv = voxels
-    votes = np.zeros((len(uniq), classes), np.int32)
-    np.add.at(votes, (inv, np.concatenate(obs.classes).astype(np.int64)), 1)
+    flat = np.asarray(inv, np.int64).reshape(-1) * classes + np.concatenate(obs.classes).astype(np.int64)
+    votes = np.zeros(len(uniq) * classes, np.int32)
+    # One flat index and values of the table's dtype: ufunc.at's fast path (20 times the speed of a
+    # two-index add), without bincount's int64 copy of a table of voxels x classes.
+    np.add.at(votes, flat, np.ones(len(flat), np.int32))
+    votes = votes.reshape(len(uniq), classes)
     base = np.round(points / voxel_size).astype(np.int64)
     out = np.zeros((len(points), classes), np.int32)
     if len(uniq) == 0:  # no frame labelled anything: no votes
@@ -257,9 +261,13 @@ def mask_cooccurrence(
         if not use.any():
             continue
         segment = cls[use].astype(np.int64) << 32 | inst[use].astype(np.int64)
-        pair, hits = np.unique(np.stack([pk[use], segment], 1), axis=0, return_counts=True)
-        inside = (hits >= params.min_hits) & (hits >= params.in_share * visible[pair[:, 0]])
-        members, segs = pair[inside, 0], pair[inside, 1]
+        # (piece, segment) pairs as one integer each: the frame's segments numbered in their order,
+        # so the pairs sort as (piece, segment) would, at the cost of a 1-D unique.
+        segments, seg_index = np.unique(segment, return_inverse=True)
+        code, hits = np.unique(pk[use].astype(np.int64) * len(segments) + seg_index, return_counts=True)
+        pair_piece, pair_segment = code // len(segments), segments[code % len(segments)]
+        inside = (hits >= params.min_hits) & (hits >= params.in_share * visible[pair_piece])
+        members, segs = pair_piece[inside], pair_segment[inside]
         if len(members) < 2:
             continue
         same = segs[:, None] == segs[None, :]

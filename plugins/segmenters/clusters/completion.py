@@ -51,8 +51,10 @@ def complete_instances(
     inst_size = np.bincount(prev_i[prev_i > 0], minlength=int(prev_i.max()) + 1)
     tol = lab.standing_tolerance
     # Each mask instance's class (its points' most frequent one).
-    votes_by_instance = np.zeros((int(prev_i.max()) + 1, len(vocab)), np.int64)
-    np.add.at(votes_by_instance, (prev_i, prev_c), 1)
+    n_instances = int(prev_i.max()) + 1
+    votes_by_instance = np.bincount(
+        np.asarray(prev_i, np.int64) * len(vocab) + prev_c, minlength=n_instances * len(vocab)
+    ).reshape(n_instances, len(vocab))
     inst_class = votes_by_instance.argmax(axis=1)
     next_id, added = int(prev_i.max()) + 1, 0
     why: dict[int, tuple[str, str]] = {}

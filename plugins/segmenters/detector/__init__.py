@@ -28,6 +28,7 @@ from stratamap.core.geometry.transforms import upright_turns
 from stratamap.core.map.keyframes import KeyframeChooser
 from stratamap.core.map.sensors import FrameLabels, FrameSegmentation, PackedFrames
 from stratamap.core.map.vocabulary import Vocabulary
+from stratamap.core.parallel import ahead
 from stratamap.plugins.segmenters import _depth
 
 MODELS = Path(__file__).resolve().parent / "models"
@@ -113,6 +114,15 @@ class DetectorConfig(StageConfig):
         ),
     )
     threads: int = Field(default=1, ge=1, description="onnxruntime intra-op threads (1: bit-for-bit repeatable).")
+    read_ahead: int = Field(
+        default=2,
+        ge=0,
+        le=16,
+        description=(
+            "Frames read and detected ahead, in one background thread, of the depth segmentation (0: one loop, no "
+            "thread). The labels are the same either way."
+        ),
+    )
     keyframes: KeyframesConfig = Field(
         default_factory=KeyframesConfig,
         description="Which frames are labelled (core/map/keyframes.py); every frame is still fused into the geometry.",
@@ -235,15 +245,30 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         out = FrameLabels(segmenter=self.name, frames=PackedFrames(), tracked_instances=False)
         counts: dict[str, int] = {}
         keyframe = KeyframeChooser(stream.intrinsics, cfg.keyframes.new_surface, cfg.keyframes.cell)
-        labelled = 0
-        for frame in self.progress(stream.frames, description="detector"):
+
+        def read_and_detect(k: int) -> tuple[Any, Any]:
+            """Frame ``k`` and its detections (None: not a keyframe). Runs a frame ahead of the depth
+            segmentation below, in a thread: reading, decoding and the network's inference leave the
+            GIL, the depth segmentation is numpy, and on two cores the two overlap."""
+            frame = stream.frames[k]
             if not keyframe(np.asarray(frame.depth), np.asarray(frame.pose)):
+                return frame, None
+            found = detect_upright(
+                detector, np.asarray(frame.rgb), upright_turns(frame.pose), cfg.score_threshold, cfg.nms_iou, cfg.tiles
+            )
+            return frame, found
+
+        labelled = 0
+        frames = (
+            ahead(range(len(stream.frames)), read_and_detect, depth=cfg.read_ahead)
+            if cfg.read_ahead
+            else ((k, read_and_detect(k)) for k in range(len(stream.frames)))
+        )
+        for _, (frame, detections) in self.progress(frames, total=len(stream.frames), description="detector"):
+            if detections is None:
                 out.frames.append(FrameSegmentation.unlabelled(frame.index))
                 continue
             labelled += 1
-            detections = detect_upright(
-                detector, np.asarray(frame.rgb), upright_turns(frame.pose), cfg.score_threshold, cfg.nms_iou, cfg.tiles
-            )
             regions = []
             for box, label, score in zip(detections.boxes, detections.labels, detections.scores, strict=True):
                 name = vocabulary_class(label, renames, vocab)

@@ -391,8 +391,9 @@ def majority_labels(cell_of_point: np.ndarray, labels: np.ndarray, n_cells: int)
     ok = labels >= 0
     if not ok.any():
         return np.full(n_cells, -1, np.int64)
-    counts = np.zeros((n_cells, int(labels.max()) + 1), np.int64)
-    np.add.at(counts, (cell_of_point[ok], labels[ok]), 1)
+    n_labels = int(labels.max()) + 1
+    flat = np.asarray(cell_of_point[ok], np.int64) * n_labels + labels[ok]
+    counts = np.bincount(flat, minlength=n_cells * n_labels).reshape(n_cells, n_labels)
     out = counts.argmax(1)
     out[counts.sum(1) == 0] = -1
     return out

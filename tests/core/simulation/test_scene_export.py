@@ -417,3 +417,25 @@ def test_a_free_body_that_a_body_kept_static_penetrates_is_kept_static_too():
     assert set(plan.static) == {2, 3}, plan.static
     assert "kept static" in plan.static[2] and "box 3" in plan.static[2]
     assert plan.offsets == {}
+
+
+def test_the_rest_plan_is_made_once_per_scene_whatever_the_meshes_have_cached():
+    """The URDF exporter fills the completion meshes' caches (normals, areas); the MJCF and SDF
+    exporters of the same run must find the plan it made (issue 68: exports that reuse work)."""
+    from stratamap.core.simulation import rest
+
+    table = box_object(1, "table", [1.0, 0.6, 0.7], [1.5, 1.5, 0.0])
+    cup = box_object(2, "cup", [0.08, 0.08, 0.1], [1.6, 1.5, 0.75])
+    instances = ObjectInstances([table, cup])
+    graph = graph_of(instances, {2: 1})
+    args = (instances, graph, ["cup"], [])
+    before = rest.content_digest(args)
+    first = rest_offsets(*args)
+    kept = len(rest._PLANS)
+    for inst in instances:
+        inst.completion.mesh.face_normals, inst.completion.mesh.area  # what an exporter computes
+    assert rest.content_digest(args) == before
+    again = rest_offsets(*args)
+    assert len(rest._PLANS) == kept and again.to_dict() == first.to_dict()
+    cup.completion.mesh.vertices = cup.completion.mesh.vertices + [0.0, 0.0, 0.01]
+    assert rest.content_digest(args) != before

@@ -86,3 +86,18 @@ def test_frame_quality_passes_over_unlabelled_frames(walk):
     half = [seg if k % 2 == 0 else FrameSegmentation.unlabelled(seg.frame_index) for k, seg in enumerate(truth)]
     scored = frame_quality(half, truth, vocab, stride=1)
     assert scored == frame_quality(truth[::2], truth[::2], vocab, stride=1)
+
+
+def test_reading_and_detecting_ahead_in_a_thread_gives_the_labels_of_one_loop(walk):
+    """The detector reads and detects frames ahead of the depth segmentation in a thread (issue 68);
+    with keyframes, whose chooser keeps state from frame to frame, the labels are those of one loop."""
+    runs = []
+    for read_ahead in (0, 3):
+        data = PipelineData(stream=walk.stream, ground_truth=walk.ground_truth)
+        detector = DetectorSegmenter(keyframes={"new_surface": 0.3}, read_ahead=read_ahead)
+        runs.append(list(detector.run(data)["frame_labels"].frames))
+    serial, ahead = runs
+    assert [seg.labelled for seg in serial] == [seg.labelled for seg in ahead]
+    for a, b in zip(serial, ahead, strict=True):
+        assert a.frame_index == b.frame_index
+        assert np.array_equal(a.class_ids, b.class_ids) and np.array_equal(a.instance_ids, b.instance_ids)
