@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -145,8 +146,7 @@ def frame_geometry(depth: np.ndarray, intrinsics: CameraIntrinsics, params: Dept
     norm = np.linalg.norm(n, axis=-1)
     ok = valid & (norm > 1e-12)
     n = np.where(ok[..., None], n / np.maximum(norm, 1e-12)[..., None], 0.0)
-    flip = np.einsum("hwc,hwc->hw", n, pts) > 0  # face the camera
-    n[flip] *= -1
+    n *= np.where(np.einsum("hwc,hwc->hw", n, pts) > 0, -1.0, 1.0)[..., None]  # face the camera
 
     # Concave creases: (n_b - n_a) . (p_b - p_a) < 0 with a sharp enough angle, for cells a and b
     # 2r either side of a cell: far enough that neither normal's support crosses the crease.
@@ -425,13 +425,16 @@ def assign_regions(
     # A chair standing near a table, inside the table's box but apart from it, is not taken.
     points = _segment_points(geometry, stats, max_points=400)
     involved = sorted({*claims, *(int(c) for c in core[core >= 0])})
-    trees = {seg: spatial.cKDTree(points[seg]) for seg in involved}
+    trees: dict[int, Any] = {}  # built when first needed: most pairs are apart by their boxes
     near: dict[tuple[int, int], float] = {}
 
     def distance(a: int, b: int) -> float:
         key = (a, b) if a < b else (b, a)
         if key not in near:
-            near[key] = float(trees[a].query(points[b], k=1)[0].min())
+            if a not in trees:
+                trees[a] = spatial.cKDTree(points[a])
+            # Only distances within the gap count (farther is never offered): the bound prunes the search.
+            near[key] = float(trees[a].query(points[b], k=1, distance_upper_bound=gap * (1 + 1e-9))[0].min())
         return near[key]
 
     # Nearest first across all regions: a heap of (distance, segment, region), each pair's distance
@@ -447,13 +450,17 @@ def assign_regions(
     nearest: dict[tuple[int, int], float] = {}
     heap: list[tuple[float, int, int]] = []
 
-    low = {seg: points[seg].min(axis=0) for seg in involved}
-    high = {seg: points[seg].max(axis=0) for seg in involved}
+    # Boxes farther apart than the gap hold no points within it: no k-d tree query needed. Which
+    # boxes are within the gap of which, for every pair at once (a list of lists: the loop below
+    # looks pairs up thousands of times a frame).
+    position = {seg: i for i, seg in enumerate(involved)}
+    low = np.array([points[seg].min(axis=0) for seg in involved])
+    high = np.array([points[seg].max(axis=0) for seg in involved])
+    apart = np.maximum(np.maximum(low[:, None] - high[None], low[None] - high[:, None]), 0.0)
+    boxes_near = (np.einsum("ijk,ijk->ij", apart, apart) <= gap * gap).tolist()
 
     def offer(seg: int, k: int, member: int) -> None:
-        # Boxes farther apart than the gap hold no points within it: no k-d tree query needed.
-        apart = np.maximum(np.maximum(low[seg] - high[member], low[member] - high[seg]), 0.0)
-        if float(apart @ apart) > gap * gap:
+        if not boxes_near[position[seg]][position[member]]:
             return
         d = distance(seg, member)
         if d <= gap and d < nearest.get((seg, k), np.inf):

@@ -63,7 +63,13 @@ def test_oracle_labels_are_computed_on_access_not_held():
     assert np.array_equal(again[5].instance_ids, seg.instance_ids)
 
 
-def test_tsdf_over_a_lazy_stream_holds_a_frame_or_two_at_a_time():
+@pytest.mark.parametrize("read_ahead", [0, 2])
+def test_tsdf_over_a_lazy_stream_holds_a_frame_or_two_at_a_time(monkeypatch, read_ahead):
+    """A plain loop holds the frame it integrates and the next; reading ahead (issue 68) holds
+    ``READ_AHEAD`` frames more, never the stream."""
+    import stratamap.plugins.mappers.tsdf as tsdf
+
+    monkeypatch.setattr(tsdf, "READ_AHEAD", read_ahead)
     seq = generate_sequence(SceneSpec.model_validate(SMALL))
     frames, labels = Alive(), Alive()
     stream = dataclasses.replace(seq.stream, frames=MappedFrames(seq.stream.frames, frames.track))
@@ -74,9 +80,10 @@ def test_tsdf_over_a_lazy_stream_holds_a_frame_or_two_at_a_time():
     )
     n = len(seq.stream)
     assert data.map.instances is not None and len(data.map.instances) > 0
-    # Every frame and label image was read once, and at most two of each were alive at any time.
+    # Every frame and label image was read once, and at most two of each (plus those read ahead)
+    # were alive at any time.
     assert frames.reads == n and labels.reads == n
-    assert frames.peak <= 2 and labels.peak <= 2
+    assert frames.peak <= 2 + read_ahead and labels.peak <= 2 + read_ahead
     assert frames.now == 0 and labels.now == 0
 
 
