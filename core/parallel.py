@@ -256,16 +256,18 @@ def ahead(items: Iterator[S] | Sequence[S], fn: Callable[[S], R], depth: int = 2
 
     iterator = iter(items)
     pending: deque = deque()
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="stratamap-ahead") as pool:
-        try:
-            for item in iterator:
-                pending.append((item, pool.submit(fn, item)))
-                if len(pending) > depth:
-                    first, future = pending.popleft()
-                    yield first, future.result()
-            while pending:
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stratamap-ahead")
+    try:
+        for item in iterator:
+            pending.append((item, pool.submit(fn, item)))
+            if len(pending) > depth:
                 first, future = pending.popleft()
                 yield first, future.result()
-        finally:
-            for _, future in pending:  # the caller stopped early (or failed): drop what is queued
-                future.cancel()
+        while pending:
+            first, future = pending.popleft()
+            yield first, future.result()
+    finally:
+        # The caller stopped early or failed: drop what is queued and do not wait for the step
+        # running. A generator left suspended is closed by the garbage collector at any later time,
+        # and a wait there would hold up (and a Ctrl-C there would be lost in) whatever runs then.
+        pool.shutdown(wait=False, cancel_futures=True)
