@@ -13,6 +13,7 @@ pieces re-joined by the frames' masks (:mod:`stratamap.plugins.mappers.tsdf.mask
 from __future__ import annotations
 
 from collections.abc import Mapping
+from contextlib import closing
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -171,15 +172,16 @@ class TSDFMapper(Mapper[TSDFConfig]):
             if READ_AHEAD
             else ((k, read(k)) for k in range(len(stream.frames)))
         )
-        for _, (frame, (depth, reason), seg) in self.progress(
-            frames, total=len(stream.frames), description="TSDF integration"
-        ):
-            if depth is None or not volume.integrate(depth, frame.rgb, frame.pose):
-                skips.add(reason or volume.out_of_range, frame.index)
-                continue
-            integrated += 1
-            if seg is not None and seg.labelled:
-                self._fuse_labels(vbg, state, observations, depth, seg, intr, frame.pose, cfg)
+        with closing(frames):  # ended here, also on an error (not later by the garbage collector)
+            for _, (frame, (depth, reason), seg) in self.progress(
+                frames, total=len(stream.frames), description="TSDF integration"
+            ):
+                if depth is None or not volume.integrate(depth, frame.rgb, frame.pose):
+                    skips.add(reason or volume.out_of_range, frame.index)
+                    continue
+                integrated += 1
+                if seg is not None and seg.labelled:
+                    self._fuse_labels(vbg, state, observations, depth, seg, intr, frame.pose, cfg)
         skips.finish(self, integrated, len(stream.frames), stream.name)
 
         geometry = volume.surface()

@@ -16,6 +16,7 @@ vocabulary by name (``class_map``); a label the vocabulary lacks becomes ``objec
 
 from __future__ import annotations
 
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -264,31 +265,34 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
             if cfg.read_ahead
             else ((k, read_and_detect(k)) for k in range(len(stream.frames)))
         )
-        for _, (frame, detections) in self.progress(frames, total=len(stream.frames), description="detector"):
-            if detections is None:
-                out.frames.append(FrameSegmentation.unlabelled(frame.index))
-                continue
-            labelled += 1
-            regions = []
-            for box, label, score in zip(detections.boxes, detections.labels, detections.scores, strict=True):
-                name = vocabulary_class(label, renames, vocab)
-                counts[name] = counts.get(name, 0) + 1
-                extent = _depth.class_reach(name, cfg.reach_scale)
-                regions.append(_depth.Region(vocab.id(name), float(score), box=tuple(map(float, box)), extent=extent))
-            regions = _depth.suppress_duplicates(regions)
-            cls, ins = _depth.refine_labels(
-                np.asarray(frame.depth),
-                np.asarray(frame.pose),
-                stream.intrinsics,
-                regions,
-                floor,
-                stuff,
-                seg_params,
-                lay,
-                cfg.inside_ratio,
-                cfg.join_gap,
-            )
-            out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
+        with closing(frames):  # ended here, also on an error (not later by the garbage collector)
+            for _, (frame, detections) in self.progress(frames, total=len(stream.frames), description="detector"):
+                if detections is None:
+                    out.frames.append(FrameSegmentation.unlabelled(frame.index))
+                    continue
+                labelled += 1
+                regions = []
+                for box, label, score in zip(detections.boxes, detections.labels, detections.scores, strict=True):
+                    name = vocabulary_class(label, renames, vocab)
+                    counts[name] = counts.get(name, 0) + 1
+                    extent = _depth.class_reach(name, cfg.reach_scale)
+                    regions.append(
+                        _depth.Region(vocab.id(name), float(score), box=tuple(map(float, box)), extent=extent)
+                    )
+                regions = _depth.suppress_duplicates(regions)
+                cls, ins = _depth.refine_labels(
+                    np.asarray(frame.depth),
+                    np.asarray(frame.pose),
+                    stream.intrinsics,
+                    regions,
+                    floor,
+                    stuff,
+                    seg_params,
+                    lay,
+                    cfg.inside_ratio,
+                    cfg.join_gap,
+                )
+                out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note("model", {"path": str(path), "floor_height": round(float(floor), 4), "detections": counts})
         self.note(
             "keyframes", {"labelled": labelled, "frames": len(out.frames), "new_surface": cfg.keyframes.new_surface}
