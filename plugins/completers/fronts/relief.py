@@ -60,6 +60,13 @@ class HeightMap:
         return np.stack([self.u0 + (j + 0.5) * self.cell, self.z0 + (i + 0.5) * self.cell], axis=1)
 
 
+def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The values of a sorted array, where each one's run starts and how long it is (as
+    ``np.unique(..., return_index=True, return_counts=True)`` gives them, without sorting again)."""
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    return ordered[starts], starts, np.diff(np.r_[starts, len(ordered)])
+
+
 def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) -> HeightMap:
     """The median height out of ``face`` of ``points`` per cell of its rectangle (and, when the
     points carry a fourth column, their median luminance as ``contrast`` to the cell's
@@ -79,7 +86,7 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
     shades = np.full(shape[0] * shape[1], np.nan)
     if len(flat):
         order = np.lexsort((h, flat))
-        cells, starts, counts = np.unique(flat[order], return_index=True, return_counts=True)
+        cells, starts, counts = _runs(flat[order])
         keep = counts >= min_count
         heights[cells[keep]] = h[order][starts[keep] + counts[keep] // 2]
         if shade_values is not None:
@@ -87,7 +94,7 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
             has = np.isfinite(lum)
             if has.sum():
                 order = np.lexsort((lum[has], flat[has]))
-                cells, starts, counts = np.unique(flat[has][order], return_index=True, return_counts=True)
+                cells, starts, counts = _runs(flat[has][order])
                 keep = counts >= min_count
                 shades[cells[keep]] = lum[has][order][starts[keep] + counts[keep] // 2]
     heights = heights.reshape(shape)

@@ -183,3 +183,15 @@ def test_every_object_but_seating_is_looked_at():
     assert sorted(data.notes["fronts"]["fronts"]["per_object"]) == [2, 3]
     FrontsCompleter(classes=["cup"]).run(data)
     assert sorted(data.notes["fronts"]["fronts"]["per_object"]) == [3]
+
+
+def test_runs_of_a_sorted_array_are_what_unique_gives():
+    from stratamap.plugins.completers.fronts.relief import _runs
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 50, 5000):
+        ordered = np.sort(rng.integers(0, max(1, n // 7), n))
+        values, starts, counts = _runs(ordered)
+        expected = np.unique(ordered, return_index=True, return_counts=True)
+        for got, want in zip((values, starts, counts), expected, strict=True):
+            assert np.array_equal(got, want)
