@@ -18,6 +18,7 @@ import os
 import pickle
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -252,8 +253,6 @@ def ahead(items: Iterator[S] | Sequence[S], fn: Callable[[S], R], depth: int = 2
     """
     if depth < 1:
         raise ValueError("depth must be at least 1")
-    from collections import deque
-
     iterator = iter(items)
     pending: deque = deque()
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stratamap-ahead")

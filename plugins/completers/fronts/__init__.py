@@ -79,8 +79,8 @@ class FrontsConfig(StageConfig):
         default=40,
         ge=0,
         description=(
-            "Depth frames (those that saw a face most squarely and closest) fused into a 5 mm cloud of it, where "
-            "handles and gaps show; 0: the map's points only."
+            "Depth frames (those that saw a face most squarely and closest) fused into a 1 cm height map of it, "
+            "where handles and gaps show; 0: the map's points only."
         ),
     )
     max_range: float = Field(default=5.0, gt=0.0, description="Farthest depth (m) used from a frame for a face.")
@@ -103,7 +103,7 @@ def load_front_crf(path: Path):
     except (ValueError, KeyError, TypeError) as exc:
         raise DataError(f"fronts: {path} is not a front CRF model ({exc})") from exc
     if crf.n_features != level2_feature_count():
-        raise DataError(f"fronts: {path} was trained on other front features; retrain it (scripts/train_plane_crf.py)")
+        raise DataError(f"fronts: {path} was trained on other front features; retrain it (scripts/train_fronts.py)")
     return crf
 
 
