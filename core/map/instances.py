@@ -22,6 +22,14 @@ NAMED_BY = {
 }
 
 
+#: ``ObjectInstance.attributes`` key of what a segmenter measured of an object's shape (``clusters``):
+#: ``{"solid": ..., "seat": ..., "flat_top": ..., "against_wall": ..., "knee_space": ...}``, booleans
+#: as ``clusters``' shapes define them. Later stages read the evidence rather than the class it led
+#: to (``fronts`` looks for doors on a solid body without a seat, whatever it was named).
+SHAPE = "shape"
+SHAPE_FLAGS = ("solid", "seat", "flat_top", "against_wall", "knee_space")
+
+
 def set_naming(inst: ObjectInstance, by: str, why: str) -> None:
     """Record how ``inst`` got its class (``by`` one of NAMED_BY; ``why`` a short sentence)."""
     if by not in NAMED_BY:

@@ -42,6 +42,12 @@ CAMERA_TURNS = (
 #: this (m) and over four times as much as above another way's: a walk carried level spreads 0.01 m
 #: above its floor, and 1 m above the walls a turned hint finds (and the reverse when carried turned).
 STEADY_HEIGHT = 0.25
+#: The floor is sought within this angle (degrees) of the up hint (``estimate_alignment``'s default).
+UP_HINT_DEG = 35.0
+#: Held level, a camera looking down at a desk or a worktop has its image's up leaning back by its
+#: pitch: when no floor lies within UP_HINT_DEG of that hint, it is sought again within this angle (a
+#: handheld Kinect over office desks, TUM fr1/rpy, looks down 38 degrees on average).
+LOOKING_DOWN_DEG = 60.0
 
 
 class SequenceConfig(StageConfig):
@@ -212,7 +218,7 @@ class SequenceSource(Source[SequenceConfigT]):
         for held, axis in (("level", LEVEL), *CAMERA_TURNS):
             hint = camera_up_hint(stream, axis)
             try:
-                alignment = estimate_alignment(stream, hint, planes=planes)
+                alignment = self._floor_below(stream, hint, planes, looking_down=held == "level")
             except DataError as exc:
                 level_error = level_error or exc
             else:
@@ -238,6 +244,17 @@ class SequenceSource(Source[SequenceConfigT]):
         )
         alignment.details["camera_held"] = held
         return alignment
+
+    @staticmethod
+    def _floor_below(stream: SensorStream, hint: Any, planes: Any, looking_down: bool) -> GravityAlignment:
+        """The floor within UP_HINT_DEG of ``hint``; ``looking_down`` (the camera held level), within
+        LOOKING_DOWN_DEG when none lies nearer."""
+        try:
+            return estimate_alignment(stream, hint, max_angle_deg=UP_HINT_DEG, planes=planes)
+        except DataError:
+            if not looking_down:
+                raise
+        return estimate_alignment(stream, hint, max_angle_deg=LOOKING_DOWN_DEG, planes=planes)
 
     def _weak_tracking(self, fitness: list[float], indices: list[int]) -> None:
         """Warn of frames that matched little of the model built so far: tracked a frame after

@@ -2,7 +2,8 @@
 handles and hinge sides; the functional-objects paper's articulated replacement).
 
 For every object but seating (``priors.WITHOUT_FRONTS``; a face with flat fronts and handles is
-storage whatever the object was named) it finds the front face among the map's points
+storage whatever the object was named), and for seating too where the segmenter measured a solid
+body without a seat (``attributes['shape']``: a counter's run a detector voted "chair"), it finds the front face among the map's points
 (:mod:`.face`) and its height map (:mod:`.relief`), finds handles and knobs standing off it, cuts
 it into fronts at gaps and between handles, labels each front door, drawer, appliance door or
 fixed panel with the kitchen paper's level-2 CRF (refitted on RGB-D walks of procedural kitchens:
@@ -34,6 +35,7 @@ from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.furniture.faces import level2_feature_count
 from stratamap.core.geometry.transforms import invert
+from stratamap.core.map.instances import SHAPE
 from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.simulation.structure import floor_height
@@ -48,8 +50,9 @@ class FrontsConfig(StageConfig):
     classes: list[str] | None = Field(
         default=None,
         description=(
-            "Classes whose objects may have fronts; default: every object but those of priors.WITHOUT_FRONTS (a "
-            "face with flat fronts and handles is storage whatever the object was named)."
+            "Classes whose objects may have fronts; default: every object but those of priors.WITHOUT_FRONTS whose "
+            "measured shape (attributes['shape']) is open or has a seat (a face with flat fronts and handles is "
+            "storage whatever the object was named)."
         ),
     )
     model: str | None = Field(
@@ -142,7 +145,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
         }
         per_object = {}
         for inst in insts:
-            if inst.class_name not in classes if classes is not None else inst.class_name in WITHOUT_FRONTS:
+            if not may_have_fronts(inst, classes):
                 continue
             if cfg.keep_articulated and inst.completion is not None and inst.completion.joints:
                 continue
@@ -206,6 +209,19 @@ class FrontsCompleter(Completer[FrontsConfig]):
     @classmethod
     def example_params(cls) -> dict:
         return {}
+
+
+def may_have_fronts(inst: Any, classes: set[str] | None) -> bool:
+    """Whether ``fronts`` looks at ``inst``: its class is one of ``classes`` when they are given; else
+    any class but seating, and seating too where its measured shape is a solid body with no seat (a
+    name from a detector's votes is weaker evidence than the shape: a chair's back is open below its
+    seat, a run of drawers is not)."""
+    if classes is not None:
+        return inst.class_name in classes
+    if inst.class_name not in WITHOUT_FRONTS:
+        return True
+    shape = inst.attributes.get(SHAPE)
+    return isinstance(shape, dict) and bool(shape.get("solid")) and not shape.get("seat", True)
 
 
 @hookimpl

@@ -49,7 +49,7 @@ from typing import Any
 from stratamap.core import PipelineData, Segmenter, hookimpl
 from stratamap.core.errors import DataError
 from stratamap.core.geometry.points import voxel_downsample
-from stratamap.core.map.instances import NAMING, set_naming
+from stratamap.core.map.instances import NAMING, SHAPE, SHAPE_FLAGS, set_naming
 from stratamap.core.map.layers import Semantics
 from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.map.vocabulary import Vocabulary
@@ -113,7 +113,11 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         semantics = Semantics(lab.class_ids, lab.instance_ids, lab.vocab)
         instances = instances_from_semantics(lab.points, geometry.colors, semantics, 1)
         before = data.map.instances if self.config.keep_instances else None
+        shapes = lab.thing_shapes()
         for inst in instances:
+            if inst.id in shapes:
+                measured = shapes[inst.id][1]
+                inst.attributes[SHAPE] = {flag: bool(getattr(measured, flag)) for flag in SHAPE_FLAGS}
             if inst.id in lab.naming:
                 set_naming(inst, *lab.naming[inst.id])
                 if inst.id in lab.scores:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stratamap.core.map.instances import naming_text
+from stratamap.core.map.instances import SHAPE_FLAGS, naming_text
 from stratamap.core.map.layers import Geometry, Semantics
 from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
@@ -178,6 +178,11 @@ def test_keep_instances_adds_what_no_mask_covered_and_names_it():
     assert (sem.instance_ids[names == "counter"] == by_class["counter"][0].id).mean() > 0.9
     stuff = np.isin(names, ["floor", "wall", "ceiling"])
     assert (sem.instance_ids[stuff] > 0).sum() <= 3 * len(out["instances"])
+    # What was measured of each object's shape travels with it (fronts reads it, not the class).
+    assert by_class["counter"][0].attributes["shape"]["solid"]
+    assert not by_class["counter"][0].attributes["shape"]["seat"]
+    assert not by_class["table"][0].attributes["shape"]["solid"]
+    assert all(set(inst.attributes["shape"]) == set(SHAPE_FLAGS) for inst in out["instances"])
 
 
 def test_a_frame_with_no_box_leaves_objects_things_though_their_feet_were_voted_floor():
