@@ -3,13 +3,14 @@ handles and hinge sides; the functional-objects paper's articulated replacement)
 
 For every object but seating (``priors.WITHOUT_FRONTS``; a face with flat fronts and handles is
 storage whatever the object was named), and for seating too where the segmenter measured a solid
-body without a seat (``attributes['shape']``: a counter's run a detector voted "chair"), it finds the front face among the map's points
-(:mod:`.face`) and its height map (:mod:`.relief`), finds handles and knobs standing off it, cuts
-it into fronts at gaps and between handles, labels each front door, drawer, appliance door or
-fixed panel with the kitchen paper's level-2 CRF (refitted on RGB-D walks of procedural kitchens:
-``models/fronts_crf.json``, ``scripts/train_fronts.py``) and gives each door a hinge side opposite
-its handle. The object's completion becomes articulated (:mod:`.body`): a carcass open at the front, every
-door on a revolute joint, every drawer (with a drawer box behind its front) on a prismatic one.
+body without a seat (``attributes['shape']``: a counter's run a detector voted "chair"), it finds
+the front face among the map's points (:mod:`.face`) and its height map (:mod:`.relief`), finds
+handles and knobs standing off it, cuts it into fronts at gaps and between handles, labels each
+front door, drawer, appliance door or fixed panel with the kitchen paper's level-2 CRF (refitted
+on RGB-D walks of procedural kitchens: ``models/fronts_crf.json``, ``scripts/train_fronts.py``)
+and gives each door a hinge side opposite its handle. The object's completion becomes articulated
+(:mod:`.body`): a carcass open at the front, every door on a revolute joint, every drawer (with a
+drawer box behind its front) on a prismatic one.
 The URDF, MJCF and SDF exporters write these joints as they are.
 
 Where fronts were found they replace a library model's joints (the observed fronts win where a
