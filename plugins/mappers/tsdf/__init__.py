@@ -38,10 +38,6 @@ from stratamap.plugins.mappers.tsdf.config import RENAMED, Pieces
 from stratamap.plugins.mappers.tsdf.mask_instances import MaskInstanceParams, MaskObservations, mask_instances
 from stratamap.plugins.mappers.tsdf.panoptic_fusion import PanopticParams, PanopticState
 
-#: Frames read ahead of the integration in a thread (0: none). Decoding images, unpacking labels and
-#: checking depth leave the GIL or are numpy, while Open3D integrates the frame before.
-READ_AHEAD = 2
-
 o3c = lazy_module("open3d.core")
 
 
@@ -106,6 +102,16 @@ class TSDFConfig(IntegrationConfig):
             "two chairs does not fuse them)."
         ),
     )
+    read_ahead: int = Field(
+        default=2,
+        ge=0,
+        le=16,
+        description=(
+            "Frames read, depth-checked and label-unpacked ahead of the integration, in one background thread (0: "
+            "one loop, no thread); decoding leaves the GIL while Open3D integrates the frame before. The map is the "
+            "same either way."
+        ),
+    )
     pieces: Pieces = Field(
         default_factory=Pieces,
         description="With instances: masks, how the label instances are cut into 3D pieces, re-joined and dropped.",
@@ -168,8 +174,8 @@ class TSDFMapper(Mapper[TSDFConfig]):
             return frame, volume.usable_depth(frame), labels.frames[frame.index] if labels is not None else None
 
         frames = (
-            ahead(range(len(stream.frames)), read, depth=READ_AHEAD)
-            if READ_AHEAD
+            ahead(range(len(stream.frames)), read, depth=cfg.read_ahead)
+            if cfg.read_ahead
             else ((k, read(k)) for k in range(len(stream.frames)))
         )
         with closing(frames):  # ended here, also on an error (not later by the garbage collector)

@@ -64,18 +64,15 @@ def test_oracle_labels_are_computed_on_access_not_held():
 
 
 @pytest.mark.parametrize("read_ahead", [0, 2])
-def test_tsdf_over_a_lazy_stream_holds_a_frame_or_two_at_a_time(monkeypatch, read_ahead):
+def test_tsdf_over_a_lazy_stream_holds_a_frame_or_two_at_a_time(read_ahead):
     """A plain loop holds the frame it integrates and the next; reading ahead (issue 68) holds
-    ``READ_AHEAD`` frames more, never the stream."""
-    import stratamap.plugins.mappers.tsdf as tsdf
-
-    monkeypatch.setattr(tsdf, "READ_AHEAD", read_ahead)
+    ``read_ahead`` frames more, never the stream."""
     seq = generate_sequence(SceneSpec.model_validate(SMALL))
     frames, labels = Alive(), Alive()
     stream = dataclasses.replace(seq.stream, frames=MappedFrames(seq.stream.frames, frames.track))
     gt = dataclasses.replace(seq.ground_truth, frame_labels=MappedFrames(seq.ground_truth.frame_labels, labels.track))
     data = run_stages(
-        [OracleSegmenter(), TSDFMapper(voxel_size=0.04, extract_mesh=False)],
+        [OracleSegmenter(), TSDFMapper(voxel_size=0.04, extract_mesh=False, read_ahead=read_ahead)],
         PipelineData(stream=stream, ground_truth=gt),
     )
     n = len(seq.stream)
@@ -96,6 +93,14 @@ def test_lazy_and_eager_streams_give_the_same_map():
     eager = run_stages(stages, PipelineData(stream=eager_stream, ground_truth=eager_gt))
     assert np.array_equal(lazy.map.geometry.points, eager.map.geometry.points)
     assert np.array_equal(lazy.map.semantics.instance_ids, eager.map.semantics.instance_ids)
+    # Reading ahead changes when frames are read, not the map.
+    plain = run_stages(
+        [OracleSegmenter(), TSDFMapper(voxel_size=0.04, extract_mesh=False, read_ahead=0)],
+        PipelineData(stream=seq.stream, ground_truth=seq.ground_truth),
+    )
+    assert np.array_equal(plain.map.geometry.points, lazy.map.geometry.points)
+    assert np.array_equal(plain.map.semantics.class_ids, lazy.map.semantics.class_ids)
+    assert np.array_equal(plain.map.semantics.instance_ids, lazy.map.semantics.instance_ids)
 
 
 def _frame(k: int) -> RGBDFrame:
