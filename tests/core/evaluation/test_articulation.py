@@ -293,3 +293,25 @@ def test_recall_on_large_fronts_counts_doors_and_drawers_by_their_front():
     truth = [door(), drawer(0.3, height=0.25, name="deep"), drawer(0.6, height=0.1, name="shallow")]
     scores = score_joints(truth, [door()])
     assert scores["large_joints"] == 2 and scores["recall_large"] == pytest.approx(0.5)
+
+
+def test_the_real_cabinets_hand_labels_are_four_stacked_slides_out_of_its_front():
+    """benchmarks/articulation/tum_fr3_cabinet: the real TUM cabinet's drawers as the scorer reads them,
+    levelled as the tum source levels the recording: four slides along one axis, out of the face, their
+    fronts stacked bottom to top without overlap, within the cabinet's box."""
+    from stratamap.core.io.groundtruth import load_ground_truth
+    from tests.conftest import REPO
+
+    folder = REPO / "benchmarks" / "articulation" / "tum_fr3_cabinet"
+    gt = load_ground_truth(folder, [], (480, 640))
+    (cabinet,) = gt.objects
+    joints = true_joints(gt.objects)
+    assert [j.type for j in joints] == ["prismatic"] * 4
+    axes = np.array([j.axis for j in joints])
+    assert np.allclose(axes, axes[0], atol=1e-9) and abs(axes[0][2]) < 0.05
+    box = cabinet.box()
+    out_of_front = axes[0] @ (joints[0].pivot - box.center)
+    assert out_of_front > 0.3 * box.size[:2].min()  # the pivots lie on the face the slides leave by
+    bands = sorted((b[0][2], b[1][2]) for b in cabinet.part_boxes.values())
+    assert all(lo < hi <= nxt + 1e-6 for (lo, hi), (nxt, _) in zip(bands, bands[1:], strict=False))
+    assert bands[0][0] >= -1e-6 and bands[-1][1] <= box.size[2] + 1e-6
