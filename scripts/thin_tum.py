@@ -29,13 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-#: TUM's published colour intrinsics by camera (depth is registered to colour), 640 x 480.
-FREIBURG = {
-    "1": {"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3},
-    "2": {"fx": 520.9, "fy": 521.0, "cx": 325.1, "cy": 249.7},
-    "3": {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6},
-}
-#: Colour and depth closer in time than this (s) are one frame.
+from stratamap.plugins.sources.tum import TUM_CAMERAS, TUM_DEFAULT
+
+#: Colour and depth closer in time than this (s) are one frame (the tum source's association_tolerance).
 PAIR_TOLERANCE = 0.02
 
 
@@ -44,39 +40,24 @@ def _fail(message: str) -> None:
     raise SystemExit(2)
 
 
-def _listing(path: Path) -> list[tuple[float, str]]:
-    if not path.is_file():
-        _fail(f"{path}: not found (a TUM sequence folder has rgb.txt, depth.txt and groundtruth.txt)")
-    out = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
-        if line.startswith("#") or not line.strip():
-            continue
-        fields = line.split()
-        try:
-            out.append((float(fields[0]), fields[1]))
-        except (ValueError, IndexError):
-            _fail(f"{path}:{number}: expected 'timestamp filename', got {line.strip()!r}")
-    return out
-
-
 def _pairs(src: Path) -> list[tuple[float, str, float, str]]:
-    rgb = _listing(src / "rgb.txt")
-    depth = _listing(src / "depth.txt")
-    truth = src / "groundtruth.txt"
-    if not truth.is_file():
-        _fail(f"{truth}: not found (the frames' poses)")
+    """(depth time, depth file, colour time, colour file) of the frames the tum source would pair
+    (core/io/rgbd.py's lists and association), within the poses' time span."""
+    from stratamap.core.errors import DataError
+    from stratamap.core.io.rgbd import associate, parse_tum_poses, read_timestamped_list
+
     try:
-        times = np.loadtxt(truth, comments="#", usecols=0, ndmin=1)
-    except ValueError as exc:
-        _fail(f"{truth}: expected lines 'timestamp tx ty tz qx qy qz qw' ({exc})")
-    if not len(rgb) or not len(times):
-        _fail(f"{src}: no colour frames or no poses")
-    rgb_times = np.array([t for t, _ in rgb])
-    pairs = []
-    for t, name in depth:
-        k = int(np.argmin(np.abs(rgb_times - t)))
-        if abs(rgb_times[k] - t) <= PAIR_TOLERANCE and times[0] <= t <= times[-1]:
-            pairs.append((t, name, rgb[k][0], rgb[k][1]))
+        rgb = read_timestamped_list(src / "rgb.txt", 1, "an image file name")
+        depth = read_timestamped_list(src / "depth.txt", 1, "an image file name")
+        times, _ = parse_tum_poses(src / "groundtruth.txt")
+    except DataError as exc:
+        _fail(str(exc))
+    depth_t = np.array([t for t, _ in depth])
+    pairs = [
+        (depth_t[d], depth[d][1][0], rgb[r][0], rgb[r][1][0])
+        for d, r in associate(depth_t, np.array([t for t, _ in rgb]), PAIR_TOLERANCE)
+        if times[0] <= depth_t[d] <= times[-1]
+    ]
     if not pairs:
         _fail(f"{src}: no colour and depth frames within {PAIR_TOLERANCE} s of each other inside the poses' time span")
     return pairs
@@ -87,7 +68,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("src", type=Path, help="a TUM RGB-D sequence folder")
     parser.add_argument("out", type=Path, help="the folder to write (must not exist)")
     parser.add_argument("--frames", type=int, default=200, help="frames to keep, evenly spaced")
-    parser.add_argument("--freiburg", choices=sorted(FREIBURG), help="the camera; default: from the folder's name")
+    parser.add_argument("--freiburg", choices=sorted(TUM_CAMERAS), help="the camera; default: from the folder's name")
     args = parser.parse_args(argv)
     from PIL import Image
 
@@ -125,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
         for listing, title, lines in (("rgb.txt", "color images", rgb_lines), ("depth.txt", "depth maps", depth_lines)):
             (work / listing).write_text(f"# {title}\n{head}# timestamp filename\n" + "\n".join(lines) + "\n")
         shutil.copyfile(args.src / "groundtruth.txt", work / "groundtruth.txt")
-        cam = {"width": 640, "height": 480, **FREIBURG[camera], "depth_scale": 5000.0}
+        cam = {**TUM_DEFAULT, **TUM_CAMERAS[camera]}
         (work / "camera.json").write_text(json.dumps(cam, indent=1) + "\n")
         work.rename(args.out)
     except BaseException:
