@@ -31,15 +31,16 @@ def label_stride(configured: int | None, width: int) -> int:
 QUANTUM = 1e-5  # 10 micrometres: far below any voxel size, so keys are exact for TSDF surfaces
 
 
-def _grid_keys(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(int64 key per point on a 10 um grid, quantized coordinates, grid origin), or None when the
-    extent is too large to pack three coordinates into 63 bits."""
-    lo = points.min(0)
-    q = np.rint((points - lo) / QUANTUM).astype(np.int64)
-    span = q.max(0) + 1
+def _grid_keys(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(int64 key per point on a 10 um grid, the grid coordinates of each point), or None when the
+    extent is too large to pack three coordinates into 63 bits. The grid is fixed in the world (not
+    placed at the points' minimum), so a point keeps its grid position whatever the others are."""
+    q = np.rint(points / QUANTUM).astype(np.int64)
+    rel = q - q.min(0)
+    span = rel.max(0) + 1
     if float(span[0]) * float(span[1]) * float(span[2]) >= 2**62:
         return None
-    return (q[:, 0] * span[1] + q[:, 1]) * span[2] + q[:, 2], q, lo
+    return (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2], q
 
 
 def position_order(points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
@@ -66,9 +67,16 @@ def canonical_mesh(
     if packed is None:
         unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
     else:
-        keys, q, lo = packed
-        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        unique = lo + q[first] * QUANTUM
+        keys, q = packed
+        # Duplicates share their key and so their grid position: which of them sorts first does not
+        # matter, and an unstable sort is faster than the stable one np.unique(return_index) takes.
+        order = np.argsort(keys)
+        sorted_keys = keys[order]
+        starts = np.ones(len(keys), bool)
+        starts[1:] = sorted_keys[1:] != sorted_keys[:-1]
+        inverse = np.empty(len(keys), np.int64)
+        inverse[order] = np.cumsum(starts) - 1
+        unique = q[order[starts]] * QUANTUM
     inverse = inverse.reshape(-1)
     colors = None
     if vertex_colors is not None:
@@ -84,7 +92,7 @@ def canonical_mesh(
     faces = inverse[faces]
     n = np.int64(max(len(unique), 1))
     if len(faces) and float(n) ** 3 < 2**62:
-        faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2], kind="stable")]
+        faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2])]  # equal keys: equal rows
     elif len(faces):
         faces = faces[np.lexsort(faces.T[::-1])]
     return unique, faces, colors
@@ -344,8 +352,8 @@ class TSDFVolume:
         colors = None if raw_colors is None else np.clip(raw_colors[order], 0, 1)
         mesh = None
         if self.cfg.extract_mesh:
-            with open3d_threads(1):
-                tmesh = self.grid.extract_triangle_mesh(weight)
+            # On all threads: the canonical mesh comes out the same whatever their number (a test checks it).
+            tmesh = self.grid.extract_triangle_mesh(weight)
             verts = tmesh.vertex.positions.numpy().astype(np.float64)
             faces = tmesh.triangle.indices.numpy().astype(np.int64)
             vcol = None

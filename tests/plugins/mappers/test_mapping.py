@@ -475,3 +475,33 @@ def test_occupancy_maps_a_lidar_recording_from_its_sweeps():
     lidar_free = [key for key in both if seen_by_lidar[key] == 0]
     assert len(lidar_free) > 0.5 * len(both)
     assert np.mean([seen_by_laser[key] == 0 for key in lidar_free]) > 0.95
+
+
+def test_the_surface_is_the_same_whatever_open3ds_threads():
+    """The mesh is extracted on all of Open3D's threads, which emit vertices and triangles in an order
+    (and duplicates at block borders) that depend on their number; the canonical mesh and the points
+    must not."""
+    from stratamap.core.parallel import open3d_threads
+    from stratamap.core.pipeline import run_stages
+    from stratamap.plugins.mappers._volume import TSDFVolume
+    from stratamap.plugins.mappers.tsdf import TSDFMapper
+    from stratamap.plugins.sources.synthetic import SyntheticSource
+
+    scene = {"type": "office", "seed": 2, "camera": {"width": 160, "height": 120}, "trajectory": {"frames": 12}}
+    stream = run_stages([SyntheticSource(scene=scene)]).stream
+    volume = TSDFVolume(TSDFMapper().config, stream.intrinsics)
+    for frame in stream.frames:
+        depth, _ = volume.usable_depth(frame)
+        volume.integrate(depth, frame.rgb, frame.pose)
+    surfaces = []
+    for threads in (1, 2, 4):
+        with open3d_threads(threads):
+            surfaces.append(volume.surface())
+    first = surfaces[0]
+    assert len(first.mesh.faces) > 1000
+    for other in surfaces[1:]:
+        np.testing.assert_array_equal(first.points, other.points)
+        np.testing.assert_array_equal(first.colors, other.colors)
+        np.testing.assert_array_equal(first.mesh.vertices, other.mesh.vertices)
+        np.testing.assert_array_equal(first.mesh.faces, other.mesh.faces)
+        np.testing.assert_array_equal(first.mesh.visual.vertex_colors, other.mesh.visual.vertex_colors)
