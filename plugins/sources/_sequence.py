@@ -56,6 +56,14 @@ class SequenceConfig(StageConfig):
     path: str = Field(description="Folder of the sequence.")
     max_frames: int | None = Field(default=None, ge=1, description="Read at most this many frames (after `stride`).")
     stride: int = Field(default=1, ge=1, description="Read every n-th frame.")
+    first_frame: int = Field(
+        default=0,
+        ge=0,
+        description=(
+            "Start at this frame of the sequence (0: the first); `stride` and `max_frames` count from it. Skips a "
+            "camera still being set down, or reads a second subsample of a long recording."
+        ),
+    )
     gravity: Literal["auto", "off"] = Field(
         default="auto",
         description=(
@@ -101,8 +109,13 @@ class PosedFrames(TimedSequence):
         return [copy.deepcopy(f, memo) for f in self]
 
 
-def select(indices: list[int], stride: int, max_frames: int | None) -> list[int]:
-    picked = indices[::stride]
+def select(
+    indices: list[int], stride: int, max_frames: int | None, first_frame: int = 0, where: str = "the sequence"
+) -> list[int]:
+    """The frames read: from ``first_frame`` on, every ``stride``-th, at most ``max_frames``."""
+    if indices and first_frame >= len(indices):
+        raise DataError(f"{where}: first_frame is {first_frame}, but it has {len(indices)} frames")
+    picked = indices[first_frame::stride]
     return picked[:max_frames] if max_frames else picked
 
 

@@ -92,7 +92,7 @@ class RedwoodSource(SequenceSource[RedwoodConfig]):
             intr = read_open3d_camera(cams[0])
         else:
             self.warn(f"{root}: no camera*.json; using PrimeSense intrinsics (fx = fy = 525)")
-        idx = select(list(range(len(colors))), cfg.stride, cfg.max_frames)
+        idx = select(list(range(len(colors))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
         shape = (intr.height, intr.width)
         check_depth_scale(read_depth(depths[idx[0]], cfg.depth_scale, shape), depths[idx[0]], cfg.depth_scale)
         poses: list = [None] * len(idx)

@@ -178,7 +178,7 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
             f"{path} (depth intrinsics)",
         )
         scale = cfg.depth_scale if "depth_scale" in cfg.model_fields_set else sens.depth_shift
-        idx = select(list(range(len(sens))), cfg.stride, cfg.max_frames)
+        idx = select(list(range(len(sens))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
 
         def read(k: int) -> tuple[np.ndarray, np.ndarray]:
             rgb, raw = read_sens_frame(sens, idx[k])
@@ -233,7 +233,7 @@ class ScanNetSource(SequenceSource[ScanNetConfig]):
             },
             str(K_file),
         )
-        idx = select(list(range(len(depths))), cfg.stride, cfg.max_frames)
+        idx = select(list(range(len(depths))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
         shape = (intr.height, intr.width)
         check_depth_scale(read_depth(depths[idx[0]], cfg.depth_scale, shape), depths[idx[0]], cfg.depth_scale)
         poses: list = []

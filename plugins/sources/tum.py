@@ -153,7 +153,7 @@ class TUMSource(SequenceSource[TUMConfig]):
                 f"only {len(pairs)} of {len(depth_rows)} depth images have an rgb image within "
                 f"{cfg.association_tolerance} s"
             )
-        chosen = select(list(range(len(pairs))), cfg.stride, cfg.max_frames)
+        chosen = select(list(range(len(pairs))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
         pairs = [pairs[i] for i in chosen]
         times = [float(depth_t[d]) for d, _ in pairs]
         rgb_files = [root / rgb_rows[r][1][0] for _, r in pairs]

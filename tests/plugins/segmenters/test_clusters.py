@@ -443,3 +443,19 @@ def test_a_few_points_floating_far_above_a_thing_are_strays():
     caster = box_surface((0.6, 0.2, 0.0), (0.64, 0.24, 0.05), 0.02)  # 15 cm out, on the floor
     back = box_surface((0.0, 0.4, 0.6), (0.45, 0.44, 1.0), 0.02)  # 14 cm above the seat
     assert not stray_points(np.concatenate([seat, caster, back]), radius, gap, smallest).any()
+    assert not stray_points(np.concatenate([seat, caster, back]), radius, gap, smallest, far=0.5).any()
+
+
+def test_a_few_points_far_from_a_thing_at_its_own_height_are_strays():
+    """Two points a frame's mask caught 2 m past a counter run's end, at its plinth's height, stretched
+    its box from 2.7 m to 4.9 m on a real kitchen: they are strays at any height once ``far`` away;
+    without ``far`` (and below the rest) they stay, as before."""
+    from stratamap.plugins.segmenters.clusters import stray_points
+
+    radius, gap, smallest = 0.048, 0.08, 30
+    run = box_surface((0.0, 0.0, 0.0), (2.7, 0.6, 0.9), 0.02)
+    caught = np.array([[4.7, 0.3, 0.12], [4.72, 0.3, 0.14]])
+    points = np.concatenate([run, caught])
+    assert not stray_points(points, radius, gap, smallest).any()
+    stray = stray_points(points, radius, gap, smallest, far=0.5)
+    assert stray[len(run) :].all() and not stray[: len(run)].any()

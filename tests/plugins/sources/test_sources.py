@@ -56,6 +56,20 @@ def test_tum_reads_back_what_synth_wrote(tum_seq, world):
     assert len(stream.laser_scans) == 5
 
 
+def test_first_frame_starts_the_subsample_and_past_the_end_is_a_one_line_error(tum_seq, world):
+    out = read(TUMSource(path=str(tum_seq), gravity="off", first_frame=1, stride=2))
+    stream, gt = out["frames"], out["ground_truth"]
+    assert len(stream.frames) == 2
+    for frame, k in zip(stream.frames, (1, 3), strict=True):
+        truth, labels = world.frame(k)
+        np.testing.assert_array_equal(frame.rgb, truth.rgb)
+        np.testing.assert_allclose(frame.pose, truth.pose, atol=1e-6)
+        np.testing.assert_array_equal(gt.frame_labels[frame.index].instance_ids, labels.instance_ids)
+    with pytest.raises(DataError, match=r"first_frame is 5, but it has 5 frames") as err:
+        read(TUMSource(path=str(tum_seq), gravity="off", first_frame=5))
+    assert str(tum_seq) in str(err.value)
+
+
 def test_tum_gravity_auto_keeps_a_z_up_input(tum_seq):
     data = PipelineData()
     TUMSource(path=str(tum_seq)).run(data)
