@@ -487,8 +487,20 @@ class MatchingCompleter(Completer[MatcherConfigT]):
     def finish(self, insts: ObjectInstances, data: PipelineData, attempted: int) -> dict[str, Any]:
         """The completed instances and the augmented scene built from them."""
         cfg = self.config
-        rejected = sum(1 for inst in insts if "completion_rejected" in inst.attributes)
-        self.note("objects", {"completed": len(insts.completed()), "attempted": attempted, "rejected": rejected})
+        rejected = [inst for inst in insts if "completion_rejected" in inst.attributes]
+        self.note("objects", {"completed": len(insts.completed()), "attempted": attempted, "rejected": len(rejected)})
+        if rejected:
+            # One line for all: a real room's clutter rejects a dozen models, and a line each buried the rest.
+            self.note(
+                "completions_rejected",
+                [{"instance": i.id, "class": i.class_name, "why": i.attributes["completion_rejected"]} for i in rejected],
+            )
+            named = ", ".join(f"{i.id} ({i.class_name})" for i in rejected)
+            first = rejected[0].attributes["completion_rejected"]
+            self.warn(
+                f"{'object' if len(rejected) == 1 else 'objects'} {named}: completion rejected, kept as observed: "
+                + (first if len(rejected) == 1 else f"each one's reason in notes.{self.name}.completions_rejected")
+            )
         out: dict[str, Any] = {"instances": insts}
         aug = augmented_scene(data.map.geometry, insts, cfg.epsilon, cfg.sample_spacing)
         if aug is not None:
@@ -596,10 +608,9 @@ class MatchingCompleter(Completer[MatcherConfigT]):
         return out
 
     def reject(self, inst: ObjectInstance, reason: str) -> None:
-        """Leave ``inst`` as observed, with the reason in its attributes and the run's warnings."""
+        """Leave ``inst`` as observed, with the reason in its attributes (:meth:`finish` warns once for all)."""
         inst.completion = None
         inst.attributes["completion_rejected"] = reason
-        self.warn(f"object {inst.id} ({inst.class_name}): completion rejected, kept as observed: {reason}")
 
 
 def _objects(ids: list[int]) -> str:

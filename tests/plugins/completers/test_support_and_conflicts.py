@@ -165,6 +165,26 @@ def test_icp_match_keeps_what_was_seen_when_no_model_agrees(tmp_path):
     out = ICPMatchCompleter(library=str(tmp_path)).run(data)
     inst = out["instances"][1]
     assert inst.completion is None and "observed points" in inst.attributes["completion_rejected"]
+    (warning,) = [w for w in data.warnings if "completion rejected" in w]
+    assert "object 1 (cabinet)" in warning and inst.attributes["completion_rejected"] in warning
+
+
+def test_rejected_completions_are_one_warning_with_each_reason_in_the_notes(tmp_path):
+    """A real room's clutter rejects a dozen models: one warning names them all, the notes say why each."""
+    boxes(((0.3, 0.3, 1.6), (0, 0, 0.8))).export(tmp_path / "tall.stl")
+    (tmp_path / "classes.csv").write_text("file,class\ntall.stl,cabinet\n")
+    instances = []
+    for k in range(3):
+        seen = surface_points(boxes(((1.4, 0.5, 0.6), (3.0 * k, 1.0, 0.3))), (0, 0, 0))
+        seen = seen[seen[:, 2] > 0.01]
+        instances.append(ObjectInstance(k + 1, "cabinet", seen, gravity_aligned_box(seen)))
+    data = PipelineData()
+    data.map.instances = ObjectInstances(instances)
+    ICPMatchCompleter(library=str(tmp_path)).run(data)
+    warnings = [w for w in data.warnings if "completion rejected" in w]
+    assert len(warnings) == 1 and "objects 1 (cabinet), 2 (cabinet), 3 (cabinet)" in warnings[0]
+    rejected = data.notes["icp_match"]["completions_rejected"]
+    assert [r["instance"] for r in rejected] == [1, 2, 3] and all("observed points" in r["why"] for r in rejected)
 
 
 def test_matching_completers_keep_ranked_alternatives_in_memory_not_in_the_map(tmp_path):
