@@ -493,7 +493,10 @@ class MatchingCompleter(Completer[MatcherConfigT]):
             # One line for all: a real room's clutter rejects a dozen models, and a line each buried the rest.
             self.note(
                 "completions_rejected",
-                [{"instance": i.id, "class": i.class_name, "why": i.attributes["completion_rejected"]} for i in rejected],
+                [
+                    {"instance": i.id, "class": i.class_name, "why": i.attributes["completion_rejected"]}
+                    for i in rejected
+                ],
             )
             named = ", ".join(f"{i.id} ({i.class_name})" for i in rejected)
             first = rejected[0].attributes["completion_rejected"]

@@ -496,7 +496,9 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             self.warn(
                 f"only {len(pairs)} of {len(depth_msgs)} depth images have a color image within {cfg.sync_tolerance} s"
             )
-        pairs = [pairs[i] for i in select(list(range(len(pairs))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)]
+        pairs = [
+            pairs[i] for i in select(list(range(len(pairs))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
+        ]
         times = [depth_msgs[d][0] for d, _ in pairs]
         shape = (intr.height, intr.width)
 
@@ -548,7 +550,9 @@ class RosbagSource(SequenceSource[RosbagConfig]):
             topics = sorted(t for ts in bag["types"].values() for t in ts)
             raise DataError(f"{path}: no depth images and no PointCloud2 messages (topics: {topics})")
         sweeps = self._by_stamp(path, topic, sweeps)  # type: ignore[arg-type]
-        sweeps = [sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)]
+        sweeps = [
+            sweeps[i] for i in select(list(range(len(sweeps))), cfg.stride, cfg.max_frames, cfg.first_frame, cfg.path)
+        ]
         messages: BagMessages = bag["messages"]
 
         def read(k: int) -> np.ndarray:

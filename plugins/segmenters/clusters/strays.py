@@ -41,9 +41,7 @@ def drop_strays(lab: Labelling) -> None:
     lab.counts["stray_points_dropped"] = strays
 
 
-def stray_points(
-    points: np.ndarray, radius: float, gap: float, smallest: int, far: float = np.inf
-) -> np.ndarray:
+def stray_points(points: np.ndarray, radius: float, gap: float, smallest: int, far: float = np.inf) -> np.ndarray:
     """Which of one instance's points (z up) are strays: connected parts (neighbours within
     ``radius``) of fewer than ``smallest`` points, other than its largest part, that lie ``gap`` or
     more from that largest part and rise ``gap`` or more above the highest of all its other points,
