@@ -33,7 +33,8 @@ class KeyframeChooser:
     """Chooses the keyframes of a stream, one frame at a time in stream order.
 
     ``new_surface``: the share of a frame's sampled depth pixels that must lie more than a cell from
-    every cell a keyframe saw for it to be a keyframe (0: every frame is one). ``cell``: the cell
+    every cell a keyframe saw (with ``views`` above 1: in cells fewer than ``views`` keyframes saw, or
+    near them) for it to be a keyframe (0: every frame is one). ``cell``: the cell
     side (m); ``stride``: the pixel grid the depth is sampled on; ``depth_max``: farther depth is not
     counted (noise at range would make every frame new). A frame without usable depth or pose is no
     keyframe; the first frame with both is one."""
@@ -45,13 +46,16 @@ class KeyframeChooser:
         cell: float = 0.1,
         stride: int = 8,
         depth_max: float = 4.0,
+        views: int = 1,
     ):
         self.intrinsics = intrinsics
         self.new_surface = float(new_surface)
         self.cell = float(cell)
         self.stride = int(stride)
         self.depth_max = float(depth_max)
+        self.views = max(1, int(views))
         self.seen = np.zeros(0, np.int64)  # sorted cell ids the keyframes saw
+        self.count = np.zeros(0, np.int64)  # how many keyframes saw each of them
 
     def __call__(self, depth: np.ndarray | None, pose: np.ndarray | None) -> bool:
         """Whether this frame (its depth in metres, camera-to-world pose) is a keyframe; a keyframe's
@@ -66,10 +70,20 @@ class KeyframeChooser:
             return False
         pose = np.asarray(pose, np.float64)
         cells = cell_ids(pts @ pose[:3, :3].T + pose[:3, 3], self.cell)
-        new = ~np.isin(cells, self.seen, assume_unique=False)
+        if len(self.seen):
+            at = np.minimum(np.searchsorted(self.seen, cells), len(self.seen) - 1)
+            views = np.where(self.seen[at] == cells, self.count[at], 0)
+        else:
+            views = np.zeros(len(cells), np.int64)
+        new = views < self.views  # pixels in cells fewer than `views` keyframes saw
         if len(self.seen) and new.mean() < self.new_surface:
             return False
-        self.seen = np.union1d(self.seen, _with_neighbours(np.unique(cells)))
+        touched = _with_neighbours(np.unique(cells))
+        merged = np.union1d(self.seen, touched)
+        count = np.zeros(len(merged), np.int64)
+        count[np.searchsorted(merged, self.seen)] = self.count
+        count[np.searchsorted(merged, touched)] += 1
+        self.seen, self.count = merged, count
         return True
 
 

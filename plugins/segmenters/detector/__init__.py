@@ -64,6 +64,15 @@ class KeyframesConfig(BaseModel):
         "frame saw before it (0: every frame).",
     )
     cell: float = Field(default=0.1, gt=0.0, description="Side (m) of the cells surface is counted in.")
+    views: int = Field(
+        default=1,
+        ge=1,
+        le=100,
+        description=(
+            "Surface counts as new until this many labelled frames saw it: a slow walk's frames then still get "
+            "labelled from several viewpoints (1: once)."
+        ),
+    )
 
 
 class DetectorConfig(StageConfig):
@@ -245,7 +254,9 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
         stuff = _depth.stuff_class_ids(vocab)
         out = FrameLabels(segmenter=self.name, frames=PackedFrames(), tracked_instances=False)
         counts: dict[str, int] = {}
-        keyframe = KeyframeChooser(stream.intrinsics, cfg.keyframes.new_surface, cfg.keyframes.cell)
+        keyframe = KeyframeChooser(
+            stream.intrinsics, cfg.keyframes.new_surface, cfg.keyframes.cell, views=cfg.keyframes.views
+        )
 
         def read_and_detect(k: int) -> tuple[Any, Any]:
             """Frame ``k`` and its detections (None: not a keyframe). Runs a frame ahead of the depth

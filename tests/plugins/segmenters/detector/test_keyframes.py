@@ -34,6 +34,15 @@ def test_a_camera_that_looks_at_the_same_wall_labels_one_frame_and_a_turn_labels
     assert chosen == [True, False, False, False, True, False]
 
 
+def test_views_labels_the_same_surface_from_that_many_frames():
+    """A slow walk sees each surface in dozens of frames; with ``views`` 3 the first three frames of a
+    wall are labelled, then none until the camera turns to a wall no frame labelled."""
+    depth = np.full((48, 64), 2.05, np.float32)  # mid-cell: no point on a cell boundary
+    choose = KeyframeChooser(INTRINSICS, new_surface=0.2, views=3)
+    chosen = [choose(depth, wall_pose(yaw)) for yaw in (0.0, 0.0, 0.0, 0.0, 90.0, 90.0, 90.0, 90.0)]
+    assert chosen == [True, True, True, False, True, True, True, False]
+
+
 def test_zero_new_surface_labels_every_frame_and_no_depth_is_no_keyframe():
     depth = np.full((48, 64), 2.05, np.float32)  # mid-cell: no point on a cell boundary
     every = KeyframeChooser(INTRINSICS, new_surface=0.0)
