@@ -64,10 +64,9 @@ def stray_points(points: np.ndarray, radius: float, gap: float, smallest: int, f
     # The highest point of all the other parts: the highest part's, or for that part the next one's.
     others_top = np.where(np.arange(len(size)) == order[0], top[order[min(1, len(order) - 1)]], top[order[0]])
     above = top >= others_top + gap
-    candidate = size < smallest
+    # Without a finite ``far`` only a part rising above the rest can be a stray.
+    candidate = (size < smallest) & (above | np.isfinite(far))
     candidate[main] = False
-    if not np.isfinite(far):
-        candidate &= above
     if not candidate.any():
         return stray
     apart = np.full(len(size), np.inf)
