@@ -101,6 +101,11 @@ ON_A_SUPPORT: tuple[str, ...] = ("cup", "bottle", "book", "laptop", "monitor", "
 #: pedestal desk or one with a modesty panel is closed along its length.
 OPEN_BELOW: tuple[str, ...] = ("table",)
 
+#: Classes built around their top: every part of one stands under the top's outline (a table's legs, a
+#: desk's pedestals), so what lies beside it is another object (a chair pushed in at a table). Not a
+#: counter: a run of units holds units whose tops are no worktop (a cooker, a tall unit at its end).
+UNDER_THEIR_TOP: tuple[str, ...] = ("table", "desk")
+
 #: Appliances that stand in kitchens, not in offices or living rooms.
 KITCHEN_APPLIANCES: tuple[str, ...] = ("fridge", "oven", "sink", "dishwasher")
 

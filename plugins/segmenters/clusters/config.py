@@ -24,6 +24,7 @@ DEFAULT_PASSES = (
     "instances",
     "drop_strays",
     "trim_feet",
+    "split_beside_tops",
     "split_units",
     "join_parts",
     "assemble_chairs",

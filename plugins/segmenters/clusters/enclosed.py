@@ -94,6 +94,9 @@ def join_enclosed(lab: Labelling) -> None:
             if lab.too_large(merged_shape):
                 refused.append({"instance": iid, "into": holder, "why": "larger than any class together"})
                 continue
+            if lab.held_apart(sel, h_sel):
+                refused.append({"instance": iid, "into": holder, "why": "kept apart by an earlier pass"})
+                continue
             lab.relabel(sel, instance=holder, cls=vocab.id(h_name))
             info[holder] = (h_name, info[holder][1], merged)
             holders.pop(iid, None)

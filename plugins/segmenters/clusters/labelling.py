@@ -64,6 +64,8 @@ class Labelling:
     sight: Sightlines | None = None
     counts: dict[str, int] = field(default_factory=dict)  # what the passes did, for the `segments` note
     notes: dict[str, Any] = field(default_factory=dict)  # the passes' notes, in the order they were made
+    #: Pairs of point sets a pass found to be two objects: the joining passes after it leave them apart.
+    apart: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     _shapes: dict[tuple[str, bytes], Shape] = field(default_factory=dict)
 
     @classmethod
@@ -113,6 +115,19 @@ class Labelling:
         if cls is not None:
             self.class_ids = self.class_ids.copy()
             self.class_ids[sel] = cls
+
+    def keep_apart(self, first: np.ndarray, second: np.ndarray) -> None:
+        """Record that the points ``first`` and ``second`` (indices) are two objects: a later join of an
+        instance holding most of one with an instance holding most of the other is refused."""
+        self.apart.append((np.asarray(first), np.asarray(second)))
+
+    def held_apart(self, first: np.ndarray, second: np.ndarray) -> bool:
+        """Whether joining the instances of points ``first`` and ``second`` undoes a ``keep_apart``."""
+
+        def most(part: np.ndarray, whole: np.ndarray) -> bool:
+            return len(part) > 0 and np.isin(part, whole).mean() >= 0.5
+
+        return any((most(a, first) and most(b, second)) or (most(a, second) and most(b, first)) for a, b in self.apart)
 
     def note(self, key: str, items: list[dict[str, Any]]) -> None:
         """Record what a pass did under ``key``; a second pass noting the same key adds to it."""

@@ -48,9 +48,12 @@ def join_parts(lab: Labelling) -> None:
             standing_class[i] = settled
         if settled in NOT_STACKED and fits_class(settled, shape):
             anchor_class[i] = settled
-    joined = []
+    joined, refused = [], []
 
     def join(iid: int, anchor: int, name: str, relabel: np.ndarray) -> None:
+        if lab.held_apart(info[iid][2], info[anchor][2]):
+            refused.append({"instance": iid, "into": anchor, "why": "kept apart by an earlier pass"})
+            return
         lab.relabel(info[iid][2], instance=anchor)
         lab.relabel(relabel, cls=vocab.id(name))
         joined.append({"instance": iid, "into": anchor, "class": name})
@@ -141,3 +144,4 @@ def join_parts(lab: Labelling) -> None:
                 join(iid, anchor, a_name, sel)
                 break
     lab.note("parts_joined", joined)
+    lab.note("joins_refused", refused)

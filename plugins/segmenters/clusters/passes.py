@@ -23,6 +23,7 @@ from stratamap.plugins.segmenters.clusters import (
     strays,
     stuff,
     supports,
+    tops,
     units,
 )
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
@@ -48,6 +49,7 @@ PASSES: dict[str, Pass] = {
     "instances": Pass(("join_supports",), instances.make_instances),
     "drop_strays": Pass(_AFTER_INSTANCES, strays.drop_strays),
     "trim_feet": Pass(_AFTER_INSTANCES, feet.give_back_feet),
+    "split_beside_tops": Pass(_AFTER_INSTANCES, tops.split_beside_tops),
     "split_units": Pass(_AFTER_INSTANCES, units.split_units),
     "join_parts": Pass(_AFTER_INSTANCES, parts.join_parts),
     "assemble_chairs": Pass(_AFTER_INSTANCES, chairs.assemble_chairs),

@@ -42,7 +42,7 @@ def join_seating(lab: Labelling) -> None:
             tree = cKDTree(points[seats[first]])
             for second in ids[a + 1 :]:
                 near, _ = tree.query(points[seats[second]], distance_upper_bound=TOUCH_VOXELS * lab.voxel)
-                if not np.isfinite(near).any():
+                if not np.isfinite(near).any() or lab.held_apart(seats[first], seats[second]):
                     continue
                 union = np.concatenate([seats[first], seats[second]])
                 shape = lab.shape(union)

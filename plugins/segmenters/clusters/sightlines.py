@@ -143,3 +143,12 @@ class Sightlines:
         kept = over.any(axis=1)
         through = beyond[kept] + self.noise[rays[kept]] < 1.0
         return Sight(int(through.sum()), int((~through).sum()))
+
+    def across_level(self, height: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the rays cross the level ``z = height`` (xy) and whether each went on past it (True) or
+        ended on it, within the depth noise (False); rays ending before the level are left out."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (height - self.origins[:, 2]) / self.directions[:, 2]
+        crossing = np.flatnonzero(np.isfinite(t) & (t > 0.0) & (t < 1.0 + self.noise))
+        xy = self.origins[crossing, :2] + t[crossing, None] * self.directions[crossing, :2]
+        return xy, t[crossing] < 1.0 - self.noise[crossing]
