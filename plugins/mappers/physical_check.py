@@ -123,14 +123,16 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
         )
         rejected = conflicting(instances, undone)
         reason = "penetrates a neighbour where it was seen"
+        all_rejected: list[int] = []
         while rejected:
             for i in rejected:
                 instances[i].completion = None
                 instances[i].attributes["completion_rejected"] = reason
-                self.warn(f"object {i} ({instances[i].class_name}): completion rejected, kept as observed: {reason}")
+            all_rejected += rejected
             completed = [inst.id for inst in instances if inst.completion is not None]
             rejected = conflicting(instances, completed, against=rejected, exempt=supports)
             reason = "penetrates what was seen of a neighbour whose model was rejected"
+        self._warn_rejected([instances[i] for i in all_rejected])
         shifts = {
             inst.id: inst.completion.pose[:3, 3] - chosen[inst.id].completion.pose[:3, 3]  # type: ignore[union-attr]
             for inst in instances
@@ -160,6 +162,25 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             # The augmented scene of the models where they now are (a completer built it where they were).
             out["augmented"] = augmented_scene(data.map.geometry, instances, cfg.epsilon, cfg.sample_spacing)
         return out
+
+    def _warn_rejected(self, rejected: list[Any]) -> None:
+        """One warning for every completion rejected (a real kitchen's clutter rejects several, and a
+        line each buried the rest), each one's reason in the notes (``completions_rejected``)."""
+        if not rejected:
+            return
+        self.note(
+            "completions_rejected",
+            [{"instance": i.id, "class": i.class_name, "why": i.attributes["completion_rejected"]} for i in rejected],
+        )
+        named = ", ".join(f"{i.id} ({i.class_name})" for i in rejected)
+        reason = (
+            rejected[0].attributes["completion_rejected"]
+            if len(rejected) == 1
+            else f"each one's reason in notes.{self.name}.completions_rejected"
+        )
+        self.warn(
+            f"{'object' if len(rejected) == 1 else 'objects'} {named}: completion rejected, kept as observed: {reason}"
+        )
 
     def _swap(self, instances: ObjectInstances) -> dict[int, tuple[str | None, str | None]]:
         """Min-conflict choice among every completed object's candidates, in place, before anything

@@ -117,6 +117,11 @@ def test_the_physical_check_keeps_a_model_where_it_was_observed():
         "penetrates what was seen of a neighbour whose model was rejected",
     ]
     assert all(i.completion is None for i in checked)
+    # One warning names both; the notes say why each.
+    warnings = [w for w in data.warnings if "completion rejected" in w]
+    assert len(warnings) == 1 and "objects 1 (chair), 2 (chair)" in warnings[0]
+    rejected = data.notes["physical_check"]["completions_rejected"]
+    assert sorted(r["why"] for r in rejected) == reasons
     assert slid(PhysicalCheckMapper(observed_distance=None).run(data)["instances"])  # what it did before: slide
 
 
