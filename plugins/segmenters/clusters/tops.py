@@ -15,6 +15,7 @@ import numpy as np
 from stratamap.core.map.priors import UNDER_THEIR_TOP, UNNAMED
 from stratamap.plugins.segmenters.clusters.grid import components, neighbour_pairs
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
+from stratamap.plugins.segmenters.clusters.shapes import fits_class
 
 #: The outline's grid (m): coarse enough that a top's unseen strips between seen ones (behind a cup,
 #: a sink's rim) close, fine enough that a chair pushed in to the table's edge stays outside.
@@ -27,11 +28,17 @@ MIN_TOP_AREA = 0.3
 MARGIN_CELLS = 1
 #: Holes in the seen top up to this many outline cells across close (what stood on it hid the top).
 CLOSE_CELLS = 2
-#: Under the top means this far (m) below its level or more: the top's own rim and apron are not.
+#: Under the top means this far (m) below its level or more: the top's own rim and apron are not, and a
+#: part beside the top lying wholly within this of its level is its rim.
 BELOW_TOP = 0.1
 #: A part beside the top takes what it reaches under the top up to this far (m): a chair's seat
 #: pushed under a table, not the table's legs across it.
 UNDER_REACH = 0.6
+#: A part holding this much (m^2) at the top's level (within LEVEL_BAND m) is the top going on, beyond
+#: where the plane fit stopped (a coffee table's top half under two cups); a chair's back crossing a
+#: table's level holds 0.02-0.05 m^2 there.
+TOP_GOES_ON = 0.1
+LEVEL_BAND = 0.03
 #: A part splits off only where the sensor saw through the top's level over it, by this many rays or
 #: more (a chair's seat beside a table, open above): where nothing was seen there the top may be
 #: there unseen, and the part is the object's (an island's end whose worktop no frame looked at).
@@ -76,19 +83,35 @@ def split_beside_tops(lab: Labelling) -> None:
         size = np.bincount(part[part >= 0])
         others = np.flatnonzero((lab.instance_ids > 0) & (lab.instance_ids != iid))
         near = cKDTree(lab.points[others]) if len(others) else None
-        moved, joined, dropped = [], [], 0
         crossing = lab.sight.across_level(level) if lab.sight is not None else None
+        leaving = []
         for k in np.argsort(-size, kind="stable"):
             members = sel[part[cell_of_member] == k]
+            z = lab.points[members, 2]
+            if z.min() > level - BELOW_TOP and z.max() < level + BELOW_TOP:
+                continue  # within the top's own thickness: its rim, which the plane fit left out
+            level_cells = np.floor(lab.points[members[np.abs(z - level) <= LEVEL_BAND], :2] / OUTLINE_CELL)
+            if len(np.unique(level_cells, axis=0)) * OUTLINE_CELL**2 >= TOP_GOES_ON:
+                continue  # the top going on at its level where the plane fit stopped: the object's
             if not seen_open(crossing, lab.points[sel[beside & (part[cell_of_member] == k)], :2]):
                 continue  # nothing shows the top is not there too: a part of the object whose top is unseen
+            leaving.append((members, int(size[k])))
+        if not leaving:
+            continue
+        # What stays must still be of its class by its shape: a sofa or a counter the frames called a
+        # table holds its back or its front beside its seat or its worktop.
+        rest = np.setdiff1d(sel, np.concatenate([m for m, _ in leaving]))
+        if len(rest) < 4 or not fits_class(vocab.name(cls), lab.shape(rest)):
+            continue
+        moved, joined, dropped = [], [], 0
+        for members, cells in leaving:
             neighbour = touching(members, lab.points, near, others, lab.instance_ids, TOUCH_VOXELS * lab.voxel)
             if neighbour:
                 # A piece of what stands beside the top, which the frames' masks made an instance of.
                 its_class = int(np.bincount(lab.class_ids[lab.instance_ids == neighbour]).argmax())
                 lab.relabel(members, instance=neighbour, cls=its_class)
                 joined.append(neighbour)
-            elif size[k] >= lab.scrap_size:
+            elif cells >= lab.scrap_size:
                 lab.relabel(members, instance=next_id, cls=vocab.id(UNNAMED))
                 lab.naming[next_id] = ("unnamed", f"beside the top of object {iid}")
                 moved.append(next_id)
@@ -115,8 +138,8 @@ def split_beside_tops(lab: Labelling) -> None:
 def beside_top(
     points: np.ndarray, support: np.ndarray, areas: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Which of one object's points lie beside the outline of its largest support surface (its top,
-    MIN_TOP_AREA or larger), on an OUTLINE_CELL grid closed over small holes and grown by
+    """Which of one object's points lie beside the outline of its highest support surface of
+    MIN_TOP_AREA or more (its top), on an OUTLINE_CELL grid closed over small holes and grown by
     MARGIN_CELLS, which lie under the top by BELOW_TOP or more, and the top's height; None when it
     holds no such top."""
     from scipy import ndimage
@@ -124,10 +147,13 @@ def beside_top(
     on = support >= 0
     if not on.any():
         return None
-    ids, counts = np.unique(support[on], return_counts=True)
-    top = int(ids[np.argmax(counts)])
-    if areas[top] < MIN_TOP_AREA:
+    ids = np.unique(support[on])
+    ids = ids[areas[ids] >= MIN_TOP_AREA]
+    if not len(ids):
         return None
+    # The highest (a coffee table's low shelf may be larger than its top, under the cups).
+    heights = [float(np.median(points[support == i, 2])) for i in ids]
+    top = int(ids[int(np.argmax(heights))])
     cell = np.floor(points[:, :2] / OUTLINE_CELL).astype(np.int64)
     pad = CLOSE_CELLS + MARGIN_CELLS + 1
     origin = cell.min(axis=0) - pad

@@ -94,3 +94,48 @@ def test_joins_of_what_a_pass_kept_apart_are_refused():
     assert lab.held_apart(np.arange(12, 40), np.arange(0, 12))
     assert not lab.held_apart(np.arange(0, 4), np.arange(10, 30))  # a scrap of the first is not it
     assert not lab.held_apart(np.arange(30, 40), np.arange(10, 30))
+
+
+def test_the_pass_gives_the_chair_back_and_keeps_the_tops_rim_and_legs():
+    """The whole pass on a table's instance holding a chair pushed in at it and a strip of its top's rim
+    that the plane fit left out: the chair becomes an instance of its own, seen open from above; the
+    rim (at the top's level) and the legs stay the table's, and no later join puts the chair back."""
+    from types import SimpleNamespace
+
+    from stratamap.plugins.segmenters.clusters.labelling import Supports
+    from stratamap.plugins.segmenters.clusters.tops import split_beside_tops
+
+    points, names, support = table_and_chair()
+    rim = solids([("rim", (-0.12, 0.0, 0.72), (0.0, 0.8, TOP))], SPACING)[0]
+    points = np.concatenate([points, rim])
+    names = np.concatenate([names, np.full(len(rim), "rim")])
+    support = np.concatenate([support, np.full(len(rim), -1)])
+    n = len(points)
+    table = VOCAB.id("table")
+    lab = Labelling.of_labels(
+        ClustersConfig(recognize=True),
+        points,
+        VOCAB,
+        np.full(n, table, np.int32),
+        np.ones(n, np.int32),
+        SPACING,
+        np.zeros(0),
+    )
+    lab.supports = Supports(support, np.array([TOP]), np.array([0.96]))
+    lab.layout = SimpleNamespace(labels=np.zeros(n, np.int64))
+    seat = np.stack(np.meshgrid(np.linspace(0.42, 0.78, 6), np.linspace(0.9, 1.05, 4)), -1).reshape(-1, 2)
+    # Rays pass the top's level over the chair's seat and over the rim (a ray past the rim's outer
+    # edge goes on down): only the rim's level says it is the top's.
+    beyond_rim = np.stack(np.meshgrid(np.linspace(-0.11, -0.06, 3), np.linspace(0.1, 0.7, 8)), -1).reshape(-1, 2)
+    lab.sight = rays_over(np.concatenate([seat, beyond_rim]), end_height=0.45)
+    split_beside_tops(lab)
+    chair = (names == "seat") | (names == "back")
+    chair_ids = np.unique(lab.instance_ids[chair])
+    assert len(chair_ids) == 1 and chair_ids[0] not in (0, 1)
+    assert (lab.instance_ids[(names == "top") | (names == "leg") | (names == "rim")] == 1).all()
+    assert lab.held_apart(np.flatnonzero(chair), np.flatnonzero(lab.instance_ids == 1))
+    assert lab.notes["split_beside_tops"][0]["new_instances"] == [int(chair_ids[0])]
+    # Without rays over the chair (a point cloud) nothing shows the top is not there: nothing splits.
+    lab.instance_ids, lab.sight = np.ones(n, np.int32), None
+    split_beside_tops(lab)
+    assert (lab.instance_ids == 1).all()
