@@ -5,7 +5,7 @@ it: the chairs pushed in at a dining table.
 On a real kitchen the frames' detector boxes a dining table and the chairs pushed in at it in one box
 and misses the chairs; the depth segments that touch the table join its mask, the fused votes call
 the chairs "table", and the table's instance holds five chairs. The votes hold no evidence against
-that; the geometry does: a table's legs and a counter's carcass stand under the top's outline, a
+that; the geometry does: a table's legs and a desk's pedestals stand under the top's outline, a
 chair's seat and back beside it."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from stratamap.plugins.segmenters.clusters.shapes import fits_class
 #: The outline's grid (m): coarse enough that a top's unseen strips between seen ones (behind a cup,
 #: a sink's rim) close, fine enough that a chair pushed in to the table's edge stays outside.
 OUTLINE_CELL = 0.05
-#: A worktop is at least this large (m^2): a chair's seat (0.2 m^2) is a support surface but no top
+#: A top is at least this large (m^2): a chair's seat (0.2 m^2) is a support surface but no top
 #: its back stands beside.
 MIN_TOP_AREA = 0.3
 #: The top's outline grows by this many outline cells before anything is beside it: a top's rim and
@@ -48,11 +48,11 @@ TOUCH_VOXELS = 2.0
 
 
 def split_beside_tops(lab: Labelling) -> None:
-    """Sets ``class_ids``, ``instance_ids`` and ``naming``: each part beside a worktop's outline (with
+    """Sets ``class_ids``, ``instance_ids`` and ``naming``: each part beside a top's outline (with
     what it reaches under the top) joins another instance it touches, or, large enough to be an
     object (``scrap_size`` cells), becomes an instance of its own, unnamed until
     the passes after name it; other parts leave the instance (the layout's or nothing's). The parts
-    and the worktop are kept apart from then on (``Labelling.keep_apart``). Each split is noted
+    and the table are kept apart from then on (``Labelling.keep_apart``). Each split is noted
     (``split_beside_tops``)."""
     from scipy.spatial import cKDTree
 
@@ -61,8 +61,8 @@ def split_beside_tops(lab: Labelling) -> None:
     if not lab.cfg.recognize:
         return
     vocab = lab.vocab
-    worktops = {vocab.id(name) for name in UNDER_THEIR_TOP if name in vocab}
-    if not worktops or UNNAMED not in vocab:
+    with_tops = {vocab.id(name) for name in UNDER_THEIR_TOP if name in vocab}
+    if not with_tops or UNNAMED not in vocab:
         return
     support_of_point, areas = lab.support_of_point, lab.supports.area
     stuff_ids, labels = lab.stuff_ids, lab.layout.labels
@@ -71,7 +71,7 @@ def split_beside_tops(lab: Labelling) -> None:
     splits = []
     for iid, sel in instance_members(lab.instance_ids).items():
         cls = int(np.bincount(lab.class_ids[sel]).argmax())
-        if cls not in worktops:
+        if cls not in with_tops:
             continue
         found = beside_top(lab.points[sel], support_of_point[sel], areas)
         if found is None or not found[0].any():
@@ -81,8 +81,6 @@ def split_beside_tops(lab: Labelling) -> None:
         cell_of_member = cell_of_member.reshape(-1)
         part = parts_beside(lab.cells[own], cell_of_member, beside, below, radius)
         size = np.bincount(part[part >= 0])
-        others = np.flatnonzero((lab.instance_ids > 0) & (lab.instance_ids != iid))
-        near = cKDTree(lab.points[others]) if len(others) else None
         crossing = lab.sight.across_level(level) if lab.sight is not None else None
         leaving = []
         for k in np.argsort(-size, kind="stable"):
@@ -103,6 +101,9 @@ def split_beside_tops(lab: Labelling) -> None:
         rest = np.setdiff1d(sel, np.concatenate([m for m, _ in leaving]))
         if len(rest) < 4 or not fits_class(vocab.name(cls), lab.shape(rest)):
             continue
+        # The other instances' points, for what a leaving part touches: only once something leaves.
+        others = np.flatnonzero((lab.instance_ids > 0) & (lab.instance_ids != iid))
+        near = cKDTree(lab.points[others]) if len(others) else None
         moved, joined, dropped = [], [], 0
         for members, cells in leaving:
             neighbour = touching(members, lab.points, near, others, lab.instance_ids, TOUCH_VOXELS * lab.voxel)
