@@ -31,8 +31,10 @@ summed) is taken first. Reported: precision, recall, F1, the counts (``true_join
 (degrees) and the median distance of the true pivot from the predicted hinge line (metres), and
 how many matched joints open the same way as the true one (``opens_same_way``: a drawer's travel,
 a door's swing of its part centre, towards the end of the range farther from 0; the axes match as
-lines, so a drawer put in backwards matches and is caught here); ``per_joint`` lists every true
-joint with its match and errors, then the unmatched predictions.
+lines, so a drawer put in backwards matches and is caught here); ``recall_large`` over the true
+joints whose front is at least 0.1 m², and with the walk's frames ``recall_large_seen`` over those
+of them the walk saw from the front (:mod:`stratamap.core.evaluation.front_visibility`);
+``per_joint`` lists every true joint with its match and errors, then the unmatched predictions.
 
 **Opening** (:func:`opening_check`, on an MJCF file): from the rest configuration each hinge and
 slide joint alone is moved to 90% of its range (towards the end of the range farther from the
@@ -331,9 +333,12 @@ def front_area(joint: WorldJoint) -> float | None:
     return float(np.prod(np.sort(size)[1:]))
 
 
-def score_joints(truth: list[WorldJoint], predicted: list[WorldJoint]) -> dict[str, Any]:
+def score_joints(
+    truth: list[WorldJoint], predicted: list[WorldJoint], seen: list[bool | None] | None = None
+) -> dict[str, Any]:
     """The family's figures for these joints (see the module's docstring); ``per_joint`` lists
-    every true joint with its match, then the predictions that matched none."""
+    every true joint with its match, then the predictions that matched none. ``seen``: for each
+    true joint, whether the walk saw its front from the front (``front_visibility``)."""
     matches = match_joints(truth, predicted)
     out: dict[str, Any] = _prf(len(matches), len(predicted), len(truth))
     out.update({"true_joints": len(truth), "predicted_joints": len(predicted), "matched_joints": len(matches)})
@@ -350,6 +355,13 @@ def score_joints(truth: list[WorldJoint], predicted: list[WorldJoint]) -> dict[s
     matched_large = sum(t in {m[0] for m in matches} for t in large)
     out["large_joints"] = len(large)
     out["recall_large"] = matched_large / len(large) if large else None
+    # Of those, the ones the walk saw from the front: the ones a pipeline can be asked to find.
+    if seen is not None:
+        large_seen = [t for t in large if seen[t]]
+        out["large_seen_joints"] = len(large_seen)
+        out["recall_large_seen"] = (
+            sum(t in {m[0] for m in matches} for t in large_seen) / len(large_seen) if large_seen else None
+        )
     # The axes match as lines: whether the matched joints also open the same way (a drawer put in
     # backwards, a door hinged on the right edge of the wrong face) is counted apart.
     agrees = {}
@@ -371,6 +383,8 @@ def score_joints(truth: list[WorldJoint], predicted: list[WorldJoint]) -> dict[s
             row["match"] = predicted[p].to_dict()
             row.update({k: e[k] for k in ("axis_error_deg", "line_error_m", "center_error")})
             row["opens_same_way"] = agrees.get(t)
+        if seen is not None:
+            row["seen_from_front"] = seen[t]
         rows.append(row)
     used = {p for _, p, _ in matches}
     rows += [{"truth": None, "match": pj.to_dict()} for p, pj in enumerate(predicted) if p not in used]
@@ -383,9 +397,15 @@ def has_articulation(objects: Iterable[GroundTruthObject]) -> bool:
     return any(j.type in KINDS for obj in objects for j in obj.joints)
 
 
-def evaluate_articulation(instances: ObjectInstances | None, objects: list[GroundTruthObject]) -> dict[str, Any]:
-    """The ``articulation`` family of a map against its ground truth's objects."""
-    return score_joints(true_joints(objects), predicted_joints(instances))
+def evaluate_articulation(
+    instances: ObjectInstances | None, objects: list[GroundTruthObject], stream: Any = None
+) -> dict[str, Any]:
+    """The ``articulation`` family of a map against its ground truth's objects; with an RGB-D
+    ``stream`` (posed depth frames) also which large fronts the walk saw from the front."""
+    from stratamap.core.evaluation.front_visibility import seen_from_front
+
+    truth = true_joints(objects)
+    return score_joints(truth, predicted_joints(instances), seen_from_front(truth, stream))
 
 
 # ----------------------------------------------------------------------------------- MuJoCo

@@ -50,7 +50,7 @@ def evaluate(data: PipelineData, details: bool = False) -> dict[str, Any]:
     from stratamap.core.evaluation.articulation import evaluate_articulation, has_articulation
 
     if has_articulation(gt.objects):  # doors and drawers to find: scored even when the map has none
-        out["articulation"] = evaluate_articulation(m.instances, gt.objects)
+        out["articulation"] = evaluate_articulation(m.instances, gt.objects, data.stream)
     if m.semantics is not None and m.geometry is not None and len(m.geometry) == len(m.semantics):
         if gt.point_class_ids is not None and data.stream is not None and data.stream.points is not None:
             gt_cls, gt_inst = panoptic.transfer_point_labels(

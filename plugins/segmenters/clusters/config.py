@@ -34,6 +34,7 @@ DEFAULT_PASSES = (
     "name_by_model",
     "rename_by_priors",
     "counters_need_a_kitchen",
+    "name_unnamed_by_model",
 )
 
 
@@ -222,12 +223,14 @@ class ClustersConfig(StageConfig):
             "points lie there. Reads up to 60 frames' depth again; scans and point clouds have no rays."
         ),
     )
-    naming: Literal["rules", "model"] = Field(
+    naming: Literal["rules", "model", "rules_then_model"] = Field(
         default="rules",
         description=(
             "How thing instances get their class after the geometry passes: rules (the votes, then the class size "
-            "priors' rules with recognize) or model (a trained classifier over measured features, run by "
-            "onnxruntime: naming_model; the rule passes rename_by_priors and counters_need_a_kitchen then stand down)."
+            "priors' rules with recognize), model (a trained classifier over measured features, run by "
+            "onnxruntime: naming_model; the rule passes rename_by_priors and counters_need_a_kitchen then stand down) "
+            "or rules_then_model (the rules name; what they leave 'object' the model names where it scores "
+            "naming_threshold or more)."
         ),
     )
     naming_threshold: float = Field(
@@ -235,15 +238,15 @@ class ClustersConfig(StageConfig):
         ge=0.0,
         le=1.0,
         description=(
-            "naming: model: an instance whose most likely class scores below this is 'object'; its score is in "
-            "its naming either way."
+            "naming: model or rules_then_model: an instance the model names whose most likely class scores below "
+            "this is 'object'; its score is in its naming either way."
         ),
     )
     naming_model: str | None = Field(
         default=None,
         description=(
-            "naming: model: the model's JSON sidecar (the ONNX file it names lies beside it). Default: the "
-            "shipped model, plugins/segmenters/clusters/models/naming.json (see its README for its data)."
+            "naming: model or rules_then_model: the model's JSON sidecar (the ONNX file it names lies beside it). "
+            "Default: the shipped model, plugins/segmenters/clusters/models/naming.json (see its README for its data)."
         ),
     )
     passes: list[str] = Field(

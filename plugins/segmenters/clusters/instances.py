@@ -51,7 +51,7 @@ def make_instances(lab: Labelling) -> None:
     on_plane = on_layout_planes(lab.cells, obj, layout, n_obj, cfg.layout_voxels * lab.voxel)
     next_id, things, turned_stuff, on_layout = 1, 0, 0, 0
     walls = [plane for plane in layout.planes if plane.label == WALL]
-    sight = Sightlines.from_stream(lab.stream) if (cfg.recognize or cfg.naming == "model") and cfg.sightlines else None
+    sight = Sightlines.from_stream(lab.stream) if (cfg.recognize or cfg.naming != "rules") and cfg.sightlines else None
     lab.set_context(base_z, walls, sight)
     why: dict[int, tuple[str, str]] = {}  # how each instance got its class (NAMED_BY), where this stage named it
     if cfg.keep_instances and votes is not None and (votes.instance_ids > 0).any():

@@ -19,6 +19,7 @@ from stratamap.core.lazy import lazy_module
 from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
+from stratamap.plugins.segmenters.clusters.shapes import Shape, smaller_than_class
 
 ort = lazy_module("onnxruntime")
 
@@ -82,21 +83,42 @@ def name_by_model(lab: Labelling) -> None:
     """With ``naming: model``: names each thing instance by the model's most likely class where its
     score reaches ``naming_threshold``, else ``object``. Sets ``class_ids``, ``naming`` and
     ``scores``; each change of class is noted (``recognition``)."""
+    if lab.cfg.naming == "model":
+        _name(lab, unnamed_only=False)
+
+
+def name_unnamed_by_model(lab: Labelling) -> None:
+    """With ``naming: rules_then_model``, after the rule passes: each thing instance they left
+    ``object`` takes the model's most likely class where its score reaches ``naming_threshold``; the
+    names the rules gave stay."""
+    if lab.cfg.naming == "rules_then_model":
+        _name(lab, unnamed_only=True)
+
+
+def _name(lab: Labelling, unnamed_only: bool) -> None:
     cfg = lab.cfg
-    if cfg.naming != "model":
-        return
     model = load_model(str(Path(cfg.naming_model) if cfg.naming_model else SHIPPED))
     ids, features = instance_features(lab, model.vote_classes)
     scores = model.scores(features)
     members = lab.thing_shapes()
     changes = []
     for iid, row in zip(ids, scores, strict=True):
+        if unnamed_only and members[iid][0] != CATCH_ALL:
+            continue
         best = int(np.argmax(row))
+        if unnamed_only:  # filling in for the rules, under the same class facts
+            fitting = _best_fitting(model.classes, row, members[iid][1])
+            if fitting is None:
+                lab.naming[iid] = ("model", "smaller than any class of the model has objects")
+                lab.scores[iid] = 0.0
+                continue
+            best = fitting
         name, score = model.classes[best], float(row[best])
         if name not in lab.vocab or not lab.vocab.is_thing[lab.vocab.id(name)]:
             name, why = CATCH_ALL, f"the model's class {name!r} is none of the vocabulary's things"
         elif score < cfg.naming_threshold:
-            why = f"the model's best, {name}, scored {score:.2f} < naming_threshold {cfg.naming_threshold:g}"
+            fitting = " of a class its size allows" if unnamed_only else ""
+            why = f"the model's best{fitting}, {name}, scored {score:.2f} < naming_threshold {cfg.naming_threshold:g}"
             name = CATCH_ALL
         else:
             why = f"{name} scored {score:.2f} over measured features"
@@ -109,3 +131,16 @@ def name_by_model(lab: Labelling) -> None:
         lab.naming[iid] = ("model", f"{why} (was {was})" if name != was else why)
         lab.scores[iid] = round(score, 4)
     lab.note("recognition", changes)
+
+
+def _best_fitting(classes: list[str], row: np.ndarray, shape: Shape) -> int | None:
+    """The column of the highest-scoring class, ``object`` aside, that the object is not smaller
+    than (``smaller_than_class``: a 0.3 m thing on a wall is no fridge, however the model scores it).
+    The model's own ``object`` column when it outscores that class or when no class fits; None when
+    no class fits and the model has no ``object`` column."""
+    order = [int(k) for k in np.argsort(-row, kind="stable")]
+    catch_all = next((k for k in order if classes[k] == CATCH_ALL), None)
+    for k in order:
+        if classes[k] != CATCH_ALL and not smaller_than_class(classes[k], shape):
+            return k if catch_all is None or row[k] >= row[catch_all] else catch_all
+    return catch_all

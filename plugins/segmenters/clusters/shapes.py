@@ -224,6 +224,16 @@ def fits_class(name: str, shape: Shape) -> bool:
     return True
 
 
+def smaller_than_class(name: str, shape: Shape) -> bool:
+    """Whether the object is smaller than any object of the class can be: its reach below the class's
+    smallest extent (with SIZE_MARGIN). Larger is another matter: an instance may hold clutter its
+    segmentation joined to it (the racks over a worktop, a tap), which says nothing of what it is."""
+    from stratamap.core.map.priors import CLASS_SIZES
+
+    size = CLASS_SIZES.get(name)
+    return size is not None and shape.reach < size.extent[0] / SIZE_MARGIN
+
+
 def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05) -> bool:
     """Whether the class the shape gives overrules a voted class that fits: the object's height lies
     in the geometric class's typical range (TYPICAL_HEIGHTS, within ``slack`` m) and outside the

@@ -315,3 +315,43 @@ def test_the_real_cabinets_hand_labels_are_four_stacked_slides_out_of_its_front(
     bands = sorted((b[0][2], b[1][2]) for b in cabinet.part_boxes.values())
     assert all(lo < hi <= nxt + 1e-6 for (lo, hi), (nxt, _) in zip(bands, bands[1:], strict=False))
     assert bands[0][0] >= -1e-6 and bands[-1][1] <= box.size[2] + 1e-6
+
+
+def _walk(eye, forward, depth_m: float, frames: int = 3):
+    """A stream of ``frames`` identical frames from ``eye`` looking along ``forward`` (level), each
+    measuring ``depth_m`` everywhere (a wall square to the view)."""
+    from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame, SensorStream
+
+    z_c = np.asarray(forward, float) / np.linalg.norm(forward)
+    y_c = np.array([0.0, 0.0, -1.0])
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([np.cross(y_c, z_c), y_c, z_c], axis=1)
+    pose[:3, 3] = eye
+    intr = CameraIntrinsics(160, 120, 120.0, 120.0, 80.0, 60.0)
+    depth = np.full((120, 160), depth_m, np.float32)
+    rgb = np.zeros((120, 160, 3), np.uint8)
+    return SensorStream("walk", intr, [RGBDFrame(k, float(k), rgb, depth, pose) for k in range(frames)])
+
+
+def test_a_front_counts_as_seen_only_from_the_front_and_unoccluded():
+    from stratamap.core.evaluation.front_visibility import seen_from_front
+
+    truth = [drawer(0.5)]  # its front faces -y at y = 0
+    assert seen_from_front(truth, _walk((0.0, -1.5, 0.5), (0, 1, 0), 1.5)) == [True]
+    assert seen_from_front(truth, _walk((0.0, 1.5, 0.5), (0, -1, 0), 1.5)) == [False]  # from behind
+    assert seen_from_front(truth, _walk((0.0, -1.5, 0.5), (0, 1, 0), 0.8)) == [False]  # something in between
+    assert seen_from_front(truth, _walk((3.0, -0.3, 0.5), (-1, 0, 0), 3.0)) == [False]  # from the side, 80 degrees
+    assert seen_from_front(truth, _walk((0.0, -1.5, 3.0), (0, 1, 0), 1.5)) == [False]  # out of the image
+    assert seen_from_front(truth, None) is None
+    unknown = moved(drawer(0.5))
+    unknown.part_size = None
+    assert seen_from_front([unknown], _walk((0.0, -1.5, 0.5), (0, 1, 0), 1.5)) == [None]
+
+
+def test_recall_on_large_fronts_seen_counts_only_what_the_walk_saw():
+    truth = [door(), drawer(0.3, height=0.25, name="deep")]
+    scores = score_joints(truth, [door()], seen=[False, True])
+    assert scores["large_joints"] == 2 and scores["recall_large"] == pytest.approx(0.5)
+    assert scores["large_seen_joints"] == 1 and scores["recall_large_seen"] == pytest.approx(0.0)
+    assert [row["seen_from_front"] for row in scores["per_joint"] if row["truth"]] == [False, True]
+    assert "recall_large_seen" not in score_joints(truth, [door()])

@@ -92,6 +92,34 @@ def test_rules_stay_the_default_and_the_model_changes_no_rule_naming():
     assert all("score" not in inst.attributes["naming"] for inst in out["instances"])
 
 
+def test_rules_then_model_names_only_what_the_rules_left_object():
+    def run(naming: str) -> tuple[dict, np.ndarray]:
+        data, _, names = furnished_map()
+        data.map.semantics.class_ids[names == "cabinet"] = VOCAB.id("object")  # no votes on the cabinet
+        return ClustersSegmenter(keep_instances=True, recognize=False, naming=naming).run(data), names
+
+    rules, names = run("rules")
+    both, _ = run("rules_then_model")
+    assert class_of(rules, names, "cabinet").class_name == "object"
+    cabinet = class_of(both, names, "cabinet")
+    assert cabinet.class_name == "cabinet", cabinet.attributes["naming"]
+    assert cabinet.attributes["naming"]["by"] == "model" and cabinet.attributes["naming"]["score"] >= 0.4
+    for name in ("table", "chair"):  # what the rules named keeps their name and their reason
+        kept, ruled = class_of(both, names, name), class_of(rules, names, name)
+        assert kept.class_name == ruled.class_name == name
+        assert kept.attributes["naming"] == ruled.attributes["naming"]
+
+
+def test_rules_then_model_leaves_object_below_the_threshold():
+    data, _, names = furnished_map()
+    data.map.semantics.class_ids[names == "cabinet"] = VOCAB.id("object")
+    out = ClustersSegmenter(keep_instances=True, recognize=False, naming="rules_then_model", naming_threshold=1.0).run(
+        data
+    )
+    cabinet = class_of(out, names, "cabinet")
+    assert cabinet.class_name == "object" and "naming_threshold" in cabinet.attributes["naming"]["why"]
+
+
 def test_features_are_deterministic_and_named():
     from stratamap.plugins.segmenters.clusters.passes import PASSES
 
@@ -160,3 +188,23 @@ def test_a_corrupt_sidecar_is_a_one_line_data_error_naming_it(tmp_path):
     with pytest.raises(DataError) as err:
         NamingModel(sidecar)
     assert str(sidecar) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_models_fallback_names_no_class_the_object_is_too_small_for():
+    from stratamap.plugins.segmenters.clusters.model import _best_fitting
+    from stratamap.plugins.segmenters.clusters.shapes import Shape, smaller_than_class
+
+    classes = ["cabinet", "fridge", "object", "counter"]
+    # A 0.3 m thing hung on a wall at 1.4 m: no fridge, whatever the model says.
+    small = Shape(0.22, 0.17, 0.28, 1.44, 0.2, True, False, True)
+    # A counter run with a tap and racks over its worktop: taller and longer than the priors' counter,
+    # still a counter (what segmentation joined to it does not make it something else).
+    run = Shape(4.4, 1.0, 1.7, 0.0, 2.4, True, False, True)
+    assert smaller_than_class("fridge", small) and not smaller_than_class("cabinet", small)
+    assert not smaller_than_class("counter", run)
+    assert classes[_best_fitting(classes, np.array([0.02, 0.9, 0.08, 0.0]), small)] == "object"
+    assert classes[_best_fitting(classes, np.array([0.0, 0.01, 0.01, 0.98]), run)] == "counter"
+    # The counter it is too small for gives way to the next class, a small wall cabinet.
+    assert classes[_best_fitting(classes, np.array([0.3, 0.0, 0.1, 0.6]), small)] == "cabinet"
+    assert classes[_best_fitting(classes, np.array([0.0, 0.0, 0.3, 0.7]), run)] == "counter"
+    assert _best_fitting(["counter", "fridge"], np.array([0.1, 0.9]), small) is None
