@@ -19,7 +19,7 @@ from stratamap.core.lazy import lazy_module
 from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import Shape, smaller_than_class
+from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out
 
 ort = lazy_module("onnxruntime")
 
@@ -109,7 +109,7 @@ def _name(lab: Labelling, unnamed_only: bool) -> None:
         if unnamed_only:  # filling in for the rules, under the same class facts
             fitting = _best_fitting(model.classes, row, members[iid][1])
             if fitting is None:
-                lab.naming[iid] = ("model", "smaller than any class of the model has objects")
+                lab.naming[iid] = ("model", "the class facts rule out every class of the model")
                 lab.scores[iid] = 0.0
                 continue
             best = fitting
@@ -117,7 +117,7 @@ def _name(lab: Labelling, unnamed_only: bool) -> None:
         if name not in lab.vocab or not lab.vocab.is_thing[lab.vocab.id(name)]:
             name, why = CATCH_ALL, f"the model's class {name!r} is none of the vocabulary's things"
         elif score < cfg.naming_threshold:
-            fitting = " of a class its size allows" if unnamed_only else ""
+            fitting = " of a class the class facts allow" if unnamed_only else ""
             why = f"the model's best{fitting}, {name}, scored {score:.2f} < naming_threshold {cfg.naming_threshold:g}"
             name = CATCH_ALL
         else:
@@ -134,13 +134,13 @@ def _name(lab: Labelling, unnamed_only: bool) -> None:
 
 
 def _best_fitting(classes: list[str], row: np.ndarray, shape: Shape) -> int | None:
-    """The column of the highest-scoring class, ``object`` aside, that the object is not smaller
-    than (``smaller_than_class``: a 0.3 m thing on a wall is no fridge, however the model scores it).
+    """The column of the highest-scoring class, ``object`` aside, that the class facts do not rule
+    out (``ruled_out``: a 0.3 m thing on a wall is no fridge, however the model scores it).
     The model's own ``object`` column when it outscores that class or when no class fits; None when
     no class fits and the model has no ``object`` column."""
     order = [int(k) for k in np.argsort(-row, kind="stable")]
     catch_all = next((k for k in order if classes[k] == CATCH_ALL), None)
     for k in order:
-        if classes[k] != CATCH_ALL and not smaller_than_class(classes[k], shape):
+        if classes[k] != CATCH_ALL and not ruled_out(classes[k], shape):
             return k if catch_all is None or row[k] >= row[catch_all] else catch_all
     return catch_all

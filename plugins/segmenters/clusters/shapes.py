@@ -197,16 +197,9 @@ def fits_class(name: str, shape: Shape) -> bool:
     # Nor is seating one: a table's top view is one level, a seat's has a back or arms above it.
     if name in OPEN_BELOW and shape.seat and not shape.flat_top:
         return False
+    if hangs_unlike(name, shape):
+        return False
     heights = plausible_heights(name)
-    # Furniture whose objects stand on the floor, not on one another (a chair, a table, a counter),
-    # seen in the air: the upper part of one whose legs or base went unseen only when it is as large
-    # as a whole one and its top is at the class's height; else a part of something.
-    if name in NOT_STACKED and shape.bottom > STANDING_GAP:
-        if size is not None and shape.reach < size.extent[0]:
-            return False
-        top = shape.bottom + shape.height
-        if heights is not None and not heights[0] / SIZE_MARGIN <= top <= heights[1] * SIZE_MARGIN:
-            return False
     if heights is not None:
         # Noise adds centimetres to a height, not a third of it (a 1.7 m "chair" is a tall unit); what
         # stands on a worktop, a table or a shelf may belong to it (a counter's coffee machine).
@@ -224,14 +217,35 @@ def fits_class(name: str, shape: Shape) -> bool:
     return True
 
 
-def smaller_than_class(name: str, shape: Shape) -> bool:
-    """Whether the object is smaller than any object of the class can be: its reach below the class's
-    smallest extent (with SIZE_MARGIN). Larger is another matter: an instance may hold clutter its
-    segmentation joined to it (the racks over a worktop, a tap), which says nothing of what it is."""
+def hangs_unlike(name: str, shape: Shape) -> bool:
+    """Whether the object hangs in the air unlike its class. Furniture whose objects stand on the floor,
+    not on one another (NOT_STACKED: a chair, a table, a counter), seen in the air is the upper part
+    of one whose legs or base went unseen only when it is as large as a whole one and its top is at
+    the class's height; else a part of something."""
+    from stratamap.core.map.priors import CLASS_SIZES, NOT_STACKED, plausible_heights
+
+    if name not in NOT_STACKED or shape.bottom <= STANDING_GAP:
+        return False
+    size = CLASS_SIZES.get(name)
+    if size is not None and shape.reach < size.extent[0]:
+        return True
+    top = shape.bottom + shape.height
+    heights = plausible_heights(name)
+    return heights is not None and not heights[0] / SIZE_MARGIN <= top <= heights[1] * SIZE_MARGIN
+
+
+def ruled_out(name: str, shape: Shape) -> bool:
+    """Whether the class facts rule the class out for the object: it is smaller than any object of the
+    class can be (its reach below the class's smallest extent, with SIZE_MARGIN), or it hangs in the
+    air unlike its class (``hangs_unlike``). Larger than the class is another matter: an instance may
+    hold clutter its segmentation joined to it (the racks over a worktop, a tap), which says nothing
+    of what it is."""
     from stratamap.core.map.priors import CLASS_SIZES
 
     size = CLASS_SIZES.get(name)
-    return size is not None and shape.reach < size.extent[0] / SIZE_MARGIN
+    if size is not None and shape.reach < size.extent[0] / SIZE_MARGIN:
+        return True
+    return hangs_unlike(name, shape)
 
 
 def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05) -> bool:

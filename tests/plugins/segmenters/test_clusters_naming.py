@@ -190,19 +190,23 @@ def test_a_corrupt_sidecar_is_a_one_line_data_error_naming_it(tmp_path):
     assert str(sidecar) in str(err.value) and "\n" not in str(err.value)
 
 
-def test_the_models_fallback_names_no_class_the_object_is_too_small_for():
+def test_the_models_fallback_names_no_class_the_class_facts_rule_out():
     from stratamap.plugins.segmenters.clusters.model import _best_fitting
-    from stratamap.plugins.segmenters.clusters.shapes import Shape, smaller_than_class
+    from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out
 
     classes = ["cabinet", "fridge", "object", "counter"]
     # A 0.3 m thing hung on a wall at 1.4 m: no fridge, whatever the model says.
     small = Shape(0.22, 0.17, 0.28, 1.44, 0.2, True, False, True)
+    # A fridge's size hung at 2 m, its top at 3.3 m: no fridge whose feet went unseen reaches that.
+    hung = Shape(0.43, 0.3, 1.31, 2.0, 0.7, True, False, True)
     # A counter run with a tap and racks over its worktop: taller and longer than the priors' counter,
     # still a counter (what segmentation joined to it does not make it something else).
     run = Shape(4.4, 1.0, 1.7, 0.0, 2.4, True, False, True)
-    assert smaller_than_class("fridge", small) and not smaller_than_class("cabinet", small)
-    assert not smaller_than_class("counter", run)
+    assert ruled_out("fridge", small) and not ruled_out("cabinet", small)
+    assert ruled_out("fridge", hung) and not ruled_out("cabinet", hung)
+    assert not ruled_out("counter", run) and not ruled_out("fridge", Shape(0.6, 0.6, 1.8, 0.0, 1.0, True, True, True))
     assert classes[_best_fitting(classes, np.array([0.02, 0.9, 0.08, 0.0]), small)] == "object"
+    assert classes[_best_fitting(classes, np.array([0.0, 0.95, 0.01, 0.04]), hung)] == "object"
     assert classes[_best_fitting(classes, np.array([0.0, 0.01, 0.01, 0.98]), run)] == "counter"
     # The counter it is too small for gives way to the next class, a small wall cabinet.
     assert classes[_best_fitting(classes, np.array([0.3, 0.0, 0.1, 0.6]), small)] == "cabinet"
