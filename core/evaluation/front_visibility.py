@@ -62,23 +62,15 @@ def front_face(joint: Any) -> tuple[np.ndarray, np.ndarray] | None:
 def seen_from_front(joints: list[Any], stream: Any) -> list[bool | None] | None:
     """For each true joint, whether the stream's posed depth frames saw its front from the front
     (None where its front is unknown); None for a stream without posed depth frames."""
-    if stream is None or getattr(stream, "intrinsics", None) is None or not len(getattr(stream, "frames", ())):
-        return None
-    intr = stream.intrinsics
+    from stratamap.core.map.sensors import posed_depth_frames
+
     faces = [front_face(j) for j in joints]
     seen = [np.zeros(GRID * GRID, bool) if face is not None else None for face in faces]
     cos_front = np.cos(np.radians(FRONT_ANGLE_DEG))
-    count = len(stream.frames)
+    intr = getattr(stream, "intrinsics", None)
     used = 0
-    for k in np.unique(np.linspace(0, count - 1, min(MAX_FRAMES, count)).astype(int)):
-        frame = stream.frames[int(k)]
-        if frame.pose is None or frame.depth is None:
-            continue
-        depth = np.asarray(frame.depth, np.float32)
-        if depth.shape != (intr.height, intr.width):
-            continue
+    for depth, pose in posed_depth_frames(stream, MAX_FRAMES):
         used += 1
-        pose = np.asarray(frame.pose, float)
         eye = pose[:3, 3]
         for face, hits in zip(faces, seen, strict=True):
             if face is None:

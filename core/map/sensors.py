@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import zlib
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -362,3 +362,26 @@ def sensor_viewpoints(stream: SensorStream | None, points: np.ndarray) -> np.nda
             centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
             return np.array([[centre[0], centre[1], float(points[:, 2].min()) + EYE_HEIGHT]])
     return (points.mean(axis=0) + [0.0, 0.0, 2.0])[None]
+
+
+def evenly_spaced(count: int, most: int) -> np.ndarray:
+    """Up to ``most`` of the indices 0 .. ``count`` - 1, evenly spaced, the first and the last among them."""
+    if count <= 0:
+        return np.zeros(0, int)
+    return np.unique(np.linspace(0, count - 1, min(most, count)).astype(int))
+
+
+def posed_depth_frames(stream: Any, most: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The depth image (float32, metres) and camera-to-world pose of up to ``most`` of the stream's
+    frames, evenly spaced (``evenly_spaced``); a frame without a pose or a depth image, or whose depth
+    is not the intrinsics' size, is left out. Nothing for a stream without intrinsics or frames."""
+    if stream is None or getattr(stream, "intrinsics", None) is None or not len(getattr(stream, "frames", ())):
+        return
+    intr = stream.intrinsics
+    for k in evenly_spaced(len(stream.frames), most):
+        frame = stream.frames[int(k)]
+        if frame.pose is None or frame.depth is None:
+            continue
+        depth = np.asarray(frame.depth, np.float32)
+        if depth.shape == (intr.height, intr.width):
+            yield depth, np.asarray(frame.pose, float)

@@ -97,10 +97,12 @@ def name_unnamed_by_model(lab: Labelling) -> None:
 
 def _name(lab: Labelling, unnamed_only: bool) -> None:
     cfg = lab.cfg
+    members = lab.thing_shapes()
+    if unnamed_only and all(info[0] != CATCH_ALL for info in members.values()):
+        return  # the rules named everything: no features to measure
     model = load_model(str(Path(cfg.naming_model) if cfg.naming_model else SHIPPED))
     ids, features = instance_features(lab, model.vote_classes)
     scores = model.scores(features)
-    members = lab.thing_shapes()
     changes = []
     for iid, row in zip(ids, scores, strict=True):
         if unnamed_only and members[iid][0] != CATCH_ALL:

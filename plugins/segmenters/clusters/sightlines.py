@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from stratamap.core.map.sensors import evenly_spaced, posed_depth_frames
+
 if TYPE_CHECKING:
     from stratamap.core.geometry.boxes import OrientedBox
 
@@ -36,9 +38,7 @@ SAMPLES = 24
 
 def ray_frames(count: int) -> np.ndarray:
     """Which of a stream's ``count`` frames give rays: up to MAX_FRAMES, evenly spaced."""
-    if count <= 0:
-        return np.zeros(0, int)
-    return np.unique(np.linspace(0, count - 1, min(MAX_FRAMES, count)).astype(int))
+    return evenly_spaced(count, MAX_FRAMES)
 
 
 class Sight(NamedTuple):
@@ -74,17 +74,10 @@ class Sightlines:
         intr = stream.intrinsics
         stride = max(1, int(round(np.sqrt(intr.width * intr.height / RAYS_PER_FRAME))))
         origins, ends = [], []
-        for k in ray_frames(len(stream.frames)):
-            frame = stream.frames[int(k)]
-            if frame.pose is None or frame.depth is None:
-                continue
-            depth = np.asarray(frame.depth, np.float32)
-            if depth.shape != (intr.height, intr.width):
-                continue
+        for depth, pose in posed_depth_frames(stream, MAX_FRAMES):
             pts, _ = intr.backproject(np.where(np.isfinite(depth), depth, 0.0), stride=stride)
             if not len(pts):
                 continue
-            pose = np.asarray(frame.pose, float)
             ends.append(pts @ pose[:3, :3].T + pose[:3, 3])
             origins.append(np.broadcast_to(pose[:3, 3], (len(pts), 3)))
         if not ends:
