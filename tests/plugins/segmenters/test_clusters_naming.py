@@ -81,7 +81,8 @@ def test_below_the_threshold_an_instance_is_object_with_its_score():
     assert inst.attributes["naming"]["score"] == pytest.approx(scores[cabinet.id], abs=1e-4)
     assert "naming_threshold" in inst.attributes["naming"]["why"]
     for other in out["instances"]:
-        if other.attributes["naming"]["score"] >= threshold:
+        # Scores are kept to 4 decimals: one rounded up to the threshold may lie just under it.
+        if other.attributes["naming"]["score"] >= threshold + 1e-4:
             assert other.class_name != "object"
 
 
