@@ -213,3 +213,17 @@ def test_the_models_fallback_names_no_class_the_class_facts_rule_out():
     assert classes[_best_fitting(classes, np.array([0.3, 0.0, 0.1, 0.6]), small)] == "cabinet"
     assert classes[_best_fitting(classes, np.array([0.0, 0.0, 0.3, 0.7]), run)] == "counter"
     assert _best_fitting(["counter", "fridge"], np.array([0.1, 0.9]), small) is None
+
+
+def test_the_models_fallback_names_no_chair_longer_than_one_chair_can_be():
+    from stratamap.plugins.segmenters.clusters.model import _best_fitting
+    from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out
+
+    # The real kitchen's short counter run seen as its front, 1.67 m long: the model called it a chair.
+    run_front = Shape(1.67, 0.37, 1.48, 0.0, 1.1, True, False, True)
+    chair = Shape(0.55, 0.5, 0.85, 0.0, 0.5, False, False, False, seat=True)
+    assert ruled_out("chair", run_front) and not ruled_out("chair", chair)
+    # Classes whose objects come in any length keep no longest side: a long counter run stays one.
+    assert not ruled_out("counter", run_front)
+    classes = ["chair", "object", "counter"]
+    assert classes[_best_fitting(classes, np.array([0.86, 0.1, 0.04]), run_front)] == "object"
