@@ -11,13 +11,18 @@ from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, fits_class
 
 #: Seats touch within this many voxels.
 TOUCH_VOXELS = 2.0
+#: Seats side by side make a row no deeper than the deeper of them, but for this much (m) of the
+#: map's noise and a seat pushed back a little: what reaches out beside a chair's depth is no seat of
+#: the same row (a bag at its side, a unit behind it).
+ROW_DEPTH_SLACK = 0.15
 
 
 def join_seating(lab: Labelling) -> None:
     """Floor-standing instances voted chair or sofa, or with no votes seating seen from above
     (``seat``), that touch (within TOUCH_VOXELS) and together are seating too long for one chair that
-    fits a sofa, become one sofa. Two armchairs a hand apart touch nowhere. Sets ``instance_ids``,
-    ``class_ids`` and ``naming``; each join is noted (``seating_joined``)."""
+    fits a sofa, side by side (no deeper than the deeper one, ROW_DEPTH_SLACK), become one sofa. Two
+    armchairs a hand apart touch nowhere. Sets ``instance_ids``, ``class_ids`` and ``naming``; each
+    join is noted (``seating_joined``)."""
     from scipy.spatial import cKDTree
 
     from stratamap.core.map.instances import instance_members
@@ -47,7 +52,10 @@ def join_seating(lab: Labelling) -> None:
                 union = np.concatenate([seats[first], seats[second]])
                 shape = lab.shape(union)
                 is_sofa = fits_class(SEATS_IN_A_ROW, shape) and not fits_class(ONE_SEAT, shape)
-                if shape.seat and not shape.flat_top and is_sofa:
+                side_by_side = shape.depth <= ROW_DEPTH_SLACK + max(
+                    lab.shape(seats[first]).depth, lab.shape(seats[second]).depth
+                )
+                if shape.seat and not shape.flat_top and is_sofa and side_by_side:
                     return first, second
         return None
 
