@@ -236,15 +236,21 @@ def hangs_unlike(name: str, shape: Shape) -> bool:
 
 def ruled_out(name: str, shape: Shape) -> bool:
     """Whether the class facts rule the class out for the object: it is smaller than any object of the
-    class can be (its reach below the class's smallest extent, with SIZE_MARGIN), longer than one of a
+    class can be (its reach below the class's smallest extent, with SIZE_MARGIN; standing on the
+    floor, lower than the class's lowest, ``priors.lowest_height``), longer than one of a
     class whose objects have a longest side (``ClassSize.longest``, with SIZE_MARGIN: a 1.7 m run is
     no chair), or it hangs in the air unlike its class (``hangs_unlike``). Taller or deeper than the
     class is another matter: an instance may hold clutter its segmentation joined to it (the racks
     over a worktop, a tap), which says nothing of what it is."""
-    from stratamap.core.map.priors import CLASS_SIZES
+    from stratamap.core.map.priors import CLASS_SIZES, lowest_height
 
     size = CLASS_SIZES.get(name)
     if size is not None and shape.reach < size.extent[0] / SIZE_MARGIN:
+        return True
+    # Standing on the floor, its whole height is seen: lower than any object of the class is none
+    # (a bag by a wall is no cabinet), as ``fits_class`` judges it.
+    lowest = lowest_height(name, SIZE_MARGIN)
+    if lowest is not None and shape.bottom <= FLOOR_GAP and shape.height < lowest:
         return True
     longest = size.longest(shape.height) if size is not None else None
     if longest is not None and shape.length > longest * SIZE_MARGIN:

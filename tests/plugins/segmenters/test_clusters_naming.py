@@ -227,3 +227,14 @@ def test_the_models_fallback_names_no_chair_longer_than_one_chair_can_be():
     assert not ruled_out("counter", run_front)
     classes = ["chair", "object", "counter"]
     assert classes[_best_fitting(classes, np.array([0.86, 0.1, 0.04]), run_front)] == "object"
+
+
+def test_the_models_fallback_names_nothing_on_the_floor_lower_than_its_class():
+    from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out
+
+    # A bag on the floor by a wall, 0.14 m high: its whole height is seen, and no cabinet is that low.
+    bag = Shape(0.42, 0.26, 0.14, 0.0, 0.26, True, False, True)
+    assert ruled_out("cabinet", bag) and ruled_out("chair", bag)
+    # The same 0.14 m hung at a chair's seat height is a seat whose legs went unseen, not ruled out.
+    seat = Shape(0.49, 0.44, 0.17, 0.3, 0.35, False, True, True)
+    assert not ruled_out("chair", seat)
