@@ -34,7 +34,7 @@ DEFAULT_PASSES = (
     "name_by_model",
     "rename_by_priors",
     "counters_need_a_kitchen",
-    "name_unnamed_by_model",
+    "name_after_rules_by_model",
 )
 
 

@@ -1,5 +1,7 @@
-"""Pass ``name_by_model`` (``naming: model``): every thing instance is named by a trained classifier
-over its measured features (``features.instance_features``), run by onnxruntime. The shipped model
+"""Passes ``name_by_model`` (``naming: model``): every thing instance is named by a trained classifier
+over its measured features (``features.instance_features``), run by onnxruntime; and
+``name_after_rules_by_model`` (``naming: rules_then_model``): only what the rules left unnamed or
+named by its shape alone. The shipped model
 (``models/naming.onnx``, its sidecar ``models/naming.json`` and data card ``models/README.md``) was
 trained by scripts/train_naming.py; scikit-learn is needed to train it, never to run it. Below
 ``naming_threshold`` the instance is ``object``; either way its score is in ``naming``."""
@@ -84,32 +86,48 @@ def name_by_model(lab: Labelling) -> None:
     score reaches ``naming_threshold``, else ``object``. Sets ``class_ids``, ``naming`` and
     ``scores``; each change of class is noted (``recognition``)."""
     if lab.cfg.naming == "model":
-        _name(lab, unnamed_only=False)
+        _name(lab, after_rules=False)
 
 
-def name_unnamed_by_model(lab: Labelling) -> None:
+def name_after_rules_by_model(lab: Labelling) -> None:
     """With ``naming: rules_then_model``, after the rule passes: each thing instance they left
-    ``object`` takes the model's most likely class where its score reaches ``naming_threshold``; the
-    names the rules gave stay."""
+    ``object`` takes the model's most likely class the class facts allow where its score reaches
+    ``naming_threshold``; one they named by its shape alone (``naming`` by ``shape``) takes another
+    class only so. The names the detector's votes or masks gave stay."""
     if lab.cfg.naming == "rules_then_model":
-        _name(lab, unnamed_only=True)
+        _name(lab, after_rules=True)
 
 
-def _name(lab: Labelling, unnamed_only: bool) -> None:
+#: How the rules named an instance when its shape alone gave the name (no votes, no masks): the
+#: naming model, which reads the shape and the votes together, may name it otherwise.
+BY_SHAPE = "shape"
+
+
+def _open_to_the_model(lab: Labelling, iid: int, name: str) -> bool:
+    return name == CATCH_ALL or lab.naming.get(iid, ("",))[0] == BY_SHAPE
+
+
+def _name(lab: Labelling, after_rules: bool) -> None:
     cfg = lab.cfg
     members = lab.thing_shapes()
-    if unnamed_only and all(info[0] != CATCH_ALL for info in members.values()):
-        return  # the rules named everything: no features to measure
+    if after_rules and not any(_open_to_the_model(lab, iid, info[0]) for iid, info in members.items()):
+        return  # the votes and masks named everything: no features to measure
     model = load_model(str(Path(cfg.naming_model) if cfg.naming_model else SHIPPED))
     ids, features = instance_features(lab, model.vote_classes)
     scores = model.scores(features)
     changes = []
     for iid, row in zip(ids, scores, strict=True):
-        if unnamed_only and members[iid][0] != CATCH_ALL:
+        if after_rules and not _open_to_the_model(lab, iid, members[iid][0]):
             continue
         best = int(np.argmax(row))
-        if unnamed_only:  # filling in for the rules, under the same class facts
+        if after_rules:  # under the same class facts as the rules
             fitting = _best_fitting(model.classes, row, members[iid][1])
+            if members[iid][0] != CATCH_ALL:
+                # Named by its shape: renamed only to another class scoring the threshold.
+                if fitting is None or model.classes[fitting] in (CATCH_ALL, members[iid][0]):
+                    continue
+                if row[fitting] < cfg.naming_threshold:
+                    continue
             if fitting is None:
                 lab.naming[iid] = ("model", "the class facts rule out every class of the model")
                 lab.scores[iid] = 0.0
@@ -119,7 +137,7 @@ def _name(lab: Labelling, unnamed_only: bool) -> None:
         if name not in lab.vocab or not lab.vocab.is_thing[lab.vocab.id(name)]:
             name, why = CATCH_ALL, f"the model's class {name!r} is none of the vocabulary's things"
         elif score < cfg.naming_threshold:
-            fitting = " of a class the class facts allow" if unnamed_only else ""
+            fitting = " of a class the class facts allow" if after_rules else ""
             why = f"the model's best{fitting}, {name}, scored {score:.2f} < naming_threshold {cfg.naming_threshold:g}"
             name = CATCH_ALL
         else:

@@ -59,5 +59,5 @@ PASSES: dict[str, Pass] = {
     "name_by_model": Pass(_AFTER_INSTANCES, model.name_by_model),
     "rename_by_priors": Pass(_AFTER_INSTANCES, rename.rename_by_priors),
     "counters_need_a_kitchen": Pass(_AFTER_INSTANCES, kitchen.counters_need_a_kitchen),
-    "name_unnamed_by_model": Pass(_AFTER_INSTANCES, model.name_unnamed_by_model),
+    "name_after_rules_by_model": Pass(_AFTER_INSTANCES, model.name_after_rules_by_model),
 }

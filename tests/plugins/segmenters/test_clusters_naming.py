@@ -93,7 +93,7 @@ def test_rules_stay_the_default_and_the_model_changes_no_rule_naming():
     assert all("score" not in inst.attributes["naming"] for inst in out["instances"])
 
 
-def test_rules_then_model_names_only_what_the_rules_left_object():
+def test_rules_then_model_names_what_the_rules_left_object_and_keeps_voted_names():
     def run(naming: str) -> tuple[dict, np.ndarray]:
         data, _, names = furnished_map()
         data.map.semantics.class_ids[names == "cabinet"] = VOCAB.id("object")  # no votes on the cabinet
@@ -109,6 +109,39 @@ def test_rules_then_model_names_only_what_the_rules_left_object():
         kept, ruled = class_of(both, names, name), class_of(rules, names, name)
         assert kept.class_name == ruled.class_name == name
         assert kept.attributes["naming"] == ruled.attributes["naming"]
+
+
+def test_rules_then_model_renames_what_the_shape_alone_named_never_what_votes_named(monkeypatch):
+    from stratamap.plugins.segmenters.clusters import model as naming
+
+    shipped = load_model(str(SHIPPED))
+
+    class TableEverywhere:
+        """The shipped model's classes and features; every instance scores table 0.7 (allowed by the
+        class facts for the cabinet's size), so that which instances the pass opens shows."""
+
+        classes, vote_classes = shipped.classes, shipped.vote_classes
+
+        def scores(self, features: np.ndarray) -> np.ndarray:
+            row = np.full(len(self.classes), 0.3 / (len(self.classes) - 1), np.float32)
+            row[self.classes.index("table")] = 0.7
+            return np.tile(row, (len(features), 1))
+
+    def run(naming_mode: str) -> tuple[dict, np.ndarray]:
+        data, _, names = furnished_map()
+        data.map.semantics.class_ids[names == "cabinet"] = VOCAB.id("object")  # no votes: named by shape
+        return ClustersSegmenter(keep_instances=True, recognize=True, naming=naming_mode).run(data), names
+
+    rules, names = run("rules")
+    assert class_of(rules, names, "cabinet").attributes["naming"]["by"] == "shape"
+    monkeypatch.setattr(naming, "load_model", lambda sidecar: TableEverywhere())
+    both, _ = run("rules_then_model")
+    cabinet = class_of(both, names, "cabinet")
+    assert cabinet.class_name == "table" and cabinet.attributes["naming"]["by"] == "model"
+    assert "(was cabinet)" in cabinet.attributes["naming"]["why"]
+    chair = class_of(both, names, "chair")  # voted chair: the votes' name stays
+    assert chair.class_name == class_of(rules, names, "chair").class_name == "chair"
+    assert chair.attributes["naming"] == class_of(rules, names, "chair").attributes["naming"]
 
 
 def test_rules_then_model_leaves_object_below_the_threshold():
