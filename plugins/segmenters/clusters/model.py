@@ -21,7 +21,7 @@ from stratamap.core.lazy import lazy_module
 from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
-from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out
+from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out, taller_than_class
 
 ort = lazy_module("onnxruntime")
 
@@ -127,6 +127,11 @@ def _name(lab: Labelling, after_rules: bool) -> None:
                 if fitting is None or model.classes[fitting] in (CATCH_ALL, members[iid][0]):
                     continue
                 if row[fitting] < cfg.naming_threshold:
+                    continue
+                # The rules' class fits its height; one the object is too tall for does not replace it
+                # (a 1.7 m filing cabinet is no counter: clutter on a worktop is why the rules leave a
+                # counter run unnamed, not why they name a cabinet).
+                if taller_than_class(model.classes[fitting], members[iid][1]):
                     continue
             if fitting is None:
                 lab.naming[iid] = ("model", "the class facts rule out every class of the model")

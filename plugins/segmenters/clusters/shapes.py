@@ -171,7 +171,6 @@ def fits_class(name: str, shape: Shape) -> bool:
     plausible heights; a class open below (OPEN_BELOW) standing on the floor with a solid body does
     not fit. Classes without priors always fit."""
     from stratamap.core.map.priors import (
-        ANY_LENGTH,
         CLASS_SIZES,
         NOT_STACKED,
         OPEN_BELOW,
@@ -199,22 +198,34 @@ def fits_class(name: str, shape: Shape) -> bool:
         return False
     if hangs_unlike(name, shape):
         return False
+    if taller_than_class(name, shape):
+        return False
     heights = plausible_heights(name)
     if heights is not None:
-        # Noise adds centimetres to a height, not a third of it (a 1.7 m "chair" is a tall unit); what
-        # stands on a worktop, a table or a shelf may belong to it (a counter's coffee machine).
-        tallest = heights[1] * SIZE_MARGIN
-        if name not in ANY_LENGTH:
-            tallest = min(tallest, heights[1] + TALLER_BY)
-        if size is not None and size.max_height is not None:
-            tallest = size.max_height
-        if shape.height > tallest:
-            return False
         # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
         # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
         if shape.height < lowest_height(name, SIZE_MARGIN) and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
             return False
     return True
+
+
+def taller_than_class(name: str, shape: Shape) -> bool:
+    """Whether the object is taller than one of its class can be seen: the class's plausible heights'
+    top with SIZE_MARGIN (what stands on a worktop, a table or a shelf may belong to it: a counter's
+    coffee machine), TALLER_BY for classes whose objects carry nothing, or its ``max_height``."""
+    from stratamap.core.map.priors import ANY_LENGTH, CLASS_SIZES, plausible_heights
+
+    heights = plausible_heights(name)
+    if heights is None:
+        return False
+    # Noise adds centimetres to a height, not a third of it (a 1.7 m "chair" is a tall unit).
+    tallest = heights[1] * SIZE_MARGIN
+    if name not in ANY_LENGTH:
+        tallest = min(tallest, heights[1] + TALLER_BY)
+    size = CLASS_SIZES.get(name)
+    if size is not None and size.max_height is not None:
+        tallest = size.max_height
+    return shape.height > tallest
 
 
 def hangs_unlike(name: str, shape: Shape) -> bool:
