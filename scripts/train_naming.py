@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from stratamap.core.map.priors import UNNAMED
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "naming"
 MODELS = ROOT / "plugins" / "segmenters" / "clusters" / "models"
@@ -212,7 +214,7 @@ def walk_rows(scene: dict[str, Any], classes: list[str]) -> dict[str, list[Any]]
     for name in order[cut + 1 :]:  # the rules' names of the same instances, for the comparison
         PASSES[name].run(lab)
     info = lab.thing_shapes()
-    rules = [info[i][0] if i in info else "object" for i in ids]
+    rules = [info[i][0] if i in info else UNNAMED for i in ids]
     boxes = [gravity_aligned_box(lab.points[lab.instance_ids == i]) for i in ids]
     truth = list(data.ground_truth.objects)
     true_boxes = [o.box() for o in truth]
@@ -225,14 +227,14 @@ def walk_rows(scene: dict[str, Any], classes: list[str]) -> dict[str, list[Any]]
             piece_iou.append(box_iou_3d(box, true_boxes[matches[k]]))
             libraries.append(library_of(truth[matches[k]]))
             continue
-        labels.append("object")
+        labels.append(UNNAMED)
         holder = holding_object(lab.points[lab.instance_ids == i], true_boxes)
         if holder is not None:
             piece_labels.append(truth[holder].class_name)
             piece_iou.append(box_iou_3d(box, true_boxes[holder]))
             libraries.append(library_of(truth[holder]))
             continue
-        piece_labels.append("object")
+        piece_labels.append(UNNAMED)
         piece_iou.append(0.0)
         overlap = [box_iou_3d(box, t) for t in true_boxes]
         libraries.append(library_of(truth[int(np.argmax(overlap))]) if overlap and max(overlap) > 0 else NO_LIBRARY)
@@ -346,7 +348,7 @@ def thresholded(model: Any, features: np.ndarray, threshold: float) -> np.ndarra
     """The model's classes, ``object`` where the best score is below ``threshold`` (as the pass names)."""
     probs = model.predict_proba(features)
     names = model.classes_[probs.argmax(1)]
-    return np.where(probs.max(1) >= threshold, names, "object")
+    return np.where(probs.max(1) >= threshold, names, UNNAMED)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -355,7 +357,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     X, y, lib, rules = data["X"], labels_of(data, args.labels, args.piece_iou), data["library"], data["rules"]
     # Instances matched to a true object one to one: what the benchmarks' class-aware figures score,
     # whichever labels the model was trained on.
-    matched = data["label"] != "object"
+    matched = data["label"] != UNNAMED
     libraries = sorted(set(lib) - {NO_LIBRARY})
     predicted = np.full(len(y), "", dtype=object)
     print(f"leave-one-library-out, {len(y)} instances, labels {args.labels}, naming_threshold {args.threshold:g}")

@@ -122,17 +122,16 @@ def _name(lab: Labelling, after_rules: bool) -> None:
         best = int(np.argmax(row))
         if after_rules:  # under the same class facts as the rules
             fitting = _best_fitting(model.classes, row, members[iid][1])
-            if members[iid][0] != CATCH_ALL:
-                # Named by its shape: renamed only to another class scoring the threshold.
-                if fitting is None or model.classes[fitting] in (CATCH_ALL, members[iid][0]):
-                    continue
-                if row[fitting] < cfg.naming_threshold:
-                    continue
-                # The rules' class fits its height; one the object is too tall for does not replace it
-                # (a 1.7 m filing cabinet is no counter: clutter on a worktop is why the rules leave a
-                # counter run unnamed, not why they name a cabinet).
-                if taller_than_class(model.classes[fitting], members[iid][1]):
-                    continue
+            # Named by its shape: renamed only to another class scoring the threshold that the
+            # object is not too tall for (the rules' class fits its height; a 1.7 m filing cabinet
+            # is no counter: clutter on a worktop is why the rules leave a counter run unnamed).
+            if members[iid][0] != CATCH_ALL and (
+                fitting is None
+                or model.classes[fitting] in (CATCH_ALL, members[iid][0])
+                or row[fitting] < cfg.naming_threshold
+                or taller_than_class(model.classes[fitting], members[iid][1])
+            ):
+                continue
             if fitting is None:
                 lab.naming[iid] = ("model", "the class facts rule out every class of the model")
                 lab.scores[iid] = 0.0

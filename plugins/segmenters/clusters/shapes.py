@@ -170,20 +170,13 @@ def fits_class(name: str, shape: Shape) -> bool:
     class's longest and shortest sides, its height (standing on the floor: also from below) within the
     plausible heights; a class open below (OPEN_BELOW) standing on the floor with a solid body does
     not fit. Classes without priors always fit."""
-    from stratamap.core.map.priors import (
-        CLASS_SIZES,
-        NOT_STACKED,
-        OPEN_BELOW,
-        lowest_height,
-        plausible_heights,
-    )
+    from stratamap.core.map.priors import CLASS_SIZES, OPEN_BELOW
 
+    if smaller_than_class(name, shape) or longer_than_class(name, shape):
+        return False
     size = CLASS_SIZES.get(name)
     if size is not None:
-        if not size.extent[0] / SIZE_MARGIN <= shape.reach <= size.extent[1] * SIZE_MARGIN:
-            return False
-        longest = size.longest(shape.height)
-        if longest is not None and shape.length > longest * SIZE_MARGIN:
+        if shape.reach > size.extent[1] * SIZE_MARGIN:
             return False
         if size.min_length is not None and shape.length < size.min_length / SIZE_MARGIN:
             return False
@@ -198,15 +191,37 @@ def fits_class(name: str, shape: Shape) -> bool:
         return False
     if hangs_unlike(name, shape):
         return False
-    if taller_than_class(name, shape):
+    return not taller_than_class(name, shape) and not lower_than_class(name, shape)
+
+
+def smaller_than_class(name: str, shape: Shape) -> bool:
+    """Whether the object's reach is below its class's smallest extent (with SIZE_MARGIN)."""
+    from stratamap.core.map.priors import CLASS_SIZES
+
+    size = CLASS_SIZES.get(name)
+    return size is not None and shape.reach < size.extent[0] / SIZE_MARGIN
+
+
+def longer_than_class(name: str, shape: Shape) -> bool:
+    """Whether the object is longer than one of a class whose objects have a longest side
+    (``ClassSize.longest`` for its height, with SIZE_MARGIN: a 1.7 m run is no chair)."""
+    from stratamap.core.map.priors import CLASS_SIZES
+
+    size = CLASS_SIZES.get(name)
+    longest = size.longest(shape.height) if size is not None else None
+    return longest is not None and shape.length > longest * SIZE_MARGIN
+
+
+def lower_than_class(name: str, shape: Shape) -> bool:
+    """Whether the object, standing on the floor or on a support (its whole height seen), is lower
+    than any of its class (``priors.lowest_height``: a 10 cm "monitor" is none); floor-standing
+    furniture seen in the air (a table top whose legs went unseen) is ``hangs_unlike``'s to judge."""
+    from stratamap.core.map.priors import NOT_STACKED, lowest_height, plausible_heights
+
+    if plausible_heights(name) is None:
         return False
-    heights = plausible_heights(name)
-    if heights is not None:
-        # Standing on the floor or on a support, its whole height is seen (a 10 cm "monitor" is none);
-        # floor-standing furniture seen in the air (a table top whose legs went unseen) was judged above.
-        if shape.height < lowest_height(name, SIZE_MARGIN) and (shape.bottom <= FLOOR_GAP or name not in NOT_STACKED):
-            return False
-    return True
+    whole = shape.bottom <= FLOOR_GAP or name not in NOT_STACKED
+    return whole and shape.height < lowest_height(name, SIZE_MARGIN)
 
 
 def taller_than_class(name: str, shape: Shape) -> bool:
@@ -247,26 +262,19 @@ def hangs_unlike(name: str, shape: Shape) -> bool:
 
 def ruled_out(name: str, shape: Shape) -> bool:
     """Whether the class facts rule the class out for the object: it is smaller than any object of the
-    class can be (its reach below the class's smallest extent, with SIZE_MARGIN; standing on the
-    floor, lower than the class's lowest, ``priors.lowest_height``), longer than one of a
-    class whose objects have a longest side (``ClassSize.longest``, with SIZE_MARGIN: a 1.7 m run is
-    no chair), or it hangs in the air unlike its class (``hangs_unlike``). Taller or deeper than the
-    class is another matter: an instance may hold clutter its segmentation joined to it (the racks
-    over a worktop, a tap), which says nothing of what it is."""
-    from stratamap.core.map.priors import CLASS_SIZES, lowest_height
-
-    size = CLASS_SIZES.get(name)
-    if size is not None and shape.reach < size.extent[0] / SIZE_MARGIN:
-        return True
-    # Standing on the floor, its whole height is seen: lower than any object of the class is none
-    # (a bag by a wall is no cabinet), as ``fits_class`` judges it.
-    lowest = lowest_height(name, SIZE_MARGIN)
-    if lowest is not None and shape.bottom <= FLOOR_GAP and shape.height < lowest:
-        return True
-    longest = size.longest(shape.height) if size is not None else None
-    if longest is not None and shape.length > longest * SIZE_MARGIN:
-        return True
-    return hangs_unlike(name, shape)
+    class can be (``smaller_than_class``; standing on the floor, ``lower_than_class``), longer than
+    one of a class whose objects have a longest side (``longer_than_class``), or it hangs in the air
+    unlike its class (``hangs_unlike``). Taller or deeper than the class is another matter: an
+    instance may hold clutter its segmentation joined to it (the racks over a worktop, a tap), which
+    says nothing of what it is."""
+    # Standing on the floor, its whole height is seen: a bag by a wall is no cabinet.
+    on_floor_and_lower = shape.bottom <= FLOOR_GAP and lower_than_class(name, shape)
+    return (
+        smaller_than_class(name, shape)
+        or on_floor_and_lower
+        or longer_than_class(name, shape)
+        or hangs_unlike(name, shape)
+    )
 
 
 def typical_rather(geometric: str, voted: str, shape: Shape, slack: float = 0.05) -> bool:
