@@ -53,6 +53,8 @@ LOWER_IS_BETTER = (
     "memory",
     "ate",
     "rpe",
+    "largest_share",
+    "elsewhere",
 )
 SKIP = ("count", "frames", "objects", "true_positives", "predicted", "ground_truth", "free_bodies", "robot_radius")
 

@@ -10,7 +10,8 @@ front door, drawer, appliance door or fixed panel with the kitchen paper's level
 on RGB-D walks of procedural kitchens: ``models/fronts_crf.json``, ``scripts/train_fronts.py``)
 and gives each door a hinge side opposite its handle. The object's completion becomes articulated
 (:mod:`.body`): a carcass open at the front, every door on a revolute joint, every drawer (with a
-drawer box behind its front) on a prismatic one.
+drawer box behind its front) on a prismatic one; an object shallower behind its face than
+``min_depth`` has no room for either and opens nothing.
 The URDF, MJCF and SDF exporters write these joints as they are.
 
 Where fronts were found they replace a library model's joints (the observed fronts win where a
@@ -79,6 +80,15 @@ class FrontsConfig(StageConfig):
     drawer_travel: float = Field(
         default=0.8, gt=0.0, le=1.0, description="Share of its box's depth a drawer slides out."
     )
+    min_depth: float = Field(
+        default=0.2,
+        ge=0.0,
+        description=(
+            "Shallowest object (m behind its face, as its points measure it) whose fronts open: a shallower one has "
+            "no room behind them for a drawer box or a shelf (a backsplash, a leaflet rack, a chair's back); its "
+            "fronts are kept in attributes['fronts'], none as a joint."
+        ),
+    )
     max_frames: int = Field(
         default=40,
         ge=0,
@@ -119,7 +129,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
     requires = frozenset({"instances", "geometry"})
 
     def complete(self, data: PipelineData) -> dict[str, Any]:
-        from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body, object_frame
+        from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body, depth_behind, object_frame
         from stratamap.plugins.completers.fronts.fronts import FaceParams, label_fronts, observe_object
 
         cfg = self.config
@@ -170,12 +180,18 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 )
                 for f in fronts
             ]
-            completion = articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
+            depth = depth_behind(face, box, inst.points)
+            shallow = depth < cfg.min_depth
+            completion = (
+                None if shallow else articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
+            )
             per_object[inst.id] = {
                 "class": inst.class_name,
                 "coverage": round(face.coverage, 3),
                 "fronts": [f.label for f in fronts],
                 "fixtures": len(face.fixtures),
+                "depth": round(depth, 3),
+                **({"opens": f"nothing: {depth:.2f} m deep, min_depth {cfg.min_depth:g}"} if shallow else {}),
             }
             inst.attributes["fronts"] = [
                 {

@@ -63,16 +63,21 @@ def _fixture_boxes(fixtures: list[Fixture], to_object: np.ndarray, y_face: float
     return boxes
 
 
+def depth_behind(face: Face, box: OrientedBox, points: np.ndarray) -> float:
+    """How deep (m) the object seen on ``face`` is: how far its observed ``points`` reach behind the
+    face (98th percentile), else its box's depth across the face."""
+    behind = -(np.asarray(points, float) @ face.normal + face.d)
+    behind = behind[behind > 0]
+    return float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
+
+
 def object_frame(face: Face, box: OrientedBox, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The object frame of an object seen on ``face`` (-y out of the face, origin at the bottom
     centre between the face's ends and between the face and the object's back) as object-to-world,
     and the object's size in it. The depth is how far its observed ``points`` reach behind the face
     (98th percentile), else its box's."""
     u0, u1 = face.rect[:2]
-    behind = -(np.asarray(points, float) @ face.normal + face.d)
-    behind = behind[behind > 0]
-    depth = float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
-    depth = float(np.clip(depth, 0.15, 1.5))
+    depth = float(np.clip(depth_behind(face, box, points), 0.15, 1.5))
     y_axis = -face.normal
     pose = np.eye(4)
     pose[:3, :3] = np.stack([np.cross(y_axis, [0.0, 0.0, 1.0]), y_axis, [0.0, 0.0, 1.0]], axis=1)

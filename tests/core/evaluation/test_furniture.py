@@ -10,7 +10,7 @@ from stratamap.core.evaluation.furniture import at_furniture_scale, evaluate_fur
 from stratamap.core.geometry.boxes import OrientedBox
 from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.map.groundtruth import GroundTruthObject
-from stratamap.core.map.layers import ObjectInstance, ObjectInstances, Semantics
+from stratamap.core.map.layers import Completion, Joint, ObjectInstance, ObjectInstances, Part, Semantics
 
 
 def truth(oid: int, cls: str, center, size, yaw: float = 0.0) -> GroundTruthObject:
@@ -89,3 +89,34 @@ def test_the_refined_box_of_a_table_whose_legs_are_hidden_is_scored():
     assert evaluate_furniture(inst, ROOM)["matched"] == 0
     refined = OrientedBox(np.array([0.0, 0.0, 0.375]), 0.0, np.array([1.6, 0.9, 0.75]))
     assert evaluate_furniture(inst, ROOM, boxes={50: refined})["matched"] == 1
+
+
+def _with_drawer(iid: int, cls: str, center, size) -> ObjectInstance:
+    """An instance whose completion is a body with one drawer on a slide, its front on the -y side."""
+    inst = predicted(iid, cls, center, size)
+    size = np.asarray(size, float)
+    pose = make_pose(np.asarray(center, float) - [0, 0, size[2] / 2], 0.0)
+    body = trimesh.creation.box(size, make_pose((0.0, 0.0, size[2] / 2)))
+    front = make_pose((0.0, -size[1] / 2, size[2] * 0.75))
+    drawer = trimesh.creation.box((size[0] * 0.8, 0.02, size[2] * 0.3))
+    inst.completion = Completion(
+        body,
+        pose,
+        "test",
+        parts=[Part("body", body), Part("drawer", drawer, front)],
+        joints=[Joint("slide", "prismatic", "body", "drawer", front, np.array([0.0, -1.0, 0.0]), 0.0, 0.3)],
+    )
+    return inst
+
+
+def test_joints_on_labelled_storage_and_elsewhere_are_counted_apart():
+    on_cabinet = _with_drawer(30, "cabinet", [3.0, 2.0, 0.45], [1.0, 0.5, 0.9])
+    on_the_table = _with_drawer(31, "object", [0.0, 0.0, 0.9], [0.4, 0.1, 0.3])  # a rack on the table
+    res = evaluate_furniture(ObjectInstances([on_cabinet, on_the_table]), ROOM)
+    assert (res["joints_on_storage"], res["joints_elsewhere"]) == (1, 1)
+    assert (
+        evaluate_furniture(ObjectInstances([predicted(32, "cabinet", [3, 2, 0.45], [1, 0.5, 0.9])]), ROOM)[
+            "joints_on_storage"
+        ]
+        == 0
+    )

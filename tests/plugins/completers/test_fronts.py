@@ -200,3 +200,29 @@ def test_runs_of_a_sorted_array_are_what_unique_gives():
         expected = np.unique(ordered, return_index=True, return_counts=True)
         for got, want in zip((values, starts, counts), expected, strict=True):
             assert np.array_equal(got, want)
+
+
+@pytest.mark.slow
+def test_an_object_too_shallow_for_a_drawer_box_gets_no_joint(kitchen_run):
+    """min_depth: the same faces and fronts, but an object shallower behind its face than min_depth
+    (a backsplash, a leaflet rack) opens nothing; the notes say why."""
+    from stratamap.plugins.completers.fronts import FrontsCompleter
+
+    data, _ = kitchen_run
+    FrontsCompleter(min_depth=5.0).run(data)
+    note = data.notes["fronts"]["fronts"]
+    assert note["articulated"] == 0 and note["joints"] == {"revolute": 0, "prismatic": 0}
+    looked = [o for o in note["per_object"].values() if o.get("face", True) is not None]
+    assert looked and all(o["opens"].startswith("nothing:") for o in looked if o["fronts"])
+
+
+def test_depth_behind_a_face_is_what_the_points_reach_else_the_box():
+    from stratamap.plugins.completers.fronts.body import depth_behind
+    from stratamap.plugins.completers.fronts.face import Face
+
+    face = Face(np.array([0.0, -1.0, 0.0]), 0.0, (-0.5, 0.5, 0.0, 0.8), 1.0, 0.0, 1, -1.0)  # y = 0, facing -y
+    box = OrientedBox(np.array([0.0, 0.25, 0.4]), 0.0, np.array([1.0, 0.5, 0.8]))
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-0.5, 0.0, 0.0], [0.5, 0.12, 0.8], (500, 3))  # a 12 cm deep rack
+    assert depth_behind(face, box, pts) == pytest.approx(0.12, abs=0.01)
+    assert depth_behind(face, box, pts[:10]) == pytest.approx(0.5)  # too few points: the box's depth
