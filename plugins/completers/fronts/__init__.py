@@ -181,7 +181,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 for f in fronts
             ]
             depth = depth_behind(face, box, inst.points)
-            shallow = depth < cfg.min_depth
+            shallow = depth < cfg.min_depth and any(f.label != "panel" for f in fronts)
             completion = (
                 None if shallow else articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
             )
