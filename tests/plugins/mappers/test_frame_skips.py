@@ -129,6 +129,7 @@ def test_the_cli_maps_around_an_empty_frame_and_fails_in_one_line_when_all_are(t
     assert not out.exists()
 
 
+@pytest.mark.slow  # renders and writes a 144-frame orbit (7 s): make test runs it, test-fast does not
 def test_odometry_walks_past_a_frame_without_depth_and_the_tsdf_skips_it(tmp_path):
     """A TUM folder without poses: the frame that measured nothing used to stop odometry ('cannot
     track it'); it is left without a pose, tracking goes on from the next frame, the TSDF skips it."""

@@ -5,6 +5,7 @@ or corrupt model is a one-line DataError naming the file."""
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 import subprocess
@@ -45,6 +46,19 @@ def furnished_map() -> tuple[PipelineData, np.ndarray, np.ndarray]:
 
 
 def named(threshold: float = 0.4, **params) -> tuple[dict, np.ndarray]:
+    if not params:
+        return _named_at(threshold)
+    return _named(threshold, **params)
+
+
+@functools.lru_cache(maxsize=4)
+def _named_at(threshold: float) -> tuple[dict, np.ndarray]:
+    """``_named`` at the default parameters, run once per threshold in a test process (the tests
+    only read its output)."""
+    return _named(threshold)
+
+
+def _named(threshold: float, **params) -> tuple[dict, np.ndarray]:
     data, points, names = furnished_map()
     out = ClustersSegmenter(
         keep_instances=True, recognize=True, naming="model", naming_threshold=threshold, **params
