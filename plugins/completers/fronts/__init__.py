@@ -35,7 +35,7 @@ from pydantic import Field
 from stratamap.core import Completer, PipelineData, StageConfig, hookimpl
 from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
-from stratamap.core.furniture.faces import level2_feature_count
+from stratamap.core.furniture.faces import OPENS, level2_feature_count
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.map.instances import SHAPE
 from stratamap.core.map.priors import WITHOUT_FRONTS
@@ -168,7 +168,8 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 continue
             face, _, candidates = found
             fronts = label_fronts(candidates, floor_z, crf)
-            pose, size = object_frame(face, box, inst.points)
+            depth = depth_behind(face, box, inst.points)
+            pose, size = object_frame(face, box, depth)
             to_object = invert(pose)
             u_center = float(pose[:3, 3] @ face.u_axis)
             rects = [
@@ -180,8 +181,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 )
                 for f in fronts
             ]
-            depth = depth_behind(face, box, inst.points)
-            shallow = depth < cfg.min_depth and any(f.label != "panel" for f in fronts)
+            shallow = depth < cfg.min_depth and any(f.label in OPENS for f in fronts)
             completion = (
                 None if shallow else articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
             )

@@ -71,13 +71,12 @@ def depth_behind(face: Face, box: OrientedBox, points: np.ndarray) -> float:
     return float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
 
 
-def object_frame(face: Face, box: OrientedBox, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def object_frame(face: Face, box: OrientedBox, depth: float) -> tuple[np.ndarray, np.ndarray]:
     """The object frame of an object seen on ``face`` (-y out of the face, origin at the bottom
     centre between the face's ends and between the face and the object's back) as object-to-world,
-    and the object's size in it. The depth is how far its observed ``points`` reach behind the face
-    (98th percentile), else its box's."""
+    and the object's size in it; ``depth`` is :func:`depth_behind`'s, kept within 0.15-1.5 m."""
     u0, u1 = face.rect[:2]
-    depth = float(np.clip(depth_behind(face, box, points), 0.15, 1.5))
+    depth = float(np.clip(depth, 0.15, 1.5))
     y_axis = -face.normal
     pose = np.eye(4)
     pose[:3, :3] = np.stack([np.cross(y_axis, [0.0, 0.0, 1.0]), y_axis, [0.0, 0.0, 1.0]], axis=1)

@@ -52,11 +52,10 @@ def join_seating(lab: Labelling) -> None:
                 union = np.concatenate([seats[first], seats[second]])
                 shape = lab.shape(union)
                 is_sofa = fits_class(SEATS_IN_A_ROW, shape) and not fits_class(ONE_SEAT, shape)
-                side_by_side = shape.depth <= ROW_DEPTH_SLACK + max(
-                    lab.shape(seats[first]).depth, lab.shape(seats[second]).depth
-                )
-                if shape.seat and not shape.flat_top and is_sofa and side_by_side:
-                    return first, second
+                if shape.seat and not shape.flat_top and is_sofa:
+                    deeper = max(lab.shape(seats[first]).depth, lab.shape(seats[second]).depth)
+                    if shape.depth <= deeper + ROW_DEPTH_SLACK:  # side by side
+                        return first, second
         return None
 
     joined = []
