@@ -78,7 +78,7 @@ def label_of(front, face, parts: list[dict]) -> str:
     return label if cover.get(label, 0.0) >= 0.5 else "panel"
 
 
-def kitchen_graphs(seed: int, frames: int) -> list[tuple]:
+def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None) -> list[tuple]:
     """(X, E, relations, labels) of every storage object's face in one procedural kitchen walk."""
     from stratamap.core.config import validate
     from stratamap.core.furniture.faces import front_graph, level2_features
@@ -108,7 +108,7 @@ def kitchen_graphs(seed: int, frames: int) -> list[tuple]:
     for inst in data.map.instances:
         if inst.class_name not in WITH_FRONTS:
             continue
-        found = observe_object(inst.box, cloud, views, data.stream, floor, FaceParams())
+        found = observe_object(inst.box, cloud, views, data.stream, floor, FaceParams(fixture_model=fixture_model))
         if found is None or not found[2]:
             continue
         face, _, fronts = found
@@ -126,20 +126,29 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=80, help="Frames of each walk.")
     parser.add_argument("--l2", type=float, default=1.0, help="L2 prior on the node weights.")
     parser.add_argument("--edge-l2", type=float, default=1.0, help="L2 prior on the edge weights.")
+    parser.add_argument(
+        "--fixtures",
+        choices=["model", "thresholds"],
+        default="thresholds",
+        help="How the fronts' handles and knobs are found (the stage's `fixtures`): thresholds (the shipped CRF's) "
+        "or the fixture model.",
+    )
     args = parser.parse_args()
 
     from stratamap.core.furniture.crf import CRF
     from stratamap.core.furniture.faces import L2_RELATIONS, level2_feature_count
     from stratamap.core.simulation.virtual_scan import LEVEL2
+    from stratamap.plugins.completers.fronts import SHIPPED_FIXTURES
 
+    fixture_model = str(SHIPPED_FIXTURES) if args.fixtures == "model" else None
     t0 = time.perf_counter()
     train: list[tuple] = []
     for k, seed in enumerate(range(100, 100 + args.kitchens)):
-        train += kitchen_graphs(seed, args.frames)
+        train += kitchen_graphs(seed, args.frames, fixture_model)
         done = sum(len(g[3]) for g in train)
         print(f"kitchen {k + 1}/{args.kitchens}: {done} fronts ({time.perf_counter() - t0:.0f} s)", flush=True)
     crf = CRF(LEVEL2, level2_feature_count(), len(L2_RELATIONS)).fit(train, args.l2, args.edge_l2)
-    held = [g for seed in range(args.held_out) for g in kitchen_graphs(seed, args.frames)]
+    held = [g for seed in range(args.held_out) for g in kitchen_graphs(seed, args.frames, fixture_model)]
     truth = np.concatenate([g[3] for g in held]) if held else np.zeros(0, np.int64)
     pred = np.concatenate([crf.predict(g[0], g[1], g[2]) for g in held]) if held else np.zeros(0, np.int64)
     per_label = {}
@@ -155,6 +164,7 @@ def main() -> None:
         "training": {
             "kitchens": f"seeds 100-{99 + args.kitchens}",
             "frames": args.frames,
+            "fixtures": args.fixtures,
             "fronts": {name: int(c) for name, c in zip(LEVEL2, counts, strict=True)},
             "l2": args.l2,
             "edge_l2": args.edge_l2,

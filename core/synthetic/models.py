@@ -78,9 +78,37 @@ class Model:
 # A small builder that families use
 
 
+@dataclass(frozen=True)
+class FixtureStyle:
+    """How a model's handles and knobs are made: a bar's square section and standoff (m), its
+    length as a share of the front's default, its colour, and the knobs' size as a share of the
+    default."""
+
+    section: float = 0.012
+    standoff: float = 0.03
+    length_scale: float = 1.0
+    albedo: tuple[float, float, float] = (0.75, 0.75, 0.78)
+    knob_scale: float = 1.0
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator) -> FixtureStyle:
+        """A style of its own: thin to thick bars, close to far off the front, short to long (at
+        most 1.8 times the default, which keeps a bar within its front), light metal or dark."""
+        grey = rng.uniform(0.55, 0.9) if rng.random() < 0.5 else rng.uniform(0.03, 0.25)
+        return cls(
+            section=float(rng.uniform(0.008, 0.02)),
+            standoff=float(rng.uniform(0.015, 0.04)),
+            length_scale=float(rng.uniform(0.8, 1.8)),
+            albedo=(float(grey), float(grey), float(min(1.0, grey + 0.03))),
+            knob_scale=float(rng.uniform(0.7, 1.4)),
+        )
+
+
 class Builder:
-    def __init__(self, rng: np.random.Generator):
+    def __init__(self, rng: np.random.Generator, fixtures: FixtureStyle | None = None):
         self.rng = rng
+        #: Handles' and knobs' style: None, the default (every benchmark scene's).
+        self.fixtures = fixtures
         self.params: dict[str, Any] = {}
         self.parts: list[ModelPart] = []
         self.joints: list[Joint] = []
@@ -163,16 +191,24 @@ class Builder:
     def handle(self, name, center, length, link, vertical=True, albedo=(0.75, 0.75, 0.78)) -> None:
         """A bar handle standing off a front face (which faces -y) at ``center`` (on the face)."""
         cx, cy, cz = center
-        bar = (0.012, 0.012, length) if vertical else (length, 0.012, 0.012)
-        self.box(f"{name}_bar", bar, (cx, cy - 0.03, cz), albedo, "handle", link)
+        t, stand, post = 0.012, 0.03, 0.024
+        if self.fixtures is not None:
+            t, stand, albedo = self.fixtures.section, self.fixtures.standoff, self.fixtures.albedo
+            length, post = length * self.fixtures.length_scale, stand - t / 2
+        bar = (t, t, length) if vertical else (length, t, t)
+        self.box(f"{name}_bar", bar, (cx, cy - stand, cz), albedo, "handle", link)
         off = (0, 0, length / 2 - 0.008) if vertical else (length / 2 - 0.008, 0, 0)
         for k, sign in enumerate((-1, 1)):
-            c = (cx + sign * off[0], cy - 0.012, cz + sign * off[2])
-            self.box(f"{name}_post{k}", (0.01, 0.024, 0.01), c, albedo, "handle", link)
+            c = (cx + sign * off[0], cy - post / 2, cz + sign * off[2])
+            self.box(f"{name}_post{k}", (0.01, post, 0.01), c, albedo, "handle", link)
 
     def knob(self, name, center, link, albedo=(0.7, 0.7, 0.72)) -> None:
         cx, cy, cz = center
-        self.cylinder(f"{name}", 0.015, 0.025, (cx, cy - 0.0125, cz), albedo, "knob", link, axis="y", sections=12)
+        radius, length = 0.015, 0.025
+        if self.fixtures is not None:
+            radius, length = radius * self.fixtures.knob_scale, length * self.fixtures.knob_scale
+            albedo = self.fixtures.albedo
+        self.cylinder(f"{name}", radius, length, (cx, cy - length / 2, cz), albedo, "knob", link, axis="y", sections=12)
 
     def door(self, name, x0, x1, z0, z1, y_front, thickness, albedo, hinge: str, fixture: str = "handle") -> None:
         """A revolute door covering x0..x1, z0..z1 on a front face at y_front (opening outwards)."""
@@ -753,13 +789,16 @@ FAMILIES: dict[str, tuple[str, Family]] = {
 }
 
 
-def make_model(family: str, seed: int, index: int = 0) -> Model:
-    """Sample one model of ``family`` deterministically from ``seed`` and ``index``."""
+def make_model(family: str, seed: int, index: int = 0, varied_fixtures: bool = False) -> Model:
+    """Sample one model of ``family`` deterministically from ``seed`` and ``index`` (its handles
+    and knobs of a style of their own with ``varied_fixtures``, drawn apart from the model's other
+    choices so that the model is otherwise the same)."""
     if family not in FAMILIES:
         raise KeyError(f"unknown model family {family!r}; families are {sorted(FAMILIES)}")
     class_name, fn = FAMILIES[family]
     rng = np.random.default_rng([seed, index, sum(map(ord, family))])
-    b = Builder(rng)
+    style = FixtureStyle.sample(np.random.default_rng([seed, index, 104729])) if varied_fixtures else None
+    b = Builder(rng, style)
     fn(b)
     # Canonical frame: origin at the bottom center of the model's box (x, y centered, z = 0 at the bottom).
     lo = np.min([p.mesh.bounds[0] for p in b.parts], 0)

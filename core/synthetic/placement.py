@@ -112,8 +112,10 @@ class Placer:
         room: tuple[float, float, float],
         seed: int,
         sources: dict[str, list[LibrarySource]] | None = None,
+        varied_fixtures: bool = False,
     ):
         self.type = scene_type
+        self.varied_fixtures = varied_fixtures
         self.room = np.asarray(room, float)
         self.seed = seed
         self.rng = np.random.default_rng([seed, 7919])
@@ -159,7 +161,7 @@ class Placer:
                 options = sorted(f for f, (c, _) in FAMILIES.items() if c == class_name)
                 family = options[int(self.rng.integers(len(options)))]
         self._model_index += 1
-        return make_model(family, self.seed, self._model_index)
+        return make_model(family, self.seed, self._model_index, self.varied_fixtures)
 
     # ---- checks ------------------------------------------------------------------------
 
@@ -447,9 +449,10 @@ def place_objects(
     objects: dict[str, int],
     seed: int,
     sources: dict[str, list[LibrarySource]] | None = None,
+    varied_fixtures: bool = False,
 ) -> Placer:
     """Place ``objects`` (counts by class) by the rules; classes in ``sources`` come from those libraries."""
-    placer = Placer(scene_type, room, seed, sources)
+    placer = Placer(scene_type, room, seed, sources, varied_fixtures)
     for cls in ORDER:
         if objects.get(cls, 0) > 0:
             placer.place(cls, objects[cls])

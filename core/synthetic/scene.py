@@ -166,7 +166,9 @@ def room_layout(room: tuple[float, float, float]) -> list[LayoutElement]:
 def generate_scene(spec: SceneSpec) -> Scene:
     """Place the spec's objects in its room by the rules of its type (deterministic in the seed)."""
     room = spec.resolved_room_size()
-    placer = place_objects(spec.type, room, spec.resolved_objects(), spec.seed, spec.resolved_sources())
+    placer = place_objects(
+        spec.type, room, spec.resolved_objects(), spec.seed, spec.resolved_sources(), spec.varied_fixtures
+    )
     scene = Scene(spec=spec, layout=room_layout(room), skipped=placer.skipped)
     scene.objects = [PlacedObject(p.id, p.model, p.pose, p.parent) for p in placer.objects]
     return scene

@@ -348,6 +348,14 @@ class SceneSpec(_Spec):
     ground_truth: GroundTruthSpec = Field(
         default_factory=GroundTruthSpec, description="Ground-truth occupancy settings."
     )
+    varied_fixtures: bool = Field(
+        default=False,
+        description=(
+            "Give each generated model's handles and knobs a style of their own (bar section, standoff, length, "
+            "light metal or dark), as training data for the fixture classifier (scripts/train_fixtures.py); "
+            "false: the one style every benchmark scene was made with."
+        ),
+    )
 
     @field_validator("objects")
     @classmethod

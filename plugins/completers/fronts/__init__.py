@@ -5,7 +5,8 @@ For every object but seating (``priors.WITHOUT_FRONTS``; a face with flat fronts
 storage whatever the object was named), and for seating too where the segmenter measured a solid
 body without a seat (``attributes['shape']``: a counter's run a detector voted "chair"), it finds
 the front face among the map's points (:mod:`.face`) and its height map (:mod:`.relief`), finds
-handles and knobs standing off it, cuts it into fronts at gaps and between handles, labels each
+handles and knobs standing off it (by thresholds, or with ``fixtures: model`` by a trained
+classifier, :mod:`.fixture_model`), cuts it into fronts at gaps and between handles, labels each
 front door, drawer, appliance door or fixed panel with the kitchen paper's level-2 CRF (refitted
 on RGB-D walks of procedural kitchens: ``models/fronts_crf.json``, ``scripts/train_fronts.py``)
 and gives each door a hinge side opposite its handle. The object's completion becomes articulated
@@ -27,7 +28,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -42,12 +43,13 @@ from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.simulation.structure import floor_height
 
-#: The shipped front classifier (models/README.md).
+#: The shipped front classifier and fixture classifier (models/README.md).
 SHIPPED = Path(__file__).resolve().parent / "models" / "fronts_crf.json"
+SHIPPED_FIXTURES = Path(__file__).resolve().parent / "models" / "fixtures.json"
 
 
 class FrontsConfig(StageConfig):
-    path_fields = ("model",)
+    path_fields = ("model", "fixture_model")
 
     classes: list[str] | None = Field(
         default=None,
@@ -63,6 +65,18 @@ class FrontsConfig(StageConfig):
             "Front CRF weights (JSON with a 'level2' CRF); default: the shipped models/fronts_crf.json "
             "(core/furniture/models/plane_crf.json: the laser-trained one of plane_crf)."
         ),
+    )
+    fixtures: Literal["model", "thresholds"] = Field(
+        default="thresholds",
+        description=(
+            "How handles and knobs are found on a face: 'model', a trained classifier over every blob any cue lifts "
+            "(relief, colour contrast, thin lines in the frames' colour; fixture_model.py); 'thresholds', blobs of the "
+            "relief over fixture_standoff and elongated blobs of colour contrast."
+        ),
+    )
+    fixture_model: str | None = Field(
+        default=None,
+        description="Fixture classifier sidecar (JSON beside its ONNX file); default: the shipped models/fixtures.json",
     )
     min_coverage: float = Field(
         default=0.35, gt=0.0, le=1.0, description="Share of a side the map must cover for it to be a front face."
@@ -147,6 +161,9 @@ class FrontsCompleter(Completer[FrontsConfig]):
             cfg.min_front,
             cfg.max_frames,
             cfg.max_range,
+            None
+            if cfg.fixtures == "thresholds"
+            else str(Path(cfg.fixture_model).expanduser() if cfg.fixture_model else SHIPPED_FIXTURES),
         )
         summary: dict[str, Any] = {
             "objects": 0,

@@ -68,7 +68,7 @@ GAP_COVERAGE = 0.5
 MIN_FIXTURE_CELLS = 4
 
 
-def _blobs(labels: np.ndarray, count: int, hm: HeightMap):
+def blobs(labels: np.ndarray, count: int, hm: HeightMap):
     """Each labelled blob of at least MIN_FIXTURE_CELLS cells that does not touch the face's outline
     (what does is its edge or what stands beside it): (mask, centre (u, z), principal axis (u, z),
     length along it, width across it)."""
@@ -100,7 +100,7 @@ def fixtures_of(hm: HeightMap, face: Face, standoff: tuple[float, float], max_ha
     strong = np.unique(labels[(relief > threshold) & low])
     labels[~np.isin(labels, strong[strong > 0])] = 0
     out: list[Fixture] = []
-    for blob, mean, axis2, length, width in _blobs(labels, count, hm):
+    for blob, mean, axis2, length, width in blobs(labels, count, hm):
         height = float(np.nanmedian(hm.heights[blob]))
         center = mean[0] * face.u_axis - (face.d - height) * face.normal
         center[2] = mean[1]
@@ -133,7 +133,7 @@ def contrast_handles(
     labels, count = ndimage.label(mask, structure=np.ones((3, 3)))
     known_uz = [(float(f.center @ face.u_axis), float(f.center[2])) for f in known]
     out: list[Fixture] = []
-    for blob, mean, axis2, length, width in _blobs(labels, count, hm):
+    for blob, mean, axis2, length, width in blobs(labels, count, hm):
         if not (0.08 <= length <= max_handle and length >= 4 * width):
             continue
         if any(abs(u - mean[0]) < length / 2 + 0.03 and abs(z - mean[1]) < 0.05 for u, z in known_uz):
@@ -152,13 +152,20 @@ def candidate_fronts(
     standoff: tuple[float, float],
     gap_depth: tuple[float, float],
     min_front: float,
+    fixture_model: str | None = None,
 ) -> list[FrontCandidate]:
-    """The fronts of ``face`` from its height map, unlabelled: fixtures, then cuts at gaps and
-    between fixture groups."""
+    """The fronts of ``face`` from its height map, unlabelled: fixtures (by the classifier of the
+    sidecar ``fixture_model``, :mod:`.fixture_model`; None: by thresholds on the relief and the
+    contrast), then cuts at gaps and between fixture groups."""
+    if fixture_model is not None:
+        from stratamap.plugins.completers.fronts.fixture_model import load_fixture_model
+
+        fixtures = load_fixture_model(str(fixture_model)).fixtures(hm, face, standoff)
+    else:
+        fixtures = fixtures_of(hm, face, standoff)
+        fixtures += contrast_handles(hm, face, fixtures)
     # Where a face meets the floor, the floor's points and the sensor's mixed pixels stand off it;
     # nothing is opened by a handle that low.
-    fixtures = fixtures_of(hm, face, standoff)
-    fixtures += contrast_handles(hm, face, fixtures)
     face.fixtures = [f for f in fixtures if f.center[2] >= floor_z + LOWEST_FIXTURE]
     u0, u1, z0, z1 = face.rect
     z0 = max(z0, floor_z + 0.02)
@@ -230,6 +237,8 @@ class FaceParams:
     min_front: float = 0.06
     max_frames: int = 40
     max_range: float = 5.0
+    #: The fixture classifier's sidecar (fixture_model.py); None: thresholds.
+    fixture_model: str | None = None
 
 
 #: How far (m) beyond an object's box its face's points are looked for.
@@ -262,13 +271,17 @@ def observe_front(
     covered one among equals."""
     best = None
     for face, idx in find_faces(box, cloud, viewpoints, p.min_coverage, floor_z):
-        seen = frame_points(stream, face, p.max_frames, p.max_range) if p.max_frames and stream is not None else None
+        seen = (
+            frame_points(stream, face, p.max_frames, p.max_range, lines=p.fixture_model is not None)
+            if p.max_frames and stream is not None
+            else None
+        )
         if seen is not None and len(seen) >= 1000:
             hm = height_map(seen, face, FACE_CELL, CELL_MIN)
         else:
             # A fused map's points lie on a voxel grid: cells of 2.5 spacings are never empty between them.
             hm = height_map(cloud, face, 2.5 * point_spacing(cloud[idx]))
-        candidates = candidate_fronts(face, hm, floor_z, p.standoff, p.gap_depth, p.min_front)
+        candidates = candidate_fronts(face, hm, floor_z, p.standoff, p.gap_depth, p.min_front, p.fixture_model)
         if best is None or len(face.fixtures) > len(best[0].fixtures):
             best = (face, hm, candidates)
     return best

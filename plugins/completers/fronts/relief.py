@@ -47,6 +47,12 @@ class HeightMap:
     relief: np.ndarray
     #: Luminance less the cell's surroundings' (NaN: no colour), from registered colour images.
     contrast: np.ndarray | None = None
+    #: Share of the cell's measurements that each frame's colour image marked as part of a thin
+    #: light or dark line (:func:`thin_lines`; NaN: no colour): a steel bar on a red door, the shadow
+    #: in a gap. Seen per frame before any averaging, so colour off the depth by a centimetre or two
+    #: from frame to frame (unregistered RGB-D) does not blur it away.
+    light_lines: np.ndarray | None = None
+    dark_lines: np.ndarray | None = None
 
     @property
     def noise(self) -> float:
@@ -70,10 +76,12 @@ def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) -> HeightMap:
     """The median height out of ``face`` of ``points`` per cell of its rectangle (and, when the
     points carry a fourth column, their median luminance as ``contrast`` to the cell's
-    surroundings)."""
+    surroundings; with a fifth and sixth, their thin-line marks' shares as ``light_lines`` and
+    ``dark_lines``)."""
     from scipy import ndimage
 
     shade_values = points[:, 3] if points.shape[1] > 3 else None
+    marks = points[:, 4:6] if points.shape[1] > 5 else None
     points = points[:, :3]
 
     u0, u1, z0, z1 = face.rect
@@ -99,6 +107,13 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
                 shades[cells[keep]] = lum[has][order][starts[keep] + counts[keep] // 2]
     heights = heights.reshape(shape)
     shades = shades.reshape(shape)
+    shares = [None, None]
+    if marks is not None:
+        has = np.isfinite(marks[ok, 0])
+        n = np.bincount(flat[has], minlength=heights.size)
+        for k in range(2):
+            total = np.bincount(flat[has], weights=marks[ok, k][has], minlength=heights.size)
+            shares[k] = np.where(n >= min_count, total / np.maximum(n, 1), np.nan).reshape(shape)
     seen = np.isfinite(heights)
     fill = float(np.median(heights[seen])) if seen.any() else 0.0
     level = ndimage.median_filter(np.where(seen, heights, fill), size=LEVEL_WINDOW, mode="nearest")
@@ -113,13 +128,38 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
         fill = float(np.median(shades[lit]))
         base = ndimage.median_filter(np.where(lit, shades, fill), size=LEVEL_WINDOW, mode="nearest")
         contrast = np.where(lit, shades - base, np.nan)
-    return HeightMap(u0, z0, cell, heights, np.where(seen, relief, np.nan), contrast)
+    return HeightMap(u0, z0, cell, heights, np.where(seen, relief, np.nan), contrast, *shares)
 
 
-def frame_points(stream, face: Face, max_frames: int, max_range: float, reach: float = 0.1) -> np.ndarray | None:
+#: Thin lines in a frame's colour image: narrower than this many pixels (a grey top-hat's width).
+LINE_PIXELS = 9
+#: ... and standing out of their surroundings by this much luminance (0-1) at least, and by this many
+#: spreads of the top-hat over the image window.
+LINE_CONTRAST = 0.06
+LINE_SPREADS = 3.0
+
+
+def thin_lines(shade: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where a luminance image (0-1) shows thin light and thin dark lines and specks: each pixel's
+    grey top-hat (white and black, LINE_PIXELS across) above LINE_CONTRAST and LINE_SPREADS spreads
+    over the image's median top-hat."""
+    from scipy import ndimage
+
+    out = []
+    for hat in (ndimage.white_tophat(shade, size=LINE_PIXELS), ndimage.black_tophat(shade, size=LINE_PIXELS)):
+        mid = float(np.median(hat))
+        spread = float(1.4826 * np.median(np.abs(hat - mid)))
+        out.append(hat > max(LINE_CONTRAST, mid + LINE_SPREADS * spread))
+    return out[0], out[1]
+
+
+def frame_points(
+    stream, face: Face, max_frames: int, max_range: float, reach: float = 0.1, lines: bool = False
+) -> np.ndarray | None:
     """The depth frames' points on ``face``'s rectangle (``reach`` m around it, within SLAB of it),
-    (N, 4): x, y, z and the colour image's luminance there (NaN without a registered one), from the
-    frames that saw it most squarely and closest (at most ``max_frames``, within ``max_range`` m):
+    (N, 4): x, y, z and the colour image's luminance there (NaN without a colour image of the
+    depth's size); with ``lines``, (N, 6) with whether :func:`thin_lines` marked it light or dark;
+    from the frames that saw it most squarely and closest (at most ``max_frames``, within ``max_range`` m):
     over many frames a cell's median falls from a far sensor's centimetres of noise to millimetres.
     None without posed depth frames that saw it."""
     intr = getattr(stream, "intrinsics", None)
@@ -177,8 +217,11 @@ def frame_points(stream, face: Face, max_frames: int, max_range: float, reach: f
         # Luminance where the colour image matches the depth image's size (registered RGB-D).
         if rgb.ndim == 3 and rgb.shape[:2] == np.asarray(frame.depth).shape:
             shade = rgb[va:vb, ua:ub, :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32) / 255.0
+            if lines:
+                light, dark = (m.astype(np.float32) for m in thin_lines(shade))
         else:
             shade = np.full(depth.shape, np.nan, np.float32)
+            light = dark = shade
         vv, uu = np.mgrid[va:vb, ua:ub]
         ok = np.isfinite(depth) & (depth > 0) & (depth < max_range)
         zc = depth[ok].astype(float)
@@ -194,8 +237,11 @@ def frame_points(stream, face: Face, max_frames: int, max_range: float, reach: f
             & (fz > z0 - reach)
             & (fz < z1 + reach)
         )
-        clouds.append(np.column_stack([world[keep], shade[ok][keep]]))
-    cloud = np.concatenate(clouds) if clouds else np.zeros((0, 4))
+        columns = [world[keep], shade[ok][keep]]
+        if lines:
+            columns += [light[ok][keep], dark[ok][keep]]
+        clouds.append(np.column_stack(columns))
+    cloud = np.concatenate(clouds) if clouds else np.zeros((0, 6 if lines else 4))
     return cloud if len(cloud) else None
 
 

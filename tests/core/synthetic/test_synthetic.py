@@ -330,3 +330,29 @@ def test_real_apartment_urdf_loads_into_the_library():
     assert any("walls.dae" in p for p in lib.problems)  # absent visual meshes are reported
     assert any("using its collision geometry" in p for p in lib.problems)
     assert len(model.parts) > 50 and abs(model.bounds[0][2]) < 1e-9
+
+
+def test_varied_fixtures_change_only_the_handles_and_knobs():
+    """``make_model(..., varied_fixtures=True)`` gives a counter's handles and knobs a style of their
+    own (the fixture classifier's training data) and leaves every other part as it was (up to the
+    model's centring); the default is the style every benchmark scene was made with."""
+    from stratamap.core.synthetic.models import make_model
+
+    plain, again = make_model("kitchen_counter", 5, 1), make_model("kitchen_counter", 5, 1)
+    varied = [make_model("kitchen_counter", 5, 1, varied_fixtures=True) for _ in range(2)]
+    fixture = {"handle", "knob"}
+
+    def parts(model, keep):
+        # Relative to the first part: a model is centred on its box, which handles standing out widen.
+        origin = model.parts[0].mesh.bounds[0]
+        return [
+            (p.name, np.round(p.mesh.bounds - origin, 6).tolist(), p.albedo) for p in model.parts if keep(p.semantic)
+        ]
+
+    assert parts(plain, lambda s: True) == parts(again, lambda s: True)
+    assert parts(varied[0], lambda s: True) == parts(varied[1], lambda s: True)  # deterministic
+    assert parts(varied[0], lambda s: s not in fixture) == parts(plain, lambda s: s not in fixture)
+    assert parts(plain, lambda s: s in fixture)
+    assert parts(varied[0], lambda s: s in fixture) != parts(plain, lambda s: s in fixture)
+    bars = [p.mesh.extents for p in plain.parts if p.name.endswith("_bar")]
+    assert bars and all(np.isclose(sorted(e)[0], 0.012) for e in bars)  # the default 12 mm bar
