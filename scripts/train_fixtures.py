@@ -47,7 +47,7 @@ def true_fixtures(scene) -> list[np.ndarray]:
 
     groups: dict[tuple[int, str], list[np.ndarray]] = {}
     for k, obj in enumerate(scene.objects):
-        if obj.class_name not in (*WITH_FRONTS, "microwave"):
+        if obj.class_name not in WITH_FRONTS:
             continue
         for part, mesh in obj.world_parts():
             if part.semantic in FIXTURE_PARTS:
@@ -143,7 +143,7 @@ def kitchen_candidates(args: tuple[int, int, float, bool, bool]) -> tuple[np.nda
     streams = [data.stream, DegradedStream(data.stream)] if degrade else [data.stream]
     X, y = [], []
     for inst in data.map.instances:
-        if inst.class_name not in (*WITH_FRONTS, "microwave"):
+        if inst.class_name not in WITH_FRONTS:
             continue
         box = inst.box
         local = (cloud - box.center) @ box.pose[:3, :3]

@@ -18,23 +18,17 @@ fixtures' positions from the scenes' models); the shipped model and its data car
 
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
 from stratamap.core.furniture.fixtures import Fixture
-from stratamap.core.lazy import lazy_module
+from stratamap.core.io.onnx_models import OnnxModel, read_sidecar
 from stratamap.plugins.completers.fronts.face import Face
 from stratamap.plugins.completers.fronts.relief import HeightMap, lines_only
-
-ort = lazy_module("onnxruntime")
-
 
 #: A candidate's cue rises this far over the face: the relief by half the standoff (or 1.5 noises),
 #: the contrast by 1.5 spreads (at least 0.03), a thin-line share by this much.
@@ -244,39 +238,15 @@ class FixtureModel:
     :data:`FEATURES`, ``threshold``, ``sha256``), run by onnxruntime on one thread."""
 
     def __init__(self, sidecar: Path):
-        try:
-            side = json.loads(read_data_text(sidecar, "fixture-model sidecar"))
-        except ValueError as exc:
-            raise DataError(f"{sidecar}: not a readable fixture-model sidecar (JSON) ({exc})") from exc
-        if not isinstance(side, dict) or not {"model", "features", "threshold"} <= side.keys():
-            raise DataError(f"{sidecar}: a fixture-model sidecar needs model, features and threshold")
+        side = read_sidecar(sidecar, "fixture-model", ("model", "features", "threshold"))
         if tuple(side["features"]) != FEATURES:
             raise DataError(f"{sidecar}: its features are not those fronts measures (retrain the model)")
         self.threshold = float(side["threshold"])
-        path = Path(sidecar).parent / str(side["model"])
-        try:
-            blob = path.read_bytes()
-        except OSError as exc:
-            raise DataError(f"{path}: the fixture model is missing ({exc.strerror})") from exc
-        if side.get("sha256") and hashlib.sha256(blob).hexdigest() != side["sha256"]:
-            raise DataError(f"{path}: its sha256 is not the sidecar's (a corrupt or replaced model)")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = 1
-        opts.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(blob, sess_options=opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf types
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise DataError(f"{path}: not an ONNX model onnxruntime can load ({first})") from exc
-        self.input = self.session.get_inputs()[0].name
+        self.model = OnnxModel(sidecar, side, "fixture model")
 
     def scores(self, features: np.ndarray) -> np.ndarray:
         """Each row's probability of being a fixture."""
-        if not len(features):
-            return np.zeros(0, np.float32)
-        outputs = self.session.run(None, {self.input: np.asarray(features, np.float32)})
-        probs = np.asarray(outputs[1] if len(outputs) > 1 else outputs[0], np.float32)
-        return probs.reshape(len(features), -1)[:, -1]
+        return self.model.probabilities(features, 2)[:, 1]
 
     def fixtures(self, hm: HeightMap, face: Face, standoff: tuple[float, float]) -> list[Fixture]:
         """The candidates of ``face``'s height map the model scores at or above its threshold, as fixtures."""

@@ -8,22 +8,17 @@ trained by scripts/train_naming.py; scikit-learn is needed to train it, never to
 
 from __future__ import annotations
 
-import hashlib
-import json
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from stratamap.core.documents import read_data_text
 from stratamap.core.errors import DataError
-from stratamap.core.lazy import lazy_module
+from stratamap.core.io.onnx_models import OnnxModel, read_sidecar
 from stratamap.core.map.priors import UNNAMED
 from stratamap.plugins.segmenters.clusters.features import feature_names, instance_features
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.shapes import Shape, ruled_out, taller_than_class
-
-ort = lazy_module("onnxruntime")
 
 MODELS = Path(__file__).resolve().parent / "models"
 #: The shipped model's sidecar; the ONNX file it names lies beside it.
@@ -36,43 +31,17 @@ class NamingModel:
     """A naming classifier: its ONNX session, its classes (the output's columns) and its features."""
 
     def __init__(self, sidecar: Path) -> None:
-        try:
-            side = json.loads(read_data_text(sidecar, "naming-model sidecar"))
-        except ValueError as exc:
-            raise DataError(f"{sidecar}: not a readable naming-model sidecar (JSON) ({exc})") from exc
-        if not isinstance(side, dict) or not {"model", "classes", "vote_classes", "features"} <= side.keys():
-            raise DataError(f"{sidecar}: a naming-model sidecar needs model, classes, vote_classes and features")
+        side = read_sidecar(sidecar, "naming-model", ("model", "classes", "vote_classes", "features"))
         self.classes = [str(c) for c in side["classes"]]
         self.vote_classes = [str(c) for c in side["vote_classes"]]
         if list(side["features"]) != feature_names(self.vote_classes):
             raise DataError(f"{sidecar}: its features are not those clusters measures (retrain the model)")
-        path = Path(sidecar).parent / str(side["model"])
-        try:
-            blob = path.read_bytes()
-        except OSError as exc:
-            raise DataError(f"{path}: the naming model is missing ({exc.strerror})") from exc
-        if side.get("sha256") and hashlib.sha256(blob).hexdigest() != side["sha256"]:
-            raise DataError(f"{path}: its sha256 is not the sidecar's (a corrupt or replaced model)")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = 1  # one thread: the same scores on every machine run
-        opts.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(blob, sess_options=opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own Fail/InvalidProtobuf types
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise DataError(f"{path}: not an ONNX model onnxruntime can load ({first})") from exc
-        self.input = self.session.get_inputs()[0].name
-        self.path = path
+        self.model = OnnxModel(sidecar, side, "naming model")
+        self.path = self.model.path
 
     def scores(self, features: np.ndarray) -> np.ndarray:
         """Per row of ``features``, the probability of each of ``classes``."""
-        if not len(features):
-            return np.zeros((0, len(self.classes)), np.float32)
-        outputs = self.session.run(None, {self.input: np.asarray(features, np.float32)})
-        probs = outputs[1] if len(outputs) > 1 else outputs[0]
-        if isinstance(probs, list):  # skl2onnx's ZipMap output: one {class index: probability} per row
-            probs = [[row[k] for k in sorted(row)] for row in probs]
-        return np.asarray(probs, np.float32).reshape(len(features), len(self.classes))
+        return self.model.probabilities(features, len(self.classes))
 
 
 @lru_cache(maxsize=4)

@@ -91,11 +91,14 @@ def test_the_shipped_model_scores_a_bar_both_cues_show_over_one_either_shows():
 
 
 def _true_fixtures(scene):
-    """Each handle's and knob's world points in a synthetic scene (a bar and its posts together)."""
+    """Each handle's and knob's world points on a synthetic scene's storage furniture and appliances
+    (a bar and its posts together)."""
+    from stratamap.core.map.priors import WITH_FRONTS
+
     groups: dict = {}
     for k, obj in enumerate(scene.objects):
         for part, mesh in obj.world_parts():
-            if part.semantic in ("handle", "knob") and obj.class_name != "cup":
+            if part.semantic in ("handle", "knob") and obj.class_name in WITH_FRONTS:
                 stem = part.name.rsplit("_bar", 1)[0].rsplit("_post", 1)[0]
                 groups.setdefault((k, stem), []).append(np.asarray(mesh.vertices))
     return [np.concatenate(v) for v in groups.values()]
