@@ -16,7 +16,6 @@ from stratamap.core.geometry.transforms import invert
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import Geometry
 from stratamap.core.map.sensors import CameraIntrinsics
-from stratamap.core.parallel import open3d_threads
 
 o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
@@ -44,15 +43,38 @@ def _grid_keys(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def position_order(points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
-    """An order of points by position (x, then y, then z on a 10 um grid; then colour), so clouds
-    extracted in thread-dependent order compare equal."""
+    """An order of points by position (x, then y, then z on a 10 um grid; then colour; then exact
+    position), so clouds extracted in thread-dependent order compare equal: the order is total on
+    the values, never left to the order the points came in."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
+    colour_bits = None if colors is None else np.ascontiguousarray(colors, dtype=np.float32).view(np.uint32)
     packed = _grid_keys(points)
-    keys = [points[:, 2], points[:, 1], points[:, 0]] if packed is None else [packed[0]]
-    if colors is not None:
-        keys = [np.ascontiguousarray(colors, dtype=np.float32).view(np.uint32)[:, k] for k in (2, 1, 0)] + keys
-    return np.lexsort(keys)
+    if packed is None:
+        keys = [points[:, 2], points[:, 1], points[:, 0]]
+        if colour_bits is not None:
+            keys = [colour_bits[:, k] for k in (2, 1, 0)] + keys
+        return np.lexsort(keys)
+    keys = packed[0]
+    # Most keys are distinct: one plain sort, then only the few points sharing a grid cell sorted by the
+    # rest. Those are points a hair apart (a voxel's surface crossing on two edges at its corner): their
+    # colours may tie as well, and their order must then come from their exact positions.
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    same = sorted_keys[1:] == sorted_keys[:-1]
+    if not same.any():
+        return order
+    tied = np.zeros(len(keys), bool)
+    tied[1:] = same
+    tied[:-1] |= same
+    at = np.flatnonzero(tied)  # runs of equal keys, each contiguous in the sorted order
+    members = order[at]
+    exact = np.ascontiguousarray(points[members], dtype=np.float64).view(np.uint64)
+    rest = [exact[:, 2], exact[:, 1], exact[:, 0]]
+    if colour_bits is not None:
+        rest += [colour_bits[members, k] for k in (2, 1, 0)]
+    order[at] = members[np.lexsort([*rest, sorted_keys[at]])]
+    return order
 
 
 def canonical_mesh(
@@ -60,12 +82,14 @@ def canonical_mesh(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The same mesh whatever order Open3D's threads produced it in: vertices merged where they
     coincide (marching cubes emits duplicates at block borders) and sorted by position on a 10 um
-    grid, duplicate colours averaged (integer sums: order-free), faces sorted."""
+    grid, duplicate (integer) colours averaged (integer sums: order-free), faces sorted."""
     if len(vertices) == 0:
         return vertices, faces, vertex_colors
     packed = _grid_keys(vertices)
     if packed is None:
         unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        first = None
     else:
         keys, q = packed
         # Duplicates share their key and so their grid position: which of them sorts first does not
@@ -76,26 +100,54 @@ def canonical_mesh(
         starts[1:] = sorted_keys[1:] != sorted_keys[:-1]
         inverse = np.empty(len(keys), np.int64)
         inverse[order] = np.cumsum(starts) - 1
-        unique = q[order[starts]] * QUANTUM
-    inverse = inverse.reshape(-1)
-    colors = None
-    if vertex_colors is not None:
+        first = order[starts]
+        unique = q[first] * QUANTUM
+    colors = None if vertex_colors is None else _merged_colours(vertex_colors, inverse, len(unique), first)
+    return unique, _sorted_faces(inverse[faces], len(unique)), colors
+
+
+def _merged_colours(vertex_colors: np.ndarray, inverse: np.ndarray, n: int, first: np.ndarray | None) -> np.ndarray:
+    """Per merged vertex, the rounded integer mean of its vertices' colours. A TSDF mesh has few
+    duplicates (a few dozen in 300,000 vertices): the others keep their colour as it is, which is
+    what the mean of one gives, and only the merged ones are summed."""
+    count = np.bincount(inverse, minlength=n)
+    if first is None:
+        first = np.empty(n, np.int64)
+        first[inverse] = np.arange(len(inverse))
+    colors = vertex_colors[first]
+    is_merged = count > 1
+    merged = np.flatnonzero(is_merged)
+    if len(merged):
+        members = np.flatnonzero(is_merged[inverse])
+        group = (np.cumsum(is_merged) - 1)[inverse[members]]
         acc = np.stack(
             [
-                np.bincount(inverse, weights=vertex_colors[:, k], minlength=len(unique)).astype(np.int64)
+                np.bincount(group, weights=vertex_colors[members, k], minlength=len(merged)).astype(np.int64)
                 for k in range(vertex_colors.shape[1])
             ],
             axis=1,
         )
-        count = np.bincount(inverse, minlength=len(unique))[:, None]
-        colors = ((2 * acc + count) // (2 * count)).astype(vertex_colors.dtype)
-    faces = inverse[faces]
-    n = np.int64(max(len(unique), 1))
-    if len(faces) and float(n) ** 3 < 2**62:
-        faces = faces[np.argsort((faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2])]  # equal keys: equal rows
-    elif len(faces):
-        faces = faces[np.lexsort(faces.T[::-1])]
-    return unique, faces, colors
+        size = count[merged][:, None]
+        colors[merged] = ((2 * acc + size) // (2 * size)).astype(vertex_colors.dtype)
+    return colors
+
+
+def _sorted_faces(faces: np.ndarray, n: int) -> np.ndarray:
+    """Faces (vertex indices below ``n``) in lexicographic order. Each face packed into one integer
+    (equal keys: equal rows) and the keys sorted and unpacked: no argsort, no gather of rows."""
+    if len(faces) == 0:
+        return faces
+    bits = max(1, int(n - 1).bit_length())
+    if 3 * bits > 63:
+        return faces[np.lexsort(faces.T[::-1])]
+    mask = np.int64((1 << bits) - 1)
+    keys = (faces[:, 0] << (2 * bits)) | (faces[:, 1] << bits) | faces[:, 2]
+    keys.sort()
+    out = np.empty(faces.shape, np.int64)
+    out[:, 0] = keys >> (2 * bits)
+    out[:, 1] = (keys >> bits) & mask
+    out[:, 2] = keys & mask
+    return out
 
 
 class IntegrationConfig(StageConfig):
@@ -215,6 +267,8 @@ class FrameSkips:
 NEAR_SURFACE = 0.3
 #: Blocks of a map sampled for its typical views (a 20,000-block sample is 10 million voxels).
 VIEW_SAMPLE_BLOCKS = 20_000
+#: Blocks read at a time to find the typical views (256 blocks of 8^3 voxels: 0.8 MB of weights and TSDF).
+VIEW_CHUNK_BLOCKS = 256
 
 
 class TSDFVolume:
@@ -329,9 +383,16 @@ class TSDFVolume:
             mixed = (keys[:, 0] * 73856093) ^ (keys[:, 1] * 19349663) ^ (keys[:, 2] * 83492791)
             active = active[mixed % (len(active) // VIEW_SAMPLE_BLOCKS + 1) == 0]
         voxels = self.cfg.block_resolution**3
-        weights = self.grid.attribute("weight").numpy().reshape(-1, voxels)[active].ravel()
-        tsdf = self.grid.attribute("tsdf").numpy().reshape(-1, voxels)[active].ravel()
-        near = weights[(weights >= 1) & (np.abs(tsdf) < NEAR_SURFACE)]
+        weight_blocks = self.grid.attribute("weight").numpy().reshape(-1, voxels)
+        tsdf_blocks = self.grid.attribute("tsdf").numpy().reshape(-1, voxels)
+        # A few hundred blocks at a time: their copies and masks stay in the cache, where those of a whole
+        # map's voxels at once did not (the median does not depend on the order of the values).
+        parts = []
+        for start in range(0, len(active), VIEW_CHUNK_BLOCKS):
+            rows = active[start : start + VIEW_CHUNK_BLOCKS]
+            weights, tsdf = weight_blocks[rows].ravel(), tsdf_blocks[rows].ravel()
+            parts.append(weights[(weights >= 1) & (np.abs(tsdf) < NEAR_SURFACE)])
+        near = np.concatenate(parts)
         if len(near) == 0:
             return needed
         typical = float(np.median(near))
@@ -342,9 +403,11 @@ class TSDFVolume:
         # Each frame adds 1 to the weight of the voxels it sees; Open3D keeps weights above the threshold.
         self.views_needed = self._views_needed()
         weight = self.views_needed - 0.5
-        # Open3D walks its hash map in a thread-dependent order: sort so runs are reproducible.
-        with open3d_threads(1):  # extraction from 16-bit voxels differs with the threads' split of the blocks
-            pcd = self.grid.extract_point_cloud(weight)
+        # On all threads: Open3D computes each point from its own voxel and neighbour alone, and emits the
+        # points in an order that depends on the threads. The runs once seen to differ were points tied
+        # in the sort (same grid cell, same colour) left in that order; position_order's order is total
+        # on the values, so the sorted cloud is the same whatever their number (a test checks it).
+        pcd = self.grid.extract_point_cloud(weight)
         points = pcd.point.positions.numpy().astype(np.float64)
         raw_colors = pcd.point.colors.numpy() if "colors" in pcd.point else None
         order = position_order(points, raw_colors)

@@ -50,6 +50,23 @@ def vote_stride(configured: int | None, intrinsics: CameraIntrinsics, voxel_size
     return max(1, int(voxel_size * min(intrinsics.fx, intrinsics.fy) / depth_max + 1e-9))
 
 
+def first_of_each(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_index=True)`` for non-negative integers: the distinct values, sorted,
+    and where each first occurs. Each value packed with its position into one integer (no two equal),
+    so that a plain sort of the keys gives the order of the stable argsort np.unique takes, which is
+    the slower sort."""
+    n = len(values)
+    bits = max(1, (n - 1).bit_length())
+    if n == 0 or int(values.min()) < 0 or int(values.max()) >= 1 << (62 - bits):
+        return np.unique(values, return_index=True)
+    keys = (values.astype(np.int64) << bits) | np.arange(n, dtype=np.int64)
+    keys.sort()
+    distinct = keys >> bits
+    starts = np.ones(n, bool)
+    starts[1:] = distinct[1:] != distinct[:-1]
+    return distinct[starts], keys[starts] & ((1 << bits) - 1)
+
+
 class TSDFConfig(IntegrationConfig):
     renamed: ClassVar[Mapping[str, str]] = RENAMED  # the flat piece_* keys of the release before
 
@@ -276,28 +293,31 @@ class TSDFMapper(Mapper[TSDFConfig]):
         pose: np.ndarray,
         cfg: TSDFConfig,
     ) -> None:
-        d = np.where(depth <= cfg.depth_max, depth, 0)
         if cfg.instances == "masks":
             stride = vote_stride(cfg.label_stride, intr, cfg.voxel_size, cfg.depth_max)
         else:
             stride = label_stride(cfg.label_stride, intr.width)
+        # backproject reads every stride-th pixel only: those are range-limited, not the whole frame.
+        sampled = depth[::stride, ::stride]
+        d = np.zeros_like(depth)
+        d[::stride, ::stride] = np.where(sampled <= cfg.depth_max, sampled, 0)
         pts, pix = intr.backproject(d, stride=stride)
         if len(pts) == 0:
             return
-        cls = seg.class_ids.reshape(-1)[pix]
-        inst = seg.instance_ids.reshape(-1)[pix]
-        keep = cls > 0
+        classes, instances = seg.class_ids.reshape(-1), seg.instance_ids.reshape(-1)
+        keep = np.flatnonzero(classes[pix] > 0)
         world = apply(pose, pts[keep])
         voxels = np.round(world / cfg.voxel_size).astype(np.int64)
         flat, found = self._flat_indices(vbg, voxels, cfg.block_resolution)
-        flat, cls, inst, voxels = flat[found], cls[keep][found], inst[keep][found], voxels[found]
-        flat, first = np.unique(flat, return_index=True)  # one observation per voxel per frame
+        found = np.flatnonzero(found)
+        flat, first = first_of_each(flat[found])  # one observation per voxel per frame
+        taken = found[first]
+        cls, inst = classes[pix[keep[taken]]], instances[pix[keep[taken]]]
         if cfg.instances == "masks":
-            observations.add(voxels[first], cls[first], inst[first])
+            observations.add(voxels[taken], cls, inst)
         label_view = vbg.attribute("label").numpy().reshape(-1)
         conf_view = vbg.attribute("conf").numpy().reshape(-1)
-        active = vbg.hashmap().active_buf_indices().numpy().astype(np.int64)
-        state.fuse_frame(label_view, conf_view, flat, cls[first], inst[first], active)
+        state.fuse_frame(label_view, conf_view, flat, cls, inst)
 
     def _point_labels(self, vbg: Any, points: np.ndarray, cfg: TSDFConfig) -> np.ndarray:
         """The segment label of each map point: its voxel's, or the nearest labelled neighbour's."""

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
+from itertools import combinations
 
 import numpy as np
 
@@ -111,7 +112,16 @@ class PanopticState:
         code = (seg_class.astype(np.int64) << 32) | seg_instance.astype(np.int64)
         seg_codes, seg_of_point = np.unique(code, return_inverse=True)
         seg_sizes = np.bincount(seg_of_point)
-        current = self.current(voxel_labels[flat])
+        stored = voxel_labels[flat]  # merges below change what labels stand for, never the stored labels
+        current = self.current(stored)
+        # label_class walks a label's Phi; a frame asks it of the same labels again and again, and only
+        # a merge changes the answers.
+        class_of: dict[int, int] = {}
+
+        def label_class(label: int) -> int:
+            if label not in class_of:
+                class_of[label] = self.label_class(label)
+            return class_of[label]
 
         # Overlap Pi(s, l) of frame segments with existing labels.
         has = current > 0
@@ -136,7 +146,7 @@ class PanopticState:
                 continue
             # Layout (stuff) segments and labels pair only with their own class: a wall's label
             # must not become the floor's because a segmenter calls the foot of the wall floor.
-            c_seg, c_label = int(seg_codes[s] >> 32), self.label_class(lab)
+            c_seg, c_label = int(seg_codes[s] >> 32), label_class(lab)
             if c_label and c_seg and c_seg != c_label and not (is_thing[c_seg] and is_thing[c_label]):
                 continue
             assigned[s] = lab
@@ -144,12 +154,13 @@ class PanopticState:
         # Shared-voxel ratio: a segment covering most of another label's visible voxels votes to
         # merge them, if that label stands for the segment's class (a floor segment spilling over
         # the foot of a wall whose label is mostly out of view must not swallow the wall).
+        merged = False
         for idx in range(len(pairs)):
             s, lab = int(pair_seg[idx]), int(pair_label[idx])
             keep = assigned.get(s)
             if keep is None or keep == lab:
                 continue
-            other = self.label_class(lab)
+            other = label_class(lab)
             if other not in (0, int(seg_codes[s] >> 32)):
                 continue
             if counts[idx] >= p.merge_ratio * visible[lab] and counts[idx] >= 3:
@@ -157,13 +168,15 @@ class PanopticState:
                 self.merge_votes[key] += 1
                 if self.merge_votes[key] >= p.merge_votes:
                     self._merge_labels(keep, lab, voxel_labels)
+                    class_of.clear()
+                    merged = True
         for s in range(len(seg_codes)):
             if s not in assigned:
                 assigned[s] = self.new_label()
 
         # Voxel label update with Voxblox++'s confidence counts.
         new = np.array([assigned[s] for s in range(len(seg_codes))], dtype=np.int64)[seg_of_point]
-        cur = self.current(voxel_labels[flat])
+        cur = self.current(stored) if merged else current
         conf = voxel_conf[flat]
         agree = cur == new
         conf = np.where(agree, conf + 1, conf - 1)
@@ -180,7 +193,7 @@ class PanopticState:
         # would otherwise chain neighbouring objects of different classes into one instance).
         label_best: dict[int, tuple[int, int]] = {}
         for lab in set(pair_label.tolist()):
-            label_best[lab] = (self.label_class(lab), self.best_instance(lab))
+            label_best[lab] = (label_class(lab), self.best_instance(lab))
         seg_votes: dict[int, Counter] = defaultdict(Counter)
         for idx in range(len(pairs)):
             c_label, best = label_best[int(pair_label[idx])]
@@ -206,10 +219,7 @@ class PanopticState:
                 self.next_instance += 1
             claimed.add(inst)
             self.phi[label][(c, inst)] += 1
-        for a in claimed:
-            for b in claimed:
-                if a < b:
-                    self.seen_apart.add((a, b))
+        self.seen_apart.update(combinations(sorted(claimed), 2))
 
     def label_class(self, label: int) -> int:
         """The class a label stands for so far (most votes in Phi; 0 before any)."""

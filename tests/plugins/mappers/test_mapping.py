@@ -478,12 +478,12 @@ def test_occupancy_maps_a_lidar_recording_from_its_sweeps():
 
 
 def test_the_surface_is_the_same_whatever_open3ds_threads():
-    """The mesh is extracted on all of Open3D's threads, which emit vertices and triangles in an order
-    (and duplicates at block borders) that depend on their number; the canonical mesh and the points
-    must not."""
+    """The points and the mesh are extracted on all of Open3D's threads, which emit points, vertices
+    and triangles in an order (and the mesh's duplicates at block borders) that depend on their
+    number; the sorted points and the canonical mesh must not."""
     from stratamap.core.parallel import open3d_threads
     from stratamap.core.pipeline import run_stages
-    from stratamap.plugins.mappers._volume import TSDFVolume
+    from stratamap.plugins.mappers._volume import TSDFVolume, position_order
     from stratamap.plugins.mappers.tsdf import TSDFMapper
     from stratamap.plugins.sources.synthetic import SyntheticSource
 
@@ -505,3 +505,73 @@ def test_the_surface_is_the_same_whatever_open3ds_threads():
         np.testing.assert_array_equal(first.mesh.vertices, other.mesh.vertices)
         np.testing.assert_array_equal(first.mesh.faces, other.mesh.faces)
         np.testing.assert_array_equal(first.mesh.visual.vertex_colors, other.mesh.visual.vertex_colors)
+    # Any order the threads could emit the points in sorts to the same cloud.
+    cloud = volume.grid.extract_point_cloud(volume.views_needed - 0.5)
+    points, colors = cloud.point.positions.numpy().astype(np.float64), cloud.point.colors.numpy()
+    for seed in range(3):
+        shuffle = np.random.default_rng(seed).permutation(len(points))
+        order = position_order(points[shuffle], colors[shuffle])
+        np.testing.assert_array_equal(points[shuffle][order], first.points)
+        np.testing.assert_array_equal(np.clip(colors[shuffle][order], 0, 1), first.colors)
+
+
+def test_points_in_one_grid_cell_sort_by_their_values_not_their_order():
+    """Two points a hair apart (a surface crossing a voxel's corner, found from two voxels) share a
+    10 um cell and often a colour: their order must come from their exact positions."""
+    from stratamap.plugins.mappers._volume import QUANTUM, position_order
+
+    rng = np.random.default_rng(0)
+    cells = np.rint(rng.uniform(-3, 3, (300, 3)) / QUANTUM) * QUANTUM
+    twins = cells[:100] + rng.uniform(-0.3, 0.3, (100, 3)) * QUANTUM  # in their cell's 10 um
+    points = np.concatenate([cells, twins])
+    colors = rng.uniform(0, 1, (300, 3)).astype(np.float32)
+    colors = np.concatenate([colors, colors[:100]])
+    for cols in (colors, None):
+        clouds = []
+        for seed in range(5):
+            shuffle = np.random.default_rng(seed).permutation(len(points))
+            shuffled = None if cols is None else cols[shuffle]
+            order = position_order(points[shuffle], shuffled)
+            clouds.append((points[shuffle][order], None if cols is None else shuffled[order]))
+        for other in clouds[1:]:
+            np.testing.assert_array_equal(other[0], clouds[0][0])
+            np.testing.assert_array_equal(other[1], clouds[0][1])
+    keys = np.rint(clouds[0][0] / QUANTUM)
+    assert all(tuple(a) <= tuple(b) for a, b in zip(keys[:-1], keys[1:], strict=True))  # x, then y, then z
+
+
+def test_the_canonical_mesh_averages_merged_colours_and_sorts_faces():
+    from stratamap.plugins.mappers._volume import QUANTUM, canonical_mesh
+
+    rng = np.random.default_rng(1)
+    grid = np.rint(rng.uniform(0, 1, (400, 3)) / QUANTUM) * QUANTUM
+    vertices = np.concatenate([grid, grid[:150] + rng.uniform(-0.3, 0.3, (150, 3)) * QUANTUM])
+    colors = rng.integers(0, 256, (550, 3), dtype=np.uint8)
+    faces = rng.integers(0, 550, (900, 3))
+    unique, sorted_faces, merged = canonical_mesh(vertices, faces, colors)
+    # The plain way: np.unique on the grid positions, colour sums by bincount, faces by lexsort.
+    expected, inverse = np.unique(np.rint(vertices / QUANTUM).astype(np.int64), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    np.testing.assert_array_equal(unique, expected * QUANTUM)
+    count = np.bincount(inverse)[:, None]
+    sums = np.stack([np.bincount(inverse, weights=colors[:, k]).astype(np.int64) for k in range(3)], axis=1)
+    np.testing.assert_array_equal(merged, ((2 * sums + count) // (2 * count)).astype(np.uint8))
+    remapped = inverse[faces]
+    np.testing.assert_array_equal(sorted_faces, remapped[np.lexsort(remapped.T[::-1])])
+
+
+def test_first_of_each_is_numpys_unique_with_first_indices():
+    from stratamap.plugins.mappers.tsdf import first_of_each
+
+    rng = np.random.default_rng(2)
+    for values in (
+        rng.integers(0, 50, 1000),
+        rng.integers(0, 2**40, 300),
+        np.zeros(0, np.int64),
+        np.array([7]),
+        rng.integers(-5, 5, 40),
+    ):
+        expected = np.unique(values, return_index=True)
+        got = first_of_each(values)
+        np.testing.assert_array_equal(got[0], expected[0])
+        np.testing.assert_array_equal(got[1], expected[1])
