@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,14 +68,19 @@ class OrientedBox:
         return cls(d["center"], d["yaw"], d["size"])
 
 
-def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndarray, float, np.ndarray]:
+def min_area_rectangle(
+    xy: np.ndarray, area_slack: float = 0.0, axes: Sequence[float] = (), axes_slack: float = 0.0
+) -> tuple[np.ndarray, float, np.ndarray]:
     """Minimum-area enclosing rectangle of 2D points (rotating calipers over the convex hull).
 
     With ``area_slack`` > 0, among the rectangles at most that fraction larger than the minimum the
     one whose axes the hull's edges follow best (by length) wins: a partly seen counter whose back
     corners are hidden has a slightly smaller tilted rectangle, yet its long front edge gives the
-    orientation away. Returns ``(center_xy, yaw, size_xy)`` with ``size_xy[0] >= size_xy[1]`` and
-    yaw in [-pi/2, pi/2).
+    orientation away. ``axes`` (yaws, radians, modulo 90 degrees: a room's walls) are tried too: the
+    smallest rectangle along one of them wins when it is at most ``axes_slack`` larger than the
+    minimum (furniture stands square to the walls; a fridge seen from the front and one side, or
+    with a strip of the wall beside it, has a tilted rectangle a few per cent smaller). Returns
+    ``(center_xy, yaw, size_xy)`` with ``size_xy[0] >= size_xy[1]`` and yaw in [-pi/2, pi/2).
     """
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if len(xy) == 0:
@@ -87,6 +93,9 @@ def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndar
         return hull[0].copy(), 0.0, np.zeros(2)
     edges = np.roll(hull, -1, axis=0) - hull
     angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+    preferred = np.unique(np.mod(np.asarray(axes, dtype=np.float64), np.pi / 2)) if axes_slack > 0 else np.zeros(0)
+    n_edges = len(angles)
+    angles = np.concatenate([angles, preferred])
     c, s = np.cos(angles), np.sin(angles)
     # Rotate the hull by -angle for every candidate at once: (A, H)
     rx = hull[None, :, 0] * c[:, None] + hull[None, :, 1] * s[:, None]
@@ -94,15 +103,20 @@ def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndar
     w = rx.max(1) - rx.min(1)
     h = ry.max(1) - ry.min(1)
     area = w * h
-    best = int(np.argmin(area))
-    if area_slack > 0 and len(angles) > 1:
+    best = int(np.argmin(area[:n_edges]))
+    smallest = area[best]
+    if area_slack > 0 and n_edges > 1:
         lengths = np.linalg.norm(edges, axis=1)
         edge_angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2)
-        diff = np.abs(edge_angles[None, :] - angles[:, None])
+        diff = np.abs(edge_angles[None, :] - angles[:n_edges, None])
         diff = np.minimum(diff, np.pi / 2 - diff)
         support = (lengths[None, :] * (diff < np.radians(2.0))).sum(axis=1)
-        near = area <= area[best] * (1 + area_slack)
+        near = area[:n_edges] <= smallest * (1 + area_slack)
         best = int(np.flatnonzero(near)[np.argmax(support[near])])
+    if len(preferred):
+        square = n_edges + int(np.argmin(area[n_edges:]))
+        if area[square] <= smallest * (1 + axes_slack):
+            best = square
     a = angles[best]
     cx_r = (rx[best].max() + rx[best].min()) / 2
     cy_r = (ry[best].max() + ry[best].min()) / 2
@@ -116,12 +130,16 @@ def min_area_rectangle(xy: np.ndarray, area_slack: float = 0.0) -> tuple[np.ndar
 
 
 def gravity_aligned_box(
-    points: np.ndarray, z_range: tuple[float, float] | None = None, area_slack: float = 0.03
+    points: np.ndarray,
+    z_range: tuple[float, float] | None = None,
+    area_slack: float = 0.03,
+    axes: Sequence[float] = (),
+    axes_slack: float = 0.0,
 ) -> OrientedBox:
     """The gravity-aligned minimal box of points: footprint by min-area rectangle (see
-    :func:`min_area_rectangle` for ``area_slack``), z from min to max."""
+    :func:`min_area_rectangle` for ``area_slack``, ``axes`` and ``axes_slack``), z from min to max."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    center_xy, yaw, size_xy = min_area_rectangle(points[:, :2], area_slack)
+    center_xy, yaw, size_xy = min_area_rectangle(points[:, :2], area_slack, axes, axes_slack)
     z0, z1 = z_range if z_range is not None else (points[:, 2].min(), points[:, 2].max())
     return OrientedBox(np.array([center_xy[0], center_xy[1], (z0 + z1) / 2]), yaw, np.array([*size_xy, z1 - z0]))
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from stratamap.core.geometry.boxes import gravity_aligned_box
@@ -70,9 +72,13 @@ def instances_from_semantics(
     sem: Semantics,
     min_points: int,
     naming: tuple[str, str] | None = None,
+    axes: Sequence[float] = (),
+    axes_slack: float = 0.0,
 ) -> ObjectInstances:
-    """One object per instance id of a thing class, with its points and gravity-aligned box;
-    ``naming`` (``(by, why)``, see ``set_naming``) says how every one of them got its class."""
+    """One object per instance id of a thing class, with its points and gravity-aligned box (turned
+    to one of the room's ``axes`` where that costs at most ``axes_slack`` more footprint, see
+    :func:`~stratamap.core.geometry.boxes.min_area_rectangle`); ``naming`` (``(by, why)``, see
+    ``set_naming``) says how every one of them got its class."""
     out = ObjectInstances()
     ids = sem.instance_ids
     order = np.argsort(ids, kind="stable")
@@ -94,7 +100,7 @@ def instances_from_semantics(
                 class_name=sem.vocabulary.name(cls),
                 points=pts,
                 colors=None if colors is None else colors[sel],
-                box=gravity_aligned_box(pts),
+                box=gravity_aligned_box(pts, axes=axes, axes_slack=axes_slack),
                 score=float((sem.class_ids[sel] == cls).mean()),
             )
         )

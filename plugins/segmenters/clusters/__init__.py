@@ -56,6 +56,7 @@ from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.plugins.segmenters.clusters.config import DEFAULT_PASSES, ClassRule, ClustersConfig
 from stratamap.plugins.segmenters.clusters.grid import estimate_normals, source_floor, working_voxel
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
+from stratamap.plugins.segmenters.clusters.layout import wall_yaws
 from stratamap.plugins.segmenters.clusters.patches import patch_graph
 from stratamap.plugins.segmenters.clusters.strays import stray_points
 
@@ -111,7 +112,9 @@ class ClustersSegmenter(Segmenter[ClustersConfig]):
         )
         geometry = data.map.geometry
         semantics = Semantics(lab.class_ids, lab.instance_ids, lab.vocab)
-        instances = instances_from_semantics(lab.points, geometry.colors, semantics, 1)
+        instances = instances_from_semantics(
+            lab.points, geometry.colors, semantics, 1, axes=wall_yaws(layout), axes_slack=self.config.square_to_walls
+        )
         before = data.map.instances if self.config.keep_instances else None
         shapes = lab.thing_shapes()
         for inst in instances:

@@ -223,6 +223,17 @@ class ClustersConfig(StageConfig):
             "points lie there. Reads up to 60 frames' depth again; scans and point clouds have no rays."
         ),
     )
+    square_to_walls: float = Field(
+        default=0.2,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "An instance's box is turned square to a wall the layout found when that makes its footprint at most "
+            "this share larger than the smallest one (a partly seen fridge's tilted rectangle is a few per cent "
+            "smaller than the upright one; a chair turned 20 degrees at a table is not square to anything). "
+            "0: the smallest footprint always."
+        ),
+    )
     naming: Literal["rules", "model", "rules_then_model"] = Field(
         default="rules",
         description=(

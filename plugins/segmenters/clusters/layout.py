@@ -143,6 +143,12 @@ class Layout:
         return sum(plane.label == WALL for plane in self.planes)
 
 
+def wall_yaws(layout: Layout) -> list[float]:
+    """The yaws (radians, modulo 90 degrees) the layout's walls stand at: the directions furniture
+    stands square to (more than one in a room whose walls are not all at right angles)."""
+    return [float(np.arctan2(p.normal[1], p.normal[0])) % (np.pi / 2) for p in layout.planes if p.label == WALL]
+
+
 def _regions(
     cells: np.ndarray, normals: np.ndarray, pairs: np.ndarray, member: np.ndarray, tol: float, max_turn_deg: float
 ) -> np.ndarray:

@@ -23,6 +23,36 @@ def test_min_area_rectangle_recovers_a_rotated_rectangle(yaw):
     assert abs(np.sin(got_yaw - yaw)) < 1e-9  # same axis, up to a half-turn
 
 
+def test_a_box_seen_from_its_corner_stands_square_to_the_walls():
+    # What a sensor sees of a 0.7 x 0.6 m unit from its corner: two perpendicular faces, an L whose
+    # smallest rectangle runs diagonally (a hair smaller than the upright one).
+    rng = np.random.default_rng(0)
+    seen = np.r_[
+        np.c_[rng.uniform(0.0, 0.6, 200), rng.normal(0, 0.01, 200)],
+        np.c_[rng.normal(0, 0.01, 200), rng.uniform(0.0, 0.7, 200)],
+    ]  # 1 cm of depth noise
+    wall = np.radians(3.0)
+    turn = np.array([[np.cos(wall), -np.sin(wall)], [np.sin(wall), np.cos(wall)]])
+    seen = seen @ turn.T
+    _, tilted, _ = min_area_rectangle(seen, 0.03)
+    assert min(abs(tilted - wall) % (np.pi / 2), np.pi / 2 - abs(tilted - wall) % (np.pi / 2)) > np.radians(20)
+    _, yaw, size = min_area_rectangle(seen, 0.03, axes=[wall + np.pi / 2], axes_slack=0.1)
+    assert np.isclose(np.mod(yaw - wall, np.pi / 2), 0, atol=1e-6) or np.isclose(
+        np.mod(yaw - wall, np.pi / 2), np.pi / 2
+    )
+    np.testing.assert_allclose(size, [0.7, 0.6], atol=0.04)
+    # A table turned 20 degrees from the walls stays turned: squaring it would cost far more footprint.
+    rng2 = np.random.default_rng(1)
+    table = (
+        rng2.uniform([-1.0, -0.4], [1.0, 0.4], (500, 2))
+        @ np.array([[np.cos(0.35), -np.sin(0.35)], [np.sin(0.35), np.cos(0.35)]]).T
+    )
+    _, yaw, size = min_area_rectangle(table, 0.03, axes=[0.0], axes_slack=0.1)
+    assert abs(yaw - 0.35) < np.radians(2) and size[0] < 2.01
+    # No axes, or no slack: the smallest rectangle, as before.
+    assert min_area_rectangle(seen, 0.03, axes=[wall], axes_slack=0.0)[1] == tilted
+
+
 def test_gravity_aligned_box_z_extent():
     pts = np.array([[0, 0, 0.2], [1, 0, 0.5], [1, 1, 0.9], [0, 1, 0.3]], float)
     box = gravity_aligned_box(pts)

@@ -16,7 +16,7 @@ from stratamap.core.map.vocabulary import Vocabulary
 from stratamap.core.stages import PipelineData
 from stratamap.plugins.segmenters.clusters import ClustersConfig, ClustersSegmenter, patch_graph
 from tests.conftest import shared_data
-from tests.plugins.segmenters.test_layout_planes import box_surface, synthetic_room
+from tests.plugins.segmenters.test_layout_planes import box_surface, room_shell, synthetic_room
 
 VOCAB = Vocabulary.default()
 STUFF = ("floor", "wall", "ceiling")
@@ -459,3 +459,31 @@ def test_a_few_points_far_from_a_thing_at_its_own_height_are_strays():
     assert not stray_points(points, radius, gap, smallest).any()
     stray = stray_points(points, radius, gap, smallest, far=0.5)
     assert stray[len(run) :].all() and not stray[: len(run)].any()
+
+
+@pytest.mark.parametrize("square_to_walls", [0.0, 0.1])
+def test_a_unit_seen_from_its_corner_stands_square_to_the_walls(square_to_walls):
+    # A 1.8 m tall unit in a room (walls at 3 degrees), seen only on its front and one side (its top
+    # above the sensor, its back to nobody): an L whose smallest rectangle runs diagonally.
+    from stratamap.core.map.instances import instances_from_semantics
+    from stratamap.plugins.segmenters.clusters.layout import find_layout, wall_yaws
+
+    turn = np.radians(3.0)
+    rot = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    rng = np.random.default_rng(0)
+    front = np.c_[rng.uniform(2.0, 2.6, 200), rng.normal(2.0, 0.01, 200), rng.uniform(0, 1.8, 200)]
+    side = np.c_[rng.normal(2.0, 0.01, 200), rng.uniform(2.0, 2.7, 200), rng.uniform(0, 1.8, 200)]
+    unit = np.concatenate([front, side])  # a few hundred points a face, 1 cm of depth noise across it
+    room = np.concatenate([p for _, p in room_shell(0.02)])
+    layout = find_layout(room @ rot.T, 0.02)
+    assert layout.walls == 4
+    yaws = wall_yaws(layout)
+    assert np.allclose(yaws, turn, atol=np.radians(0.5))
+    ids = np.ones(len(unit), np.int32)
+    sem = Semantics(np.full(len(unit), VOCAB.id("cabinet"), np.int32), ids, VOCAB)
+    (inst,) = instances_from_semantics(unit @ rot.T, None, sem, 1, axes=yaws, axes_slack=square_to_walls)
+    off = abs((inst.box.yaw - turn + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+    if square_to_walls:
+        assert off < np.radians(0.5) and np.allclose(sorted(inst.box.size[:2]), [0.6, 0.7], atol=0.05)
+    else:
+        assert off > np.radians(20)  # the smallest rectangle, as without walls
