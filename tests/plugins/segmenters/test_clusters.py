@@ -474,8 +474,8 @@ def test_a_unit_seen_from_its_corner_stands_square_to_the_walls(square_to_walls)
     front = np.c_[rng.uniform(2.0, 2.6, 200), rng.normal(2.0, 0.01, 200), rng.uniform(0, 1.8, 200)]
     side = np.c_[rng.normal(2.0, 0.01, 200), rng.uniform(2.0, 2.7, 200), rng.uniform(0, 1.8, 200)]
     unit = np.concatenate([front, side])  # a few hundred points a face, 1 cm of depth noise across it
-    room = np.concatenate([p for _, p in room_shell(0.02)])
-    layout = find_layout(room @ rot.T, 0.02)
+    room = np.concatenate([p for _, p in room_shell(0.05)])  # 5 cm: the walls' yaws need no finer map
+    layout = find_layout(room @ rot.T, 0.05)
     assert layout.walls == 4
     yaws = wall_yaws(layout)
     assert np.allclose(yaws, turn, atol=np.radians(0.5))
