@@ -312,7 +312,8 @@ class TSDFMapper(Mapper[TSDFConfig]):
         found = np.flatnonzero(found)
         flat, first = first_of_each(flat[found])  # one observation per voxel per frame
         taken = found[first]
-        cls, inst = classes[pix[keep[taken]]], instances[pix[keep[taken]]]
+        pixels = pix[keep[taken]]
+        cls, inst = classes[pixels], instances[pixels]
         if cfg.instances == "masks":
             observations.add(voxels[taken], cls, inst)
         label_view = vbg.attribute("label").numpy().reshape(-1)

@@ -99,13 +99,11 @@ class PanopticState:
         flat: np.ndarray,
         seg_class: np.ndarray,
         seg_instance: np.ndarray,
-        active: np.ndarray | None = None,
     ) -> None:
         """Fuse one frame. ``flat`` are the voxel indices of the frame's sampled pixels (one per voxel),
         ``seg_class``/``seg_instance`` the segmenter's labels of those pixels; ``voxel_labels`` and
         ``voxel_conf`` are writable views of the TSDF's label attributes, shaped (blocks, voxels per
-        block) or flat; ``active`` (the allocated blocks) is no longer needed, kept for existing callers:
-        merges rewrite no voxel (see ``canonical``)."""
+        block) or flat. Merges rewrite no voxel (see ``canonical``)."""
         if len(flat) == 0:
             return
         p = self.params
