@@ -102,7 +102,7 @@ def instance_features(lab: Labelling, classes: list[str]) -> tuple[list[int], np
 
 def _geometry(shape: Shape, lab: Labelling, sel: np.ndarray) -> list[float]:
     pts = lab.points[sel]
-    wall = min((float(np.abs(pts @ w.normal - w.offset).min()) for w in lab.walls), default=WALL_CAP)
+    wall = min((float(w.distance(pts).min()) for w in lab.walls), default=WALL_CAP)
     longest = max(shape.length, 1e-3)
     return [
         shape.length,

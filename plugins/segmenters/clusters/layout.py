@@ -87,10 +87,34 @@ class LayoutParams(BaseModel):
     ceiling_min_height: float = Field(
         default=1.8, gt=0.0, description="A ceiling lies at least this far above the floor (head height), metres."
     )
-    wall_min_height: float = Field(default=1.0, gt=0.0, description="Smallest height span of a wall, metres.")
-    wall_min_area: float = Field(default=0.8, gt=0.0, description="Smallest wall area, m^2.")
+    wall_min_height: float = Field(
+        default=0.4,
+        gt=0.0,
+        description=(
+            "Smallest height span of a wall, metres (a backsplash between a worktop and the wall units above "
+            "it is seen 0.4-0.6 m high; the boundary test, not the size, tells a wall from a cabinet front)."
+        ),
+    )
+    wall_min_area: float = Field(default=0.2, gt=0.0, description="Smallest wall area, m^2.")
+    direction_min_area: float = Field(
+        default=0.4,
+        gt=0.0,
+        description=(
+            "Walls stand only where at least this much vertical surface (m^2, in the whole map) faces one "
+            "horizontal direction: a room's rounded corners face every way between its walls, a little each."
+        ),
+    )
     wall_margin: float = Field(
         default=0.5, ge=0.0, description="A wall has no points behind it within its width and this margin, metres."
+    )
+    seen_beyond_share: float = Field(
+        default=0.25,
+        ge=0.0,
+        description=(
+            "A wall candidate is no wall when the map holds more cells beyond it (within its width and "
+            "wall_margin, not seen through a door or window, not on another wall) than this share of its own "
+            "cells: a wall hides what lies behind it."
+        ),
     )
     support_heights: tuple[float, float] = Field(
         default=(0.3, 1.4), description="Heights above the floor of table, desk, counter and shelf tops, metres."
@@ -125,6 +149,14 @@ class LayoutPlane:
         close = np.abs(points @ self.normal - self.offset) <= distance
         along = points @ np.array([-self.normal[1], self.normal[0], 0.0])
         return close & (along >= self.span[0] - distance) & (along <= self.span[1] + distance)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Each point's distance to the plane's part that is there: within its span, to the plane; past
+        either end, to that end's edge (a partition ending beside a cabinet is not behind it)."""
+        across = np.abs(points @ self.normal - self.offset)
+        along = points @ np.array([-self.normal[1], self.normal[0], 0.0])
+        past = np.maximum(0.0, np.maximum(self.span[0] - along, along - self.span[1]))
+        return np.hypot(across, past)
 
 
 @dataclass
@@ -269,7 +301,7 @@ def find_layout(
     # Directions first, not neighbour-to-neighbour normals: the rounded normals of a room's corner
     # would otherwise chain two walls into one region.
     vertical = (nz <= np.sin(np.radians(p.vertical_deg))) & (cell_label == NONE)
-    direction = wall_directions(normal, vertical, p.vertical_deg, max(3, int(0.5 * p.wall_min_area / area_of_cell)))
+    direction = wall_directions(normal, vertical, p.vertical_deg, max(3, int(p.direction_min_area / area_of_cell)))
     for n in direction:
         member = vertical & (np.abs(normal @ n) >= np.cos(np.radians(p.vertical_deg)))
         along_n = cells @ n
@@ -307,15 +339,21 @@ def find_layout(
                 # what a sensor saw through the wall's doors and windows.
                 facing = 1.0 if np.median(views @ n - d) >= 0 else -1.0
                 outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
-                if len(outside) > p.outlier_share * wide.sum():
+                if len(outside) > p.outlier_share * wide.sum() or (
+                    (cell_label[outside] != WALL).sum() > p.seen_beyond_share * len(m)
+                ):
                     seen = through_openings(cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size)
                     outside = outside[~seen]
-                beyond = len(outside)
             else:  # the room is on the side with more of the map
                 facing = 1.0 if front >= back else -1.0
-                beyond = min(front, back)
-            if beyond > p.outlier_share * wide.sum():
+                outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
+            if len(outside) > p.outlier_share * wide.sum():
                 continue  # points beyond it: a cabinet front or a partition inside the room, not its boundary
+            # A wall hides what lies behind it. A small candidate is tested against its own size too (a
+            # tall cabinet's front and a counter's plinth in one plane, the worktop seen behind them, are
+            # few cells of a wide band); another wall behind it is a real wall's drifted double surface.
+            if (cell_label[outside] != WALL).sum() > p.seen_beyond_share * len(m):
+                continue
             on_wall = band & (np.abs(offset) <= tol) & (np.abs(normal @ n) >= np.cos(np.radians(30.0)))
             # What lies behind the wall plane (within its width) is wall too: its thickness, noise.
             behind = band & (offset * facing < -tol)

@@ -41,9 +41,12 @@ def through_openings(
     """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
     saw through an opening of it: the sight line crosses the plane within the wall's width and below
     its top (the 95th percentile of its points' heights), where the wall has no point (``cell``-sized
-    squares along ``tangent`` and up): a door or a window, whose lintel the sensor need not have seen
-    (a camera at eye height rarely sees a doorway's top). A sensor also sees over a cabinet's front or
-    a partition, but that crossing lies above its top, so what lies behind those still counts."""
+    squares along ``tangent`` and up), in a column of the wall that is empty or has wall above the
+    crossing: a door (its lintel the sensor need not have seen: a camera at eye height rarely sees a
+    doorway's top) or a window. A sensor also sees over a cabinet's front or a partition, but that
+    crossing lies above its top, so what lies behind those still counts; so does what it sees over a
+    counter's front beside a tall cabinet's, which the plane fit can take for one plane: the
+    crossing lies above the top of the counter's columns, though below the cabinet's."""
     along = np.floor(wall @ tangent / cell).astype(np.int64)
     up = np.floor(wall[:, 2] / cell).astype(np.int64)
     low = int(up.min()) - 1
@@ -51,6 +54,9 @@ def through_openings(
     occupied = np.unique((along - along.min()) * width + (up - low))
     first, last = along.min(), along.max()
     wall_top = np.percentile(up, 95)
+    column_top = np.full(last - first + 1, np.iinfo(np.int64).min)
+    np.maximum.at(column_top, along - first, up)
+    empty_column = column_top == np.iinfo(np.int64).min
     seen = np.zeros(len(beyond), bool)
     far = beyond @ normal - offset
     for view in views:
@@ -66,5 +72,7 @@ def through_openings(
         key = (a - first) * width + (z - low)
         pos = np.clip(np.searchsorted(occupied, key), 0, len(occupied) - 1)
         empty = (occupied[pos] != key) | (z < low) | (z >= low + width)
-        seen[np.flatnonzero(crossing)[inside & empty]] = True
+        column = np.clip(a - first, 0, last - first)
+        under_wall = empty_column[column] | (z < column_top[column])
+        seen[np.flatnonzero(crossing)[inside & empty & under_wall]] = True
     return seen

@@ -233,3 +233,89 @@ def test_a_partition_the_sensor_sees_over_is_no_wall():
     layout = find_layout(points, spacing, viewpoints=view[None])
     assert (layout.labels[-len(partition) :] == WALL).mean() < 0.05
     assert layout.walls == 4
+
+
+def test_a_tall_cabinet_beside_a_counter_is_no_wall_though_their_plinth_lies_in_its_plane():
+    """A tall cabinet in a room's corner and a counter run beside it, whose plinth lies in the
+    cabinet front's plane (the counter's front stands 10 cm proud of it): one plane 1.6 m high, seen
+    from the room. The sensor sees the counter's top and the wall behind it over the plinth, where
+    that plane has no points below the cabinet's top; but those columns are the plinth's, and what
+    is seen over a thing's top is no view through an opening: the cabinet is no wall (a rendered
+    kitchen's 2.1 m cabinet was, before)."""
+    spacing = 0.03
+    lx, ly = ROOM[0], ROOM[1]
+    top = 1.6  # what the sensor sees of the room reaches this high
+    view = np.array([3.0, 3.5, 1.5])
+    cabinet = box_surface((0.0, 0.6, 0.0), (0.6, 0.6, top), spacing, "y")
+    plinth = box_surface((0.6, 0.6, 0.0), (lx, 0.6, 0.1), spacing, "y")
+    counter = np.concatenate(
+        [
+            box_surface((0.6, 0.7, 0.1), (lx, 0.7, 0.9), spacing, "y"),
+            box_surface((0.6, 0.0, 0.9), (lx, 0.7, 0.9), spacing, "Z"),
+        ]
+    )
+    room = np.concatenate(
+        [
+            box_surface((0, 0.6, 0), (lx, ly, 0), spacing, "z"),
+            box_surface((0.6, 0, 0.9), (lx, 0, top), spacing, "y"),
+            box_surface((0, 0.6, 0), (0, ly, top), spacing, "x"),
+            box_surface((lx, 0.7, 0), (lx, ly, top), spacing, "X"),
+            box_surface((lx, 0.0, 0.9), (lx, 0.7, top), spacing, "X"),
+            box_surface((0, ly, 0), (lx, ly, top), spacing, "Y"),
+        ]
+    )
+    points = np.concatenate([room, counter, cabinet, plinth])
+    layout = find_layout(points, spacing, viewpoints=view[None])
+    fronts = layout.labels[-(len(cabinet) + len(plinth)) :]
+    assert (fronts == WALL).mean() < 0.05
+    far_wall = len(box_surface((0, ly, 0), (lx, ly, top), spacing, "Y"))
+    assert (layout.labels[len(room) - far_wall : len(room)] == WALL).mean() > 0.9
+
+
+def test_a_backsplash_between_a_worktop_and_wall_units_is_a_wall():
+    """A kitchen wall seen only between a counter's worktop (0.9 m) and the wall units above it
+    (from 1.5 m): a band 0.6 m high with nothing seen behind it is the room's wall, and the counter's
+    front and the wall units' fronts in front of it are not."""
+    spacing = 0.03
+    lx, ly, lz = ROOM
+    view = np.array([3.0, 3.5, 1.5])
+    backsplash = box_surface((0.0, 0.0, 0.9), (lx, 0.0, 1.5), spacing, "y")
+    fronts = np.concatenate(
+        [
+            box_surface((0.0, 0.6, 0.0), (lx, 0.6, 0.9), spacing, "y"),  # the counter's front
+            box_surface((0.0, 0.35, 1.5), (lx, 0.35, 2.2), spacing, "y"),  # the wall units' fronts
+        ]
+    )
+    tops = np.concatenate(
+        [
+            box_surface((0.0, 0.0, 0.9), (lx, 0.6, 0.9), spacing, "Z"),
+            box_surface((0.0, 0.0, 1.5), (lx, 0.35, 1.5), spacing, "z"),
+        ]
+    )
+    room = np.concatenate(
+        [
+            box_surface((0, 0.6, 0), (lx, ly, 0), spacing, "z"),
+            box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z"),
+            box_surface((0, 0.6, 0), (0, ly, lz), spacing, "x"),
+            box_surface((lx, 0.6, 0), (lx, ly, lz), spacing, "X"),
+            box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y"),
+        ]
+    )
+    points = np.concatenate([room, tops, fronts, backsplash])
+    layout = find_layout(points, spacing, viewpoints=view[None])
+    assert (layout.labels[-len(backsplash) :] == WALL).mean() > 0.9
+    assert (layout.labels[-(len(backsplash) + len(fronts)) : -len(backsplash)] == WALL).mean() < 0.05
+    high = LayoutParams(wall_min_height=1.0, wall_min_area=0.8)  # the defaults before 2026-12-07
+    assert (
+        find_layout(points, spacing, viewpoints=view[None], params=high).labels[-len(backsplash) :] == WALL
+    ).mean() < 0.1
+
+
+def test_a_walls_distance_reaches_only_as_far_as_the_wall():
+    """A partition 1 m long (x from 0 to 1, facing y): a point in front of it is its distance across,
+    one in its plane 2 m past its end is 1 m away, not 0 (the naming features read this distance)."""
+    from stratamap.plugins.segmenters.clusters.layout import LayoutPlane
+
+    plane = LayoutPlane(WALL, np.array([0.0, 1.0, 0.0]), 0.0, (-1.0, 0.0))  # along = -x: x in [0, 1]
+    points = np.array([[0.5, 0.3, 1.0], [2.0, 0.0, 1.0], [2.0, 0.4, 0.2]])
+    assert np.allclose(plane.distance(points), [0.3, 1.0, np.hypot(1.0, 0.4)])
