@@ -202,6 +202,12 @@ def _regions(
     return out
 
 
+def _too_much_beyond(outside: np.ndarray, cell_label: np.ndarray, band_limit: float, own_limit: float) -> bool:
+    """Whether the cells ``outside`` a wall candidate are too many for it to be the room's boundary:
+    more than ``band_limit`` in all, or more than ``own_limit`` not on another wall."""
+    return len(outside) > band_limit or int((cell_label[outside] != WALL).sum()) > own_limit
+
+
 def find_layout(
     points: np.ndarray,
     voxel_size: float,
@@ -333,26 +339,22 @@ def find_layout(
             # The boundary test looks past the region's ends too: the wall on either side of a tall
             # cabinet lies behind the cabinet's front, though the cabinet hides the wall behind itself.
             wide = (along >= t.min() - p.wall_margin) & (along <= t.max() + p.wall_margin)
-            front, back = (wide & (offset > 2 * tol)).sum(), (wide & (offset < -2 * tol)).sum()
             if views is not None:
                 # The room is on the side the sensor saw the wall from; nothing may lie beyond it but
                 # what a sensor saw through the wall's doors and windows.
                 facing = 1.0 if np.median(views @ n - d) >= 0 else -1.0
-                outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
-                if len(outside) > p.outlier_share * wide.sum() or (
-                    (cell_label[outside] != WALL).sum() > p.seen_beyond_share * len(m)
-                ):
-                    seen = through_openings(cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size)
-                    outside = outside[~seen]
             else:  # the room is on the side with more of the map
-                facing = 1.0 if front >= back else -1.0
-                outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
-            if len(outside) > p.outlier_share * wide.sum():
-                continue  # points beyond it: a cabinet front or a partition inside the room, not its boundary
-            # A wall hides what lies behind it. A small candidate is tested against its own size too (a
-            # tall cabinet's front and a counter's plinth in one plane, the worktop seen behind them, are
-            # few cells of a wide band); another wall behind it is a real wall's drifted double surface.
-            if (cell_label[outside] != WALL).sum() > p.seen_beyond_share * len(m):
+                facing = 1.0 if (wide & (offset > 2 * tol)).sum() >= (wide & (offset < -2 * tol)).sum() else -1.0
+            outside = np.flatnonzero(wide & (offset * facing < -2 * tol))
+            # Nothing beyond: at most outlier_share of the band (a cabinet front or a partition inside the
+            # room has more) and, as a wall hides what lies behind it, fewer than seen_beyond_share of its
+            # own cells (a tall cabinet's front and a counter's plinth in one plane, the worktop seen behind
+            # them, are few cells of a wide band); another wall behind it is a real wall's drifted double
+            # surface and does not count.
+            limits = (p.outlier_share * wide.sum(), p.seen_beyond_share * len(m))
+            if views is not None and _too_much_beyond(outside, cell_label, *limits):
+                outside = outside[~through_openings(cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size)]
+            if _too_much_beyond(outside, cell_label, *limits):
                 continue
             on_wall = band & (np.abs(offset) <= tol) & (np.abs(normal @ n) >= np.cos(np.radians(30.0)))
             # What lies behind the wall plane (within its width) is wall too: its thickness, noise.
