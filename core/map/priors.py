@@ -41,6 +41,11 @@ class ClassSize:
     #: a longer one than ``extent`` allows is still one object while it is no deeper than this (a 4 m
     #: counter run is 0.6-1 m deep); None: its extent bounds it.
     max_depth: float | None = None
+    #: How deep one object usually is front to back, at the small end of the common sizes (m): a box
+    #: seen from one side only (a chair pushed in under a table shows its backrest) is completed to it
+    #: where the sensor never saw the space beside its face (the contact graph's refined box); None:
+    #: never completed so.
+    usual_depth: float | None = None
 
     def longest(self, height: float) -> float | None:
         """The longest horizontal side one object of this height may have (None: any)."""
@@ -52,26 +57,32 @@ class ClassSize:
 CLASS_SIZES: dict[str, ClassSize] = {
     # One seat: an armchair is under a metre wide (with the map's noise, 1.1 m); wider seating is a sofa
     # or a bench, and a longer "chair" in a mapper's masks is two (tsdf's size prior splits it).
-    "chair": ClassSize((0.2, 0.9), max_length=1.1, max_top_area=0.5),
+    "chair": ClassSize((0.2, 0.9), max_length=1.1, max_top_area=0.5, usual_depth=0.45),
     # Coffee tables stand 0.35-0.5 m high, far below dining and desk height.
     # Dining and conference tables come up to 1.5 m wide, desks (an L-shaped one's arm) to 1 m.
-    "table": ClassSize((0.3, 1.6), min_height=0.35, max_depth=1.5),
-    "desk": ClassSize((0.4, 1.4), max_depth=1.0),
+    "table": ClassSize((0.3, 1.6), min_height=0.35, max_depth=1.5, usual_depth=0.5),
+    "desk": ClassSize((0.4, 1.4), max_depth=1.0, usual_depth=0.5),
     # One unit: a sideboard, a credenza or a wardrobe reaches 2 m as one object; a longer run of
     # cabinets is several units. Low ones (TV benches, lowboards) come up to 3 m long as one piece.
     "cabinet": ClassSize(
-        (0.25, 1.3), max_length=2.0, max_height=2.4, min_height=0.35, min_depth=0.2, low_max_length=3.0
+        (0.25, 1.3),
+        max_length=2.0,
+        max_height=2.4,
+        min_height=0.35,
+        min_depth=0.2,
+        low_max_length=3.0,
+        usual_depth=0.35,
     ),
-    "shelf": ClassSize((0.3, 1.4), max_height=2.4, max_depth=0.8),
+    "shelf": ClassSize((0.3, 1.4), max_height=2.4, max_depth=0.8, usual_depth=0.25),
     # Worktops stand 0.85-0.95 m high and reach 0.6 m or more from the wall (base units are 0.56-0.6 m
     # deep): a long low or shallow unit is a sideboard, a cabinet. A map measures a unit's top where it
     # is or a few centimetres higher, so 3 cm under 0.85 m are allowed. The rare lower worktops (for
     # children or wheelchair users, 0.75-0.85 m) are given up: a flat-topped unit that low is far more
     # often a desk, a table, a sideboard or a display cube.
     # An island with an overhang is up to 1.3 m deep; each arm of an L-shaped run is a counter of its own.
-    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_height=0.82, min_depth=0.55, max_depth=1.3),
-    "sofa": ClassSize((0.5, 1.6), max_depth=1.2),
-    "bench": ClassSize((0.3, 1.2), max_depth=0.8),
+    "counter": ClassSize((0.4, 1.8), min_length=0.9, min_height=0.82, min_depth=0.55, max_depth=1.3, usual_depth=0.6),
+    "sofa": ClassSize((0.5, 1.6), max_depth=1.2, usual_depth=0.75),
+    "bench": ClassSize((0.3, 1.2), max_depth=0.8, usual_depth=0.35),
     "fridge": ClassSize((0.4, 1.2)),
     "microwave": ClassSize((0.15, 0.5), max_length=0.7),
     "oven": ClassSize((0.3, 0.8)),

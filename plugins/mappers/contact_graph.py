@@ -21,7 +21,7 @@ from pydantic import Field
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.geometry.boxes import footprint_overlap
 from stratamap.core.map.layers import ContactGraph
-from stratamap.core.map.priors import plausible_heights
+from stratamap.core.map.priors import CLASS_SIZES, plausible_heights
 from stratamap.plugins.mappers._floor import floor_height
 
 
@@ -68,6 +68,82 @@ def floor_standing(inst: Any, floor_z: float) -> bool:
     is far above any cabinet standing on the floor)."""
     heights = plausible_heights(inst.class_name)
     return heights is not None and heights[0] <= inst.box.top_z - floor_z <= heights[1]
+
+
+#: Steps (m) in which a box is grown into space the sensor never saw free.
+GROW_STEP = 0.05
+#: Sample spacing (m) over a step's slab, along the face and up it.
+GROW_SAMPLE = 0.05
+#: The heights a box is grown at, as shares of its height: its middle, where a chair's seat and a
+#: cabinet's body are (a table's top above a pushed-in chair is not in the way).
+GROW_BAND = (0.25, 0.75)
+#: A slab sample was seen free when at least this many frames saw past it (one frame's mixed pixel
+#: at an edge is not enough).
+SEEN_FREE_FRAMES = 2
+#: A step stops the growth where this share of its samples was seen free ...
+SEEN_FREE_SHARE = 0.25
+#: ... or where other surfaces fill it: this share of its face area in the map's points, at one point
+#: per MAP_CELL square (a wall or another object's side; a table leg is far less).
+OCCUPIED_SHARE = 0.25
+MAP_CELL = 0.02
+
+
+def grow_into_unseen(
+    box: Any, usual_depth: float, free: Any, others: Any, step: float = GROW_STEP
+) -> tuple[Any, int, float] | None:
+    """The box of an object seen from one side only, completed front to back (across its shorter
+    horizontal side) towards ``usual_depth``: grown, in ``step``s, on the side where the space beside
+    it was never seen free (``free``: a :class:`~stratamap.core.map.visibility.FreeSpace`) and no
+    other surface fills it (``others``: the map's points near it that are not its own),
+    on its middle heights; the side where it grows farther wins (right behind a chair's back its own
+    shadow hides a few centimetres). Returns (grown box, side +1/-1 along the box axis, growth in m),
+    or None where it is as deep as that or both sides let it grow as far."""
+    size = np.asarray(box.size, float)
+    axis = int(np.argmin(size[:2]))
+    need = usual_depth - size[axis]
+    if need < step / 2:
+        return None
+    along = 1 - axis
+    rot = box.pose[:3, :3]
+    half_length = max(size[along] / 2 - GROW_SAMPLE / 2, 0.0)
+    ts = np.arange(-half_length, half_length + 1e-9, GROW_SAMPLE)
+    zs = np.arange(box.bottom_z + GROW_BAND[0] * size[2], box.bottom_z + GROW_BAND[1] * size[2] + 1e-9, GROW_SAMPLE)
+    steps = int(np.ceil(need / step - 1e-9))
+    other = np.asarray(others, float).reshape(-1, 3)
+    other = other[(other[:, 2] >= zs[0]) & (other[:, 2] <= zs[-1])]
+    other_local = (other - box.center) @ rot
+    face_cells = size[along] * (zs[-1] - zs[0]) / MAP_CELL**2
+    grown = {}
+    for side in (1.0, -1.0):
+        reach = 0.0
+        for k in range(steps):
+            near, far = size[axis] / 2 + k * step, size[axis] / 2 + min((k + 1) * step, need)
+            local = np.zeros((len(ts) * len(zs), 3))
+            t, z = np.meshgrid(ts, zs, indexing="ij")
+            local[:, along] = t.ravel()
+            local[:, axis] = side * (near + far) / 2
+            samples = local @ rot.T + box.center
+            samples[:, 2] = z.ravel()
+            if (free.seen_free(samples) >= SEEN_FREE_FRAMES).mean() >= SEEN_FREE_SHARE:
+                break
+            in_slab = (
+                (np.abs(other_local[:, along]) <= size[along] / 2)
+                & (side * other_local[:, axis] >= near)
+                & (side * other_local[:, axis] <= far)
+            )
+            if in_slab.sum() >= OCCUPIED_SHARE * face_cells:
+                break
+            reach = far - size[axis] / 2
+        grown[side] = reach
+    if grown[1.0] == grown[-1.0]:
+        return None  # seen free on both sides (a thin object), or unseen as far on both (no side to choose)
+    side = 1.0 if grown[1.0] > grown[-1.0] else -1.0
+    reach = grown[side]
+    offset = np.zeros(3)
+    offset[axis] = side * reach / 2
+    new_size = size.copy()
+    new_size[axis] += reach
+    return type(box)(np.asarray(box.center, float) + rot @ offset, box.yaw, new_size), int(side), float(reach)
 
 
 def surface_planes(
@@ -126,6 +202,15 @@ class ContactGraphConfig(StageConfig):
     proximal_distance: float = Field(
         default=0.05, ge=0.0, description="Boxes closer than this (grown by it) are proximal, metres."
     )
+    grow_unseen: bool = Field(
+        default=True,
+        description=(
+            "Complete the refined box of an object seen from one side only (a chair pushed in under a table shows "
+            "its backrest) front to back towards its class's usual depth (priors.ClassSize.usual_depth), on the side "
+            "where the frames never saw the space beside it free and no other surface fills it; needs posed depth "
+            "frames (an RGB-D stream)."
+        ),
+    )
 
 
 class ContactGraphMapper(Mapper[ContactGraphConfig]):
@@ -178,6 +263,15 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
             np.array([e[0] for e in support_extents]).reshape(-1, 2),
             np.array([e[1] for e in support_extents]).reshape(-1, 2),
         )
+        free, grown_by = None, {}
+        if cfg.grow_unseen and data.map.geometry is not None and sem is not None:
+            from stratamap.core.map.visibility import FreeSpace
+
+            free = FreeSpace.from_stream(data.stream)
+            cloud = np.asarray(data.map.geometry.points, float)
+            cloud_ids = np.asarray(sem.instance_ids)
+            if len(cloud_ids) != len(cloud):
+                free = None
         for child_index, child in enumerate(insts):
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
             # The floor is a candidate when the child's bottom is at floor height; an object is one
@@ -229,6 +323,7 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
             else:
                 g.add_edge("floor", child.id, relation="support", plane=[0.0, 0.0, 1.0, -float(floor_z)])
                 support_z = float(floor_z)
+            refined = None
             if support_z is not None and support_z < child.box.bottom_z:
                 # Box refinement: the unseen bottom of an object reaches down to its support.
                 refined = type(child.box)(
@@ -236,6 +331,16 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                     child.box.yaw,
                     np.array([*child.box.size[:2], child.box.top_z - support_z]),
                 )
+            size = CLASS_SIZES.get(child.class_name)
+            if free is not None and size is not None and size.usual_depth is not None:
+                box = refined if refined is not None else child.box
+                reach = size.usual_depth + float(max(box.size[:2]))
+                near = np.all(np.abs(cloud[:, :2] - box.center[:2]) <= reach, axis=1) & (cloud_ids != child.id)
+                out = grow_into_unseen(box, size.usual_depth, free, cloud[near])
+                if out is not None:
+                    refined = out[0]
+                    grown_by[int(child.id)] = round(out[2], 3)
+            if refined is not None:
                 g.nodes[child.id]["box_refined"] = refined.to_dict()
 
         graph.proximal.add_nodes_from(g.nodes)
@@ -252,6 +357,8 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                 grown = type(a.box)(a.box.center, a.box.yaw, a.box.size + 2 * cfg.proximal_distance)
                 if footprint_overlap(grown, b.box) > 0 and not (g.has_edge(a.id, b.id) or g.has_edge(b.id, a.id)):
                     graph.proximal.add_edge(a.id, b.id, relation="proximal")
+        if grown_by:
+            self.note("grown_into_unseen", grown_by)
         return {"contact_graph": graph}
 
 
