@@ -260,6 +260,20 @@ def plausible_heights(class_name: str) -> tuple[float, float] | None:
     return None if span is None else (span[0] / HEIGHT_SLACK, span[1] * HEIGHT_SLACK)
 
 
+def least_usual_depth(height: float) -> float | None:
+    """The least usual depth (``ClassSize.usual_depth``) among the classes whose objects may be
+    ``height`` high standing on the floor (``plausible_heights``): how deep at least an object of no
+    known class, standing there that high, is taken to be; None when no such class has one."""
+    depths = [
+        size.usual_depth
+        for name, size in CLASS_SIZES.items()
+        if size.usual_depth is not None
+        and (heights := plausible_heights(name)) is not None
+        and heights[0] <= height <= heights[1]
+    ]
+    return min(depths) if depths else None
+
+
 def lowest_height(class_name: str, margin: float) -> float | None:
     """The lowest (metres) a whole object of the class may be seen: its ``min_height`` where the class
     has one, else the plausible heights' low end over ``margin``; None for a class without priors."""

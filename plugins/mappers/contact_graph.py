@@ -21,7 +21,7 @@ from pydantic import Field
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
 from stratamap.core.geometry.boxes import footprint_overlap
 from stratamap.core.map.layers import ContactGraph
-from stratamap.core.map.priors import CLASS_SIZES, plausible_heights
+from stratamap.core.map.priors import CLASS_SIZES, least_usual_depth, plausible_heights
 from stratamap.plugins.mappers._floor import floor_height
 
 
@@ -144,6 +144,20 @@ def grow_into_unseen(
     new_size = size.copy()
     new_size[axis] += reach
     return type(box)(np.asarray(box.center, float) + rot @ offset, box.yaw, new_size), int(side), float(reach)
+
+
+def usual_depth(class_name: str, box: Any, floor_z: float, tolerance: float) -> float | None:
+    """How deep an object is taken to be front to back: its class's usual depth; for an object of no
+    class with one (``object``, or a name whose class gives none) that stands on the floor (its box,
+    as refined, down to it), the least usual depth of the classes standing that high
+    (``priors.least_usual_depth``: a chair's back seen from behind, named nothing, is at least as deep
+    as the shallowest furniture of its height); else None."""
+    size = CLASS_SIZES.get(class_name)
+    if size is not None and size.usual_depth is not None:
+        return size.usual_depth
+    if box.bottom_z - floor_z > tolerance:
+        return None
+    return least_usual_depth(float(box.top_z - floor_z))
 
 
 def surface_planes(
@@ -331,12 +345,12 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                     child.box.yaw,
                     np.array([*child.box.size[:2], child.box.top_z - support_z]),
                 )
-            size = CLASS_SIZES.get(child.class_name)
-            if free is not None and size is not None and size.usual_depth is not None:
-                box = refined if refined is not None else child.box
-                reach = size.usual_depth + float(max(box.size[:2]))
+            box = refined if refined is not None else child.box
+            depth = usual_depth(child.class_name, box, floor_z, cfg.contact_tolerance)
+            if free is not None and depth is not None:
+                reach = depth + float(max(box.size[:2]))
                 near = np.all(np.abs(cloud[:, :2] - box.center[:2]) <= reach, axis=1) & (cloud_ids != child.id)
-                out = grow_into_unseen(box, size.usual_depth, free, cloud[near])
+                out = grow_into_unseen(box, depth, free, cloud[near])
                 if out is not None:
                     refined = out[0]
                     grown_by[int(child.id)] = round(out[2], 3)

@@ -11,6 +11,7 @@ import trimesh
 
 from stratamap.core.geometry.boxes import gravity_aligned_box
 from stratamap.core.map.layers import Geometry, ObjectInstance, ObjectInstances, Semantics
+from stratamap.core.map.priors import least_usual_depth
 from stratamap.core.map.sensors import CameraIntrinsics, RGBDFrame, SensorStream
 from stratamap.core.map.visibility import FreeSpace
 from stratamap.core.map.vocabulary import Vocabulary
@@ -122,21 +123,23 @@ def test_growth_stops_at_another_surface():
     assert 0.15 <= y.max() <= 0.25, y.max()
 
 
-def test_the_contact_graph_refines_a_pushed_in_chair_and_says_so():
+def chair_scene(name: str) -> PipelineData:
+    """The pushed-in chair's back as an instance named ``name``, the table top, the floor, and the
+    frames that saw them."""
     vocab = Vocabulary.default()
     back = surface_points(BACKREST)
     back = back[back[:, 1] < -0.05]
     top, floor = surface_points(TABLE_TOP), surface_points(FLOOR)
     instances = ObjectInstances(
         [
-            ObjectInstance(1, "chair", back, gravity_aligned_box(back)),
+            ObjectInstance(1, name, back, gravity_aligned_box(back)),
             ObjectInstance(2, "table", top, gravity_aligned_box(top)),
         ]
     )
     points = np.vstack([back, top, floor])
     classes = np.concatenate(
         [
-            np.full(len(back), vocab.id("chair")),
+            np.full(len(back), vocab.id(name)),
             np.full(len(top), vocab.id("table")),
             np.full(len(floor), vocab.id("floor")),
         ]
@@ -151,11 +154,23 @@ def test_the_contact_graph_refines_a_pushed_in_chair_and_says_so():
     data.map.instances = instances
     data.map.geometry = Geometry(points=points)
     data.map.semantics = Semantics(classes.astype(np.int32), ids.astype(np.int32), vocab)
-    stage = ContactGraphMapper()
-    graph = stage.run(data)["contact_graph"]
+    return data
+
+
+def test_the_contact_graph_refines_a_pushed_in_chair_and_says_so():
+    data = chair_scene("chair")
+    graph = ContactGraphMapper().run(data)["contact_graph"]
     refined = graph.support.nodes[1]["box_refined"]
     assert 0.40 <= min(refined["size"][:2]) <= 0.46
     assert "box_refined" not in graph.support.nodes[2] or min(graph.support.nodes[2]["box_refined"]["size"][:2]) >= 0.89
     assert set(data.notes["contact_graph"]["grown_into_unseen"]) == {1}
     off = ContactGraphMapper(grow_unseen=False).run(data)["contact_graph"]
     assert "box_refined" not in off.support.nodes[1] or min(off.support.nodes[1]["box_refined"]["size"][:2]) < 0.1
+
+
+def test_an_unnamed_back_on_the_floor_grows_to_the_shallowest_furniture_of_its_height():
+    """Named nothing, the chair's back (0.9 m high, on the floor) is taken to be as deep as the
+    shallowest class standing that high (priors.least_usual_depth: cabinets and benches, 0.35 m)."""
+    assert least_usual_depth(0.9) == pytest.approx(0.35)
+    graph = ContactGraphMapper().run(chair_scene("object"))["contact_graph"]
+    assert min(graph.support.nodes[1]["box_refined"]["size"][:2]) == pytest.approx(0.35, abs=0.01)
