@@ -96,8 +96,10 @@ def grow_into_unseen(
     it was never seen free (``free``: a :class:`~stratamap.core.map.visibility.FreeSpace`) and no
     other surface fills it (``others``: the map's points near it that are not its own),
     on its middle heights; the side where it grows farther wins (right behind a chair's back its own
-    shadow hides a few centimetres). Returns (grown box, side +1/-1 along the box axis, growth in m),
-    or None where it is as deep as that or both sides let it grow as far."""
+    shadow hides a few centimetres); where both sides let it grow all the way (only its top was
+    seen: a chair's back between a table top and a counter), it grows both ways alike. Returns (grown
+    box, side +1/-1 along the box axis or 0 for both, growth in m), or None where it is as deep as
+    that or both sides stop it alike short of that."""
     size = np.asarray(box.size, float)
     axis = int(np.argmin(size[:2]))
     need = usual_depth - size[axis]
@@ -135,12 +137,17 @@ def grow_into_unseen(
                 break
             reach = far - size[axis] / 2
         grown[side] = reach
-    if grown[1.0] == grown[-1.0]:
-        return None  # seen free on both sides (a thin object), or unseen as far on both (no side to choose)
-    side = 1.0 if grown[1.0] > grown[-1.0] else -1.0
-    reach = grown[side]
     offset = np.zeros(3)
-    offset[axis] = side * reach / 2
+    if grown[1.0] == grown[-1.0]:
+        if grown[1.0] < need - 1e-9:
+            return None  # seen free on both sides near it: as thin as it looks
+        # Unseen as far as it could reach on both sides (only its top was seen): it grows both ways
+        # alike, its centre kept.
+        side, reach = 0.0, need
+    else:
+        side = 1.0 if grown[1.0] > grown[-1.0] else -1.0
+        reach = grown[side]
+        offset[axis] = side * reach / 2
     new_size = size.copy()
     new_size[axis] += reach
     return type(box)(np.asarray(box.center, float) + rot @ offset, box.yaw, new_size), int(side), float(reach)

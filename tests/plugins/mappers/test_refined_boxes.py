@@ -174,3 +174,16 @@ def test_an_unnamed_back_on_the_floor_grows_to_the_shallowest_furniture_of_its_h
     assert least_usual_depth(0.9) == pytest.approx(0.35)
     graph = ContactGraphMapper().run(chair_scene("object"))["contact_graph"]
     assert min(graph.support.nodes[1]["box_refined"]["size"][:2]) == pytest.approx(0.35, abs=0.01)
+
+
+def test_a_back_hidden_on_both_sides_grows_both_ways_alike():
+    """A chair's back between two table tops, seen from above only: the space beside it is hidden on
+    both sides, so it grows both ways alike, its centre kept."""
+    tops = [slab((-0.8, -0.6, 0.72), (0.8, -0.07, 0.75)), slab((-0.8, -0.01, 0.72), (0.8, 0.5, 0.75))]
+    poses = [look_at((x, y, 2.8), (0.0, -0.04, 0.0)) for x, y in ((-0.6, -0.3), (0.6, 0.3), (0.0, 0.4), (0.0, -0.5))]
+    free = free_space([FLOOR, BACKREST, *tops], poses)
+    box = backrest_box()
+    others = np.vstack([surface_points(t) for t in tops] + [surface_points(FLOOR)])
+    grown, side, reach = grow_into_unseen(box, 0.45, free, others)
+    assert side == 0 and reach == pytest.approx(0.45 - box.size[1], abs=1e-6)
+    assert np.allclose(grown.center, box.center) and grown.size[1] == pytest.approx(0.45, abs=1e-6)
