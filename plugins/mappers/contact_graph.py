@@ -114,7 +114,7 @@ def grow_into_unseen(
     other = np.asarray(others, float).reshape(-1, 3)
     other = other[(other[:, 2] >= zs[0]) & (other[:, 2] <= zs[-1])]
     other_local = (other - box.center) @ rot
-    face_cells = size[along] * (zs[-1] - zs[0]) / MAP_CELL**2
+    face_cells = max(size[along] * (zs[-1] - zs[0]) / MAP_CELL**2, 1.0)  # a box too low for a band: one cell
     grown = {}
     for side in (1.0, -1.0):
         reach = 0.0
