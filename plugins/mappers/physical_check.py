@@ -126,6 +126,10 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
         all_rejected: list[int] = []
         while rejected:
             for i in rejected:
+                joints = len(instances[i].completion.joints) if instances[i].completion is not None else 0
+                if joints:
+                    # The report counts joints where the completer made them (notes.fronts): say which go.
+                    instances[i].attributes["joints_rejected"] = joints
                 instances[i].completion = None
                 instances[i].attributes["completion_rejected"] = reason
             all_rejected += rejected
@@ -170,16 +174,29 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             return
         self.note(
             "completions_rejected",
-            [{"instance": i.id, "class": i.class_name, "why": i.attributes["completion_rejected"]} for i in rejected],
+            [
+                {
+                    "instance": i.id,
+                    "class": i.class_name,
+                    "why": i.attributes["completion_rejected"],
+                    **({"joints": i.attributes["joints_rejected"]} if "joints_rejected" in i.attributes else {}),
+                }
+                for i in rejected
+            ],
         )
+        joints = sum(int(i.attributes.get("joints_rejected", 0)) for i in rejected)
+        if joints:
+            self.note("joints_rejected", joints)
         named = ", ".join(f"{i.id} ({i.class_name})" for i in rejected)
         reason = (
             rejected[0].attributes["completion_rejected"]
             if len(rejected) == 1
             else f"each one's reason in notes.{self.name}.completions_rejected"
         )
+        lost = f" ({joints} joint{'s' if joints != 1 else ''} with {'them' if len(rejected) > 1 else 'it'})"
         self.warn(
-            f"{'object' if len(rejected) == 1 else 'objects'} {named}: completion rejected, kept as observed: {reason}"
+            f"{'object' if len(rejected) == 1 else 'objects'} {named}: completion rejected, kept as observed"
+            f"{lost if joints else ''}: {reason}"
         )
 
     def _swap(self, instances: ObjectInstances) -> dict[int, tuple[str | None, str | None]]:

@@ -12,6 +12,7 @@ from stratamap.core.map.layers import (
     Completion,
     ContactGraph,
     Geometry,
+    Joint,
     ObjectInstance,
     ObjectInstances,
     Semantics,
@@ -94,6 +95,8 @@ def test_the_physical_check_keeps_a_model_where_it_was_observed():
         pose = np.eye(4)
         pose[0, 3] = x
         inst.completion = Completion(chair_mesh(), pose, "test", model_id="chair")
+    # The first one's completion is articulated (a swivel seat): the notes say its joint went with it.
+    data.map.instances[1].completion.joints = [Joint("seat", "continuous", "base", "seat", np.eye(4), [0, 0, 1])]
     graph = ContactGraph()
     for i in (1, 2):
         graph.support.add_edge("floor", i, relation="support", plane=[0.0, 0.0, 1.0, 0.0])
@@ -120,8 +123,10 @@ def test_the_physical_check_keeps_a_model_where_it_was_observed():
     # One warning names both; the notes say why each.
     warnings = [w for w in data.warnings if "completion rejected" in w]
     assert len(warnings) == 1 and "objects 1 (chair), 2 (chair)" in warnings[0]
+    assert "(1 joint with them)" in warnings[0]
     rejected = data.notes["physical_check"]["completions_rejected"]
     assert sorted(r["why"] for r in rejected) == reasons
+    assert [r.get("joints") for r in rejected] == [1, None] and data.notes["physical_check"]["joints_rejected"] == 1
     assert slid(PhysicalCheckMapper(observed_distance=None).run(data)["instances"])  # what it did before: slide
 
 
