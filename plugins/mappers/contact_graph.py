@@ -115,17 +115,19 @@ def grow_into_unseen(
     other = other[(other[:, 2] >= zs[0]) & (other[:, 2] <= zs[-1])]
     other_local = (other - box.center) @ rot
     face_cells = max(size[along] * (zs[-1] - zs[0]) / MAP_CELL**2, 1.0)  # a box too low for a band: one cell
+    # The samples on the face's plane (world); a step's slab is them moved out along the depth axis.
+    t, z = np.meshgrid(ts, zs, indexing="ij")
+    local = np.zeros((t.size, 3))
+    local[:, along] = t.ravel()
+    on_face = local @ rot.T + box.center
+    on_face[:, 2] = z.ravel()
+    outward = rot[:, axis]
     grown = {}
     for side in (1.0, -1.0):
         reach = 0.0
         for k in range(steps):
             near, far = size[axis] / 2 + k * step, size[axis] / 2 + min((k + 1) * step, need)
-            local = np.zeros((len(ts) * len(zs), 3))
-            t, z = np.meshgrid(ts, zs, indexing="ij")
-            local[:, along] = t.ravel()
-            local[:, axis] = side * (near + far) / 2
-            samples = local @ rot.T + box.center
-            samples[:, 2] = z.ravel()
+            samples = on_face + (side * (near + far) / 2) * outward
             if (free.seen_free(samples) >= SEEN_FREE_FRAMES).mean() >= SEEN_FREE_SHARE:
                 break
             in_slab = (
@@ -284,15 +286,19 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
             np.array([e[0] for e in support_extents]).reshape(-1, 2),
             np.array([e[1] for e in support_extents]).reshape(-1, 2),
         )
-        free, grown_by = None, {}
-        if cfg.grow_unseen and data.map.geometry is not None and sem is not None:
+        grown_by: dict[int, float] = {}
+        can_grow = (
+            cfg.grow_unseen
+            and data.map.geometry is not None
+            and sem is not None
+            and len(sem.instance_ids) == len(data.map.geometry.points)
+        )
+        if can_grow:
             from stratamap.core.map.visibility import FreeSpace
 
-            free = FreeSpace.from_stream(data.stream)
             cloud = np.asarray(data.map.geometry.points, float)
             cloud_ids = np.asarray(sem.instance_ids)
-            if len(cloud_ids) != len(cloud):
-                free = None
+        free_space: list[Any] = []  # the frames are read once, when an object first needs them
         for child_index, child in enumerate(insts):
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
             # The floor is a candidate when the child's bottom is at floor height; an object is one
@@ -354,6 +360,9 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                 )
             box = refined if refined is not None else child.box
             depth = usual_depth(child.class_name, box, floor_z, cfg.contact_tolerance)
+            if can_grow and depth is not None and not free_space:
+                free_space.append(FreeSpace.from_stream(data.stream))
+            free = free_space[0] if free_space else None
             if free is not None and depth is not None:
                 reach = depth + float(max(box.size[:2]))
                 near = np.all(np.abs(cloud[:, :2] - box.center[:2]) <= reach, axis=1) & (cloud_ids != child.id)
