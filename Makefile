@@ -23,7 +23,11 @@ PYTEST_ARGS := -q --dist loadfile
 # One BLAS thread per test process: the processes already fill every core, and OpenBLAS's extra
 # threads only spin between small matrix calls (on 2 cores the whole suite took 24 CPU-minutes
 # with them, 20 without; `make test` 12 min 14 s -> 10 min 23 s).
-TEST_ENV := OPENBLAS_NUM_THREADS=1
+# Bytecode is cached even where the shell sets PYTHONDONTWRITEBYTECODE (some CI images do): without
+# the cache every test process, and every `stratamap` subprocess a test starts, compiles the whole
+# package and pytest rewrites every test module again (collecting the fast suite: 7.6-8.3 s of CPU
+# per process without the cache, 5.0 s with it; docs/experiments/2026-12-07-suite-bytecode-cache.md).
+TEST_ENV := env -u PYTHONDONTWRITEBYTECODE OPENBLAS_NUM_THREADS=1
 
 .PHONY: demo test test-fast lint format install system-deps clean
 
