@@ -155,6 +155,30 @@ def grow_into_unseen(
     return type(box)(np.asarray(box.center, float) + rot @ offset, box.yaw, new_size), int(side), float(reach)
 
 
+#: The slab under an object judged for free space: from this far (m) below its bottom ...
+BELOW_FROM = 0.03
+#: ... to this far: a shelf hangs over a worktop 0.3-0.5 m below it, a wall cabinet over the tiles.
+BELOW_TO = 0.15
+#: The object ends at its bottom when this share of the slab's samples was seen free.
+BELOW_FREE_SHARE = 0.5
+
+
+def seen_free_below(box: Any, free: Any) -> bool:
+    """Whether the frames (``free``: a :class:`~stratamap.core.map.visibility.FreeSpace`) saw the
+    space just under ``box`` empty: BELOW_FREE_SHARE of the samples over its footprint (every
+    GROW_SAMPLE, from BELOW_FROM to BELOW_TO under its bottom) seen free by SEEN_FREE_FRAMES frames.
+    Then nothing of it reaches down there, however far its support lies."""
+    size = np.asarray(box.size, float)
+    u = np.arange(-size[0] / 2, size[0] / 2 + 1e-9, GROW_SAMPLE)
+    v = np.arange(-size[1] / 2, size[1] / 2 + 1e-9, GROW_SAMPLE)
+    z = np.arange(box.bottom_z - BELOW_TO, box.bottom_z - BELOW_FROM + 1e-9, GROW_SAMPLE)
+    uu, vv, zz = np.meshgrid(u, v, z, indexing="ij")
+    local = np.stack([uu.ravel(), vv.ravel(), np.zeros(uu.size)], axis=1)
+    samples = local @ box.pose[:3, :3].T + box.center
+    samples[:, 2] = zz.ravel()
+    return bool(len(samples)) and (free.seen_free(samples) >= SEEN_FREE_FRAMES).mean() >= BELOW_FREE_SHARE
+
+
 def usual_depth(class_name: str, box: Any, floor_z: float, tolerance: float) -> float | None:
     """How deep an object is taken to be front to back: its class's usual depth; for an object of no
     class with one (``object``, or a name whose class gives none) that stands on the floor (its box,
@@ -214,6 +238,14 @@ class ContactGraphConfig(StageConfig):
     )
     wall_distance: float = Field(
         default=0.1, ge=0.0, description="An unsupported object this close to wall points is wall-supported, metres."
+    )
+    hang_over_free_space: bool = Field(
+        default=True,
+        description=(
+            "An unsupported object off the floor, of no class standing on the floor that high, whose underside the "
+            "frames saw empty hangs (wall-supported: a wall shelf or cabinet seen from the front, its back on the wall "
+            "unseen) rather than reaching down to the floor in its refined box; needs posed depth frames."
+        ),
     )
     plane_distance: float = Field(
         default=0.015, gt=0.0, description="RANSAC inlier distance of the surface planes, metres."
@@ -294,11 +326,21 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
             and len(sem.instance_ids) == len(data.map.geometry.points)
         )
         if can_grow:
-            from stratamap.core.map.visibility import FreeSpace
-
             cloud = np.asarray(data.map.geometry.points, float)
             cloud_ids = np.asarray(sem.instance_ids)
         free_space: list[Any] = []  # the frames are read once, when an object first needs them
+
+        def frames_free() -> Any:
+            if not free_space:
+                from stratamap.core.map.visibility import FreeSpace
+
+                free_space.append(FreeSpace.from_stream(data.stream))
+            return free_space[0]
+
+        def hangs(box: Any) -> bool:
+            free = frames_free()
+            return free is not None and seen_free_below(box, free)
+
         for child_index, child in enumerate(insts):
             bottom = float(np.percentile(child.points[:, 2], 1)) if len(child.points) else child.box.bottom_z
             # The floor is a candidate when the child's bottom is at floor height; an object is one
@@ -344,7 +386,11 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                     best.id, child.id, relation="support", plane=[0.0, 0.0, 1.0, -best_z], contact_ratio=best_score
                 )
                 support_z = best_z
-            elif bottom - floor_z > cfg.contact_tolerance and near_wall and not floor_standing(child, floor_z):
+            elif (
+                bottom - floor_z > cfg.contact_tolerance
+                and not floor_standing(child, floor_z)
+                and (near_wall or (cfg.hang_over_free_space and hangs(child.box)))
+            ):
                 g.add_edge("wall", child.id, relation="support")  # hangs on the wall (a wall cabinet, a picture)
                 support_z = None
             else:
@@ -360,9 +406,7 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
                 )
             box = refined if refined is not None else child.box
             depth = usual_depth(child.class_name, box, floor_z, cfg.contact_tolerance)
-            if can_grow and depth is not None and not free_space:
-                free_space.append(FreeSpace.from_stream(data.stream))
-            free = free_space[0] if free_space else None
+            free = frames_free() if can_grow and depth is not None else None
             if free is not None and depth is not None:
                 reach = depth + float(max(box.size[:2]))
                 near = np.all(np.abs(cloud[:, :2] - box.center[:2]) <= reach, axis=1) & (cloud_ids != child.id)

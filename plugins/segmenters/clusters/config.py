@@ -31,6 +31,7 @@ DEFAULT_PASSES = (
     "join_seating",
     "join_enclosed",
     "split_oversized",
+    "split_seen_apart",
     "name_by_model",
     "rename_by_priors",
     "counters_need_a_kitchen",

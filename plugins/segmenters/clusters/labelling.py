@@ -17,6 +17,7 @@ from stratamap.plugins.segmenters.clusters.shapes import SIZE_MARGIN, Shape, des
 
 if TYPE_CHECKING:
     from stratamap.core.map.layers import Semantics
+    from stratamap.core.map.visibility import FreeSpace
     from stratamap.core.map.vocabulary import Vocabulary
     from stratamap.plugins.segmenters.clusters.config import ClustersConfig
     from stratamap.plugins.segmenters.clusters.layout import Layout
@@ -170,6 +171,14 @@ class Labelling:
         return bool(bounds) and not any(
             shape.reach <= reach and shape.depth <= depth and shape.height <= height for reach, depth, height in bounds
         )
+
+    @cached_property
+    def free_space(self) -> FreeSpace | None:
+        """Where the stream's posed depth frames saw empty space (read when a pass first asks), or
+        None for a stream without them (a point cloud, a scan)."""
+        from stratamap.core.map.visibility import FreeSpace
+
+        return FreeSpace.from_stream(self.stream)
 
     @cached_property
     def _largest_objects(self) -> list[tuple[float, float, float]]:

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 from stratamap.plugins.segmenters.clusters import (
+    apart,
     chairs,
     enclosed,
     feet,
@@ -56,6 +57,7 @@ PASSES: dict[str, Pass] = {
     "join_seating": Pass(_AFTER_INSTANCES, seating.join_seating),
     "join_enclosed": Pass(_AFTER_INSTANCES, enclosed.join_enclosed),
     "split_oversized": Pass(_AFTER_INSTANCES, oversized.split_oversized),
+    "split_seen_apart": Pass(_AFTER_INSTANCES, apart.split_seen_apart),
     "name_by_model": Pass(_AFTER_INSTANCES, model.name_by_model),
     "rename_by_priors": Pass(_AFTER_INSTANCES, rename.rename_by_priors),
     "counters_need_a_kitchen": Pass(_AFTER_INSTANCES, kitchen.counters_need_a_kitchen),
