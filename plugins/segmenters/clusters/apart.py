@@ -92,8 +92,10 @@ def split_seen_apart(lab: Labelling) -> None:
             if not gap_seen_empty(cells[mine], cells[rest], free, lab.voxel, surfaces):
                 continue
             # Two objects each stand or hang: a swivel chair's seat and back over its base (their
-            # column lost between them) is held up by nothing but that base.
-            if not (held_up(lab, own[mine]) and held_up(lab, own[rest])):
+            # column lost between them) is held up by nothing but that base. Every large part left
+            # must, not only one of them (a table beside that seat holds up only itself).
+            left = [q for q in np.unique(part[rest]) if size[q] >= lab.scrap_size]
+            if not held_up(lab, own[mine]) or not all(held_up(lab, own[rest & (part == q)]) for q in left):
                 continue
             # A piece within the rest's box is a part of it, as join_enclosed has it (a table's
             # stretcher under its top).
