@@ -13,6 +13,7 @@ ceiling) hang off the ``scene`` root; proximal edges join objects whose boxes to
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -208,14 +209,10 @@ class ContactGraphMapper(Mapper[ContactGraphConfig]):
         if can_grow:
             cloud = np.asarray(data.map.geometry.points, float)
             cloud_ids = np.asarray(sem.instance_ids)
-        free_space: list[Any] = []  # the frames are read once, when an object first needs them
+        from stratamap.core.map.visibility import FreeSpace
 
-        def frames_free() -> Any:
-            if not free_space:
-                from stratamap.core.map.visibility import FreeSpace
-
-                free_space.append(FreeSpace.from_stream(data.stream))
-            return free_space[0]
+        # The frames are read once, when an object first needs them (a map with nothing to judge reads none).
+        frames_free = functools.cache(lambda: FreeSpace.from_stream(data.stream))
 
         def hangs(box: Any) -> bool:
             free = frames_free()

@@ -48,7 +48,7 @@ def split_seen_apart(lab: Labelling) -> None:
     """Sets ``class_ids``, ``instance_ids`` and ``naming``: each part of a thing instance (connected
     cells within ``radius_voxels``) of ``scrap_size`` cells or more that lies MIN_GAP or more from the
     rest of the instance, across space the frames saw empty (``gap_seen_empty``), and where each of
-    the two stands or hangs without the other (``held_up``), becomes an instance of its own, unnamed
+    the two stands or hangs without the other (``Footing.holds``), becomes an instance of its own, unnamed
     until the passes after name it; a part lying mostly on the layout (floor, wall, ceiling cells) becomes
     that stuff (noted with ``part`` 0). Smallest parts are judged first, each against what the instance
     still holds; the largest part keeps the instance. Each split is noted (``split_seen_apart``) and
@@ -63,7 +63,9 @@ def split_seen_apart(lab: Labelling) -> None:
     radius = lab.cfg.radius_voxels * lab.voxel
     next_id = int(lab.instance_ids.max(initial=0)) + 1
     splits = []
-    surfaces = None  # every cell of the map, for what is too near a surface to judge: built when first needed
+    # Every cell of the map (for what is too near a surface to judge) and what holds objects up: built
+    # when an instance first has two parts.
+    surfaces = footing = None
     for iid, sel in instance_members(lab.instance_ids).items():
         cls = int(np.bincount(lab.class_ids[sel]).argmax())
         if not lab.vocab.is_thing[cls]:
@@ -81,7 +83,7 @@ def split_seen_apart(lab: Labelling) -> None:
         if free is None:
             return
         if surfaces is None:
-            surfaces = cKDTree(lab.cells)
+            surfaces, footing = cKDTree(lab.cells), Footing(lab)
         remaining = np.ones(len(own), bool)
         order = np.argsort(size, kind="stable")[:-1]  # smallest first; the largest part stays
         for k in order:
@@ -89,18 +91,19 @@ def split_seen_apart(lab: Labelling) -> None:
                 continue
             mine = part == k
             rest = remaining & ~mine
-            if not gap_seen_empty(cells[mine], cells[rest], free, lab.voxel, surfaces):
-                continue
             # Two objects each stand or hang: a swivel chair's seat and back over its base (their
             # column lost between them) is held up by nothing but that base. Every large part left
             # must, not only one of them (a table beside that seat holds up only itself).
             left = [q for q in np.unique(part[rest]) if size[q] >= lab.scrap_size]
-            if not held_up(lab, own[mine]) or not all(held_up(lab, own[rest & (part == q)]) for q in left):
+            if not footing.holds(own[mine]) or not all(footing.holds(own[rest & (part == q)]) for q in left):
                 continue
             # A piece within the rest's box is a part of it, as join_enclosed has it (a table's
             # stretcher under its top).
             within = gravity_aligned_box(cells[rest]).contains(cells[mine], ENCLOSED_MARGIN_VOXELS * lab.voxel)
             if within.mean() >= ENCLOSED_SHARE:
+                continue
+            # Last, as it costs most: the frames saw the gap between them empty.
+            if not gap_seen_empty(cells[mine], cells[rest], free, lab.voxel, surfaces):
                 continue
             remaining &= ~mine
             members = sel[mine[cell_of_member]]
@@ -145,27 +148,39 @@ def gap_seen_empty(part: np.ndarray, rest: np.ndarray, free, voxel: float, surfa
     return bool((free.seen_free(samples) >= MIN_FRAMES).mean() >= SEEN_SHARE)
 
 
-def held_up(lab: Labelling, own: np.ndarray) -> bool:
-    """Whether the cells ``own`` (indices into ``lab.cells``) stand or hang by themselves: their
-    bottom at the floor's height or at that of a support surface under them that is not theirs (within
-    ``standing_tolerance``), or wall cells within HANG_REACH of them."""
-    from scipy.spatial import cKDTree
+class Footing:
+    """What holds objects up in one labelling: the floor's height, the support surfaces' cells and
+    the wall cells (a k-d tree, built when first asked)."""
 
-    from stratamap.plugins.segmenters.clusters.layout import WALL
+    def __init__(self, lab: Labelling) -> None:
+        from stratamap.plugins.segmenters.clusters.layout import WALL
 
-    cells, tolerance = lab.cells[own], lab.standing_tolerance
-    bottom = float(cells[:, 2].min())
-    if bottom - lab.base_z <= tolerance:
-        return True
-    lo, hi = cells[:, :2].min(axis=0) - tolerance, cells[:, :2].max(axis=0) + tolerance
-    surface = np.flatnonzero(lab.supports.of_cell >= 0)
-    surface = surface[~np.isin(surface, own)]
-    under = lab.cells[surface]
-    if (
-        (np.abs(under[:, 2] - bottom) <= tolerance)
-        & np.all(under[:, :2] >= lo, axis=1)
-        & np.all(under[:, :2] <= hi, axis=1)
-    ).any():
-        return True
-    walls = lab.cells[lab.layout.labels == WALL]
-    return bool(len(walls)) and np.isfinite(cKDTree(walls).query(cells, distance_upper_bound=HANG_REACH)[0]).any()
+        self.lab = lab
+        self.surface = np.flatnonzero(lab.supports.of_cell >= 0)
+        self.walls = lab.cells[lab.layout.labels == WALL]
+        self._wall_tree = None
+
+    def holds(self, own: np.ndarray) -> bool:
+        """Whether the cells ``own`` (indices into ``lab.cells``) stand or hang by themselves: their
+        bottom at the floor's height or at that of a support surface under them that is not theirs
+        (within ``standing_tolerance``), or wall cells within HANG_REACH of them."""
+        from scipy.spatial import cKDTree
+
+        lab = self.lab
+        cells, tolerance = lab.cells[own], lab.standing_tolerance
+        bottom = float(cells[:, 2].min())
+        if bottom - lab.base_z <= tolerance:
+            return True
+        lo, hi = cells[:, :2].min(axis=0) - tolerance, cells[:, :2].max(axis=0) + tolerance
+        under = lab.cells[self.surface[~np.isin(self.surface, own)]]
+        if (
+            (np.abs(under[:, 2] - bottom) <= tolerance)
+            & np.all(under[:, :2] >= lo, axis=1)
+            & np.all(under[:, :2] <= hi, axis=1)
+        ).any():
+            return True
+        if not len(self.walls):
+            return False
+        if self._wall_tree is None:
+            self._wall_tree = cKDTree(self.walls)
+        return bool(np.isfinite(self._wall_tree.query(cells, distance_upper_bound=HANG_REACH)[0]).any())
