@@ -442,6 +442,60 @@ def conflicting(
     return out
 
 
+#: Observed points lie this deep in a model before they contradict it (m): the fused map's voxel and
+#: the depth noise put a neighbour's surface points a centimetre or two into a model that only touches it.
+SEEN_DEPTH = 0.02
+#: Fewer of a neighbour's observed points than this in a model are noise, not a contradiction.
+SEEN_POINTS = 10
+
+
+def seen_inside(shells: list[Shell], points: np.ndarray) -> int:
+    """How many of ``points`` lie deeper than :data:`SEEN_DEPTH` inside any of ``shells``."""
+    points = np.asarray(points, float)
+    inside = np.zeros(len(points), bool)
+    for s in shells:
+        near = np.flatnonzero(np.all((points > s.lo + SEEN_DEPTH) & (points < s.hi - SEEN_DEPTH), axis=1) & ~inside)
+        if len(near):
+            inside[near[s.depth(points[near]) > SEEN_DEPTH]] = True
+    return int(inside.sum())
+
+
+def contradicting(
+    instances: ObjectInstances,
+    ids: Iterable[int],
+    against: Iterable[int] | None = None,
+    exempt: set[tuple[int, int]] = frozenset(),
+) -> list[int]:
+    """Those of ``ids`` (completed objects) whose model holds at least :data:`SEEN_POINTS` of another
+    object's observed points (of ``against`` only, when given; never ``j`` for ``(i, j)`` in
+    ``exempt``) deeper than :data:`SEEN_DEPTH`: the model fills space where a neighbour was seen.
+    Observed points, not the convex pieces around them: a neighbour's hull fills space nobody saw
+    (the things on a counter whose black worktop the sensor missed reach down into the counter's
+    box in their hull, not in their points)."""
+    by_id = {inst.id: inst for inst in instances}
+    among = set(by_id) if against is None else set(against)
+    out = []
+    for i in sorted(set(ids) & set(by_id)):
+        if by_id[i].completion is None:
+            continue
+        # The pieces a simulator collides: a carcass's boards, not the storage space they close
+        # (a sink's dishes, books on a shelf lie in there).
+        shells = mesh_shells(by_id[i].completion.world_mesh())
+        lo = np.min([s.lo for s in shells], axis=0) if shells else None
+        hi = np.max([s.hi for s in shells], axis=0) if shells else None
+        for j in sorted(among - {i}):
+            if (i, j) in exempt or lo is None:
+                continue
+            points = np.asarray(by_id[j].points, float)
+            if len(points) < SEEN_POINTS:
+                continue
+            points = points[np.all((points > lo) & (points < hi), axis=1)]
+            if len(points) >= SEEN_POINTS and seen_inside(shells, points) >= SEEN_POINTS:
+                out.append(i)
+                break
+    return out
+
+
 def _overlap_volume(a: Shell, b: Shell) -> float:
     if np.any(a.lo >= b.hi) or np.any(b.lo >= a.hi):
         return 0.0

@@ -32,6 +32,7 @@ from stratamap.core.simulation.physics import (
     CONTACT_TOLERANCE,
     Placement,
     conflicting,
+    contradicting,
     mesh_shells,
     min_conflict,
     resolve_scene,
@@ -56,13 +57,17 @@ class PhysicalCheckConfig(StageConfig):
         default=0.05,
         gt=0.0,
         description=(
-            "A move is undone when it leaves more than observed_share of the object's observed points farther than "
-            "this from its model, metres (the observations are evidence; a slide away from them is no repair); null: "
-            "keep every move."
+            "A move is undone when it leaves more than observed_share of the observed points its model explained "
+            "(those this close to it where it was) farther than this from it, metres (the observations are evidence; "
+            "a slide away from them is no repair; points the model never explained, such as what stands on a "
+            "carcass, judge no move); null: keep every move."
         ),
     )
     observed_share: float = Field(
-        default=0.1, gt=0.0, lt=1.0, description="Share of observed points allowed beyond observed_distance."
+        default=0.1,
+        gt=0.0,
+        lt=1.0,
+        description="Share of the observed points a model explained that a move may take beyond observed_distance.",
     )
     swap: bool = Field(
         default=True,
@@ -109,19 +114,26 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             instances, data.map.contact_graph, floor_z, cfg.max_shift, cfg.step, cfg.directions, cfg.snap_distance
         )
         undone = self._undo_contradicted_moves(chosen, instances)
-        # A model that can neither stay (it penetrates a neighbour) nor move (its observed points
-        # say where it is) is wrong: the object keeps its observed shape, as a completer's
-        # rejection leaves it.
-        # A kept model that then penetrates what was seen of a rejected neighbour contradicts that
-        # observation in turn, and goes too (until no rejection leaves such a conflict); not its
-        # supporter's, whose top mixes with the underside seen standing on it.
+        # A model that can neither move (its observed points say where it is) nor stay (it
+        # penetrates a neighbour's model, or holds a neighbour's observed points) is wrong: the
+        # object keeps its observed shape, as a completer's rejection leaves it. An uncompleted
+        # neighbour is judged by its points, not the convex pieces around them: those fill space
+        # nobody saw (what stands on a counter whose worktop the sensor missed reaches into the
+        # counter in its hull, not in its points), and a real counter's doors were lost to them.
+        # A kept model that then penetrates what was seen of a rejected neighbour (the convex
+        # pieces the export collides) goes too (until no rejection leaves such a conflict); not
+        # its supporter's, whose top mixes with the underside seen standing on it.
         graph = data.map.contact_graph
         supports = (
             set()
             if graph is None
             else {(int(p), int(c)) for c in graph.support if isinstance(p := graph.parent(c), (int, np.integer))}
         )
-        rejected = conflicting(instances, undone)
+        modelled = {inst.id for inst in instances if inst.completion is not None}
+        rejected = sorted(
+            set(conflicting(instances, undone, against=modelled))
+            | set(contradicting(instances, undone, against={inst.id for inst in instances} - modelled))
+        )
         reason = "penetrates a neighbour where it was seen"
         all_rejected: list[int] = []
         while rejected:
@@ -150,9 +162,12 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
                 "moved": len(moved),
                 "max_shift_m": max((float(np.linalg.norm(v)) for v in moved.values()), default=0.0),
                 "undone": undone,
-                # An undone move puts the object back where it was seen: unresolved only if it
-                # conflicts there.
-                "unresolved": sorted(set(summary["unresolved"]) - set(undone)),
+                # An undone move puts the object back where it was seen: unresolved only if its
+                # kept model conflicts there.
+                "unresolved": sorted(
+                    (set(summary["unresolved"]) - set(undone))
+                    | set(conflicting(instances, [i for i in undone if instances[i].completion is not None]))
+                ),
             }
         )
         for key, value in summary.items():
@@ -245,10 +260,11 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
                 continue
             if np.allclose(inst.completion.pose, old.completion.pose, atol=1e-6):
                 continue
-            if observed_share_beyond(inst.points, inst.completion.world_mesh(), cfg.observed_distance) > max(
-                cfg.observed_share,
-                observed_share_beyond(old.points, old.completion.world_mesh(), cfg.observed_distance),
-            ):
+            explained = distances_to(old.points, old.completion.world_mesh()) <= cfg.observed_distance
+            if not explained.any():
+                continue
+            away = distances_to(inst.points[explained], inst.completion.world_mesh()) > cfg.observed_distance
+            if float(np.mean(away)) > cfg.observed_share:
                 inst.completion = old.completion
                 undone.append(inst.id)
         return undone
@@ -297,16 +313,15 @@ def swapped_surface(parent: Any, child: Any) -> float | None:
     return max(tops) if tops else None
 
 
-def observed_share_beyond(points: np.ndarray, mesh: Any, distance: float) -> float:
-    """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
+def distances_to(points: np.ndarray, mesh: Any) -> np.ndarray:
+    """Distance of each of ``points`` from the surface of ``mesh`` (world frame); infinite without faces."""
     if len(points) == 0 or len(mesh.faces) == 0:
-        return 0.0
+        return np.full(len(points), np.inf)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
     )
-    dist = scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
-    return float(np.mean(dist > distance))
+    return scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
 
 
 @hookimpl

@@ -71,10 +71,17 @@ def depth_behind(face: Face, box: OrientedBox, points: np.ndarray) -> float:
     return float(np.percentile(behind, 98)) if len(behind) >= 50 else float(box.size[face.side]) + face.offset
 
 
+#: How far a storage body reaches over its face's top edge (m): a worktop or a top board. What the
+#: box holds higher up stands on the body or behind it (a counter's backsplash, the things on a
+#: worktop the sensor saw no top of), and a carcass up there would swallow them.
+TOP_OVER_FACE = 0.04
+
+
 def object_frame(face: Face, box: OrientedBox, depth: float) -> tuple[np.ndarray, np.ndarray]:
     """The object frame of an object seen on ``face`` (-y out of the face, origin at the bottom
     centre between the face's ends and between the face and the object's back) as object-to-world,
-    and the object's size in it; ``depth`` is :func:`depth_behind`'s, kept within 0.15-1.5 m."""
+    and the object's size in it; ``depth`` is :func:`depth_behind`'s, kept within 0.15-1.5 m, and
+    the height the box's, but no more than :data:`TOP_OVER_FACE` over the face's top."""
     u0, u1 = face.rect[:2]
     depth = float(np.clip(depth, 0.15, 1.5))
     y_axis = -face.normal
@@ -82,7 +89,8 @@ def object_frame(face: Face, box: OrientedBox, depth: float) -> tuple[np.ndarray
     pose[:3, :3] = np.stack([np.cross(y_axis, [0.0, 0.0, 1.0]), y_axis, [0.0, 0.0, 1.0]], axis=1)
     pose[:3, 3] = (u0 + u1) / 2 * face.u_axis - (face.d + depth / 2) * face.normal
     pose[2, 3] = box.bottom_z
-    return pose, np.array([u1 - u0, depth, float(box.size[2])])
+    height = min(float(box.size[2]), face.rect[3] - box.bottom_z + TOP_OVER_FACE)
+    return pose, np.array([u1 - u0, depth, height])
 
 
 def articulated_body(

@@ -228,3 +228,22 @@ def test_depth_behind_a_face_is_what_the_points_reach_else_the_box():
     pts = rng.uniform([-0.5, 0.0, 0.0], [0.5, 0.12, 0.8], (500, 3))  # a 12 cm deep rack
     assert depth_behind(face, box, pts) == pytest.approx(0.12, abs=0.01)
     assert depth_behind(face, box, pts[:10]) == pytest.approx(0.5)  # too few points: the box's depth
+
+
+def test_the_body_ends_a_worktop_over_its_face_not_at_the_top_of_its_box():
+    """A counter's box on a real kitchen held the backsplash and what stood on a worktop the sensor
+    never saw, 1.44 m high over a face 0.9 m high; a carcass that tall held those things, and the
+    physical check threw its doors away. The body ends TOP_OVER_FACE over the face's top; a box no
+    taller than that keeps its height."""
+    from stratamap.plugins.completers.fronts.body import TOP_OVER_FACE, object_frame
+
+    face = Face(np.array([0.0, -1.0, 0.0]), 0.0, (-1.0, 1.0, 0.05, 0.89), 1.0, 0.0, 1, -1.0)  # y = 0, facing -y
+    tall = OrientedBox(np.array([0.0, 0.3, 0.72]), 0.0, np.array([2.0, 0.6, 1.44]))
+    pose, size = object_frame(face, tall, 0.6)
+    assert size[2] == pytest.approx(0.89 + TOP_OVER_FACE)
+    assert pose[2, 3] == pytest.approx(0.0)  # still standing on the box's bottom
+    fronts = [((-1.0, 0.0, 0.05, 0.89), "cupboard", "left", []), ((0.0, 1.0, 0.05, 0.89), "cupboard", "right", [])]
+    body = articulated_body(size, fronts, np.eye(4), pose, "fronts", 1.0)
+    assert body.world_mesh().bounds[1][2] <= 0.89 + TOP_OVER_FACE + 1e-6
+    low = OrientedBox(np.array([0.0, 0.3, 0.45]), 0.0, np.array([2.0, 0.6, 0.9]))
+    assert object_frame(face, low, 0.6)[1][2] == pytest.approx(0.9)
