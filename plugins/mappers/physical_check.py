@@ -28,6 +28,7 @@ from stratamap.core.geometry.transforms import yaw_of
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.layers import ContactGraph, ObjectInstances, OrientedBox
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
 from stratamap.core.simulation.physics import (
     CONTACT_TOLERANCE,
     Placement,
@@ -68,6 +69,14 @@ class PhysicalCheckConfig(StageConfig):
         gt=0.0,
         lt=1.0,
         description="Share of the observed points a model explained that a move may take beyond observed_distance.",
+    )
+    movable_classes: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_MOVABLE_CLASSES),
+        description=(
+            "Classes the exporters free (their bodies.movable_classes): an undone model of these that meets the "
+            "convex pieces of an uncompleted neighbour is rejected, since a simulator would push it out; a fixed "
+            "one only where it holds that neighbour's observed points."
+        ),
     )
     swap: bool = Field(
         default=True,
@@ -115,11 +124,13 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
         )
         undone = self._undo_contradicted_moves(chosen, instances)
         # A model that can neither move (its observed points say where it is) nor stay (it
-        # penetrates a neighbour's model, or holds a neighbour's observed points) is wrong: the
-        # object keeps its observed shape, as a completer's rejection leaves it. An uncompleted
-        # neighbour is judged by its points, not the convex pieces around them: those fill space
-        # nobody saw (what stands on a counter whose worktop the sensor missed reaches into the
-        # counter in its hull, not in its points), and a real counter's doors were lost to them.
+        # penetrates a neighbour's model, or an uncompleted neighbour as the export collides it)
+        # is wrong: the object keeps its observed shape, as a completer's rejection leaves it. A
+        # fixed object's model meets an uncompleted neighbour's convex pieces harmlessly (nothing
+        # fixed moves in a simulator), and those pieces fill space nobody saw (what stands on a
+        # counter whose worktop the sensor missed reaches into the counter in its hull, not in its
+        # points): it goes only where it holds the neighbour's observed points. A real counter's
+        # doors were lost to the hulls.
         # A kept model that then penetrates what was seen of a rejected neighbour (the convex
         # pieces the export collides) goes too (until no rejection leaves such a conflict); not
         # its supporter's, whose top mixes with the underside seen standing on it.
@@ -130,9 +141,13 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             else {(int(p), int(c)) for c in graph.support if isinstance(p := graph.parent(c), (int, np.integer))}
         )
         modelled = {inst.id for inst in instances if inst.completion is not None}
+        observed = {inst.id for inst in instances} - modelled
+        free = [i for i in undone if instances[i].class_name in set(cfg.movable_classes)]
+        fixed = [i for i in undone if i not in free]
         rejected = sorted(
             set(conflicting(instances, undone, against=modelled))
-            | set(contradicting(instances, undone, against={inst.id for inst in instances} - modelled))
+            | set(conflicting(instances, free, against=observed))
+            | set(contradicting(instances, fixed, against=observed))
         )
         reason = "penetrates a neighbour where it was seen"
         all_rejected: list[int] = []
