@@ -5,6 +5,8 @@ from __future__ import annotations
 import ast
 import tomllib
 
+import pytest
+
 from tests.conftest import REPO
 
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
@@ -38,6 +40,7 @@ def test_builtin_plugins_are_not_entry_points():
     assert not [g for g in groups if g.startswith("stratamap.")], groups
 
 
+@pytest.mark.slow
 def test_no_bare_core_or_plugins_imports():
     offenders = []
     for folder in ("core", "plugins", "tests", "benchmarks", "examples"):

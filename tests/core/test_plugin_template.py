@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import REPO
 from tests.core.test_cli import HEAVY
 
@@ -40,6 +42,7 @@ def test_the_installed_template_loads_no_heavy_library(tmp_path):
     assert json.loads(result.stdout) == ["stratamap-hull", "stratamap-hull", []]
 
 
+@pytest.mark.slow
 def test_the_template_completes_with_trimesh_once_it_runs():
     """The lazy import is no stub: the stage does load trimesh and make hulls when it runs."""
     code = (

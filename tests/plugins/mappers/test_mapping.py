@@ -477,6 +477,7 @@ def test_occupancy_maps_a_lidar_recording_from_its_sweeps():
     assert np.mean([seen_by_laser[key] == 0 for key in lidar_free]) > 0.95
 
 
+@pytest.mark.slow
 def test_the_surface_is_the_same_whatever_open3ds_threads():
     """The points and the mesh are extracted on all of Open3D's threads, which emit points, vertices
     and triangles in an order (and the mesh's duplicates at block borders) that depend on their

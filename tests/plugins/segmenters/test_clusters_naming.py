@@ -187,6 +187,7 @@ def test_features_are_deterministic_and_named():
     assert np.isfinite(first).all()
 
 
+@pytest.mark.slow
 def test_the_runtime_does_not_import_scikit_learn():
     code = (
         "import sys\n"
