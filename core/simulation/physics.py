@@ -460,20 +460,13 @@ def seen_inside(shells: list[Shell], points: np.ndarray) -> int:
     return int(inside.sum())
 
 
-def contradicting(
-    instances: ObjectInstances,
-    ids: Iterable[int],
-    against: Iterable[int] | None = None,
-    exempt: set[tuple[int, int]] = frozenset(),
-) -> list[int]:
-    """Those of ``ids`` (completed objects) whose model holds at least :data:`SEEN_POINTS` of another
-    object's observed points (of ``against`` only, when given; never ``j`` for ``(i, j)`` in
-    ``exempt``) deeper than :data:`SEEN_DEPTH`: the model fills space where a neighbour was seen.
-    Observed points, not the convex pieces around them: a neighbour's hull fills space nobody saw
-    (the things on a counter whose black worktop the sensor missed reach down into the counter's
-    box in their hull, not in their points)."""
+def contradicting(instances: ObjectInstances, ids: Iterable[int], against: Iterable[int]) -> list[int]:
+    """Those of ``ids`` (completed objects) whose model holds at least :data:`SEEN_POINTS` of the
+    observed points of an object of ``against`` deeper than :data:`SEEN_DEPTH`: the model fills space
+    where a neighbour was seen. Observed points, not the convex pieces around them: a neighbour's hull
+    fills space nobody saw (the things on a counter whose black worktop the sensor missed reach down
+    into the counter's box in their hull, not in their points)."""
     by_id = {inst.id: inst for inst in instances}
-    among = set(by_id) if against is None else set(against)
     out = []
     for i in sorted(set(ids) & set(by_id)):
         if by_id[i].completion is None:
@@ -481,14 +474,11 @@ def contradicting(
         # The pieces a simulator collides: a carcass's boards, not the storage space they close
         # (a sink's dishes, books on a shelf lie in there).
         shells = mesh_shells(by_id[i].completion.world_mesh())
-        lo = np.min([s.lo for s in shells], axis=0) if shells else None
-        hi = np.max([s.hi for s in shells], axis=0) if shells else None
-        for j in sorted(among - {i}):
-            if (i, j) in exempt or lo is None:
-                continue
+        if not shells:
+            continue
+        lo, hi = np.min([s.lo for s in shells], axis=0), np.max([s.hi for s in shells], axis=0)
+        for j in sorted(set(against) & set(by_id) - {i}):
             points = np.asarray(by_id[j].points, float)
-            if len(points) < SEEN_POINTS:
-                continue
             points = points[np.all((points > lo) & (points < hi), axis=1)]
             if len(points) >= SEEN_POINTS and seen_inside(shells, points) >= SEEN_POINTS:
                 out.append(i)

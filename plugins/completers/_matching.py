@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core.errors import ConfigError
+from stratamap.core.geometry.meshes import raycasting_scene, surface_distances
 from stratamap.core.geometry.transforms import make_pose
 from stratamap.core.lazy import lazy_module
 from stratamap.core.library.index import ModelIndex
@@ -30,7 +31,6 @@ from stratamap.core.map.sensors import sensor_viewpoints
 from stratamap.core.parallel import ExecutorConfig, map_tasks
 from stratamap.core.stages import Completer, PipelineData, StageConfig
 
-o3d = lazy_module("open3d")
 o3c = lazy_module("open3d.core")
 spatial = lazy_module("scipy.spatial")
 trimesh = lazy_module("trimesh")
@@ -238,21 +238,11 @@ def stands_on_floor(class_name: str, top_z: float, floor_z: float = 0.0) -> bool
     return heights is not None and heights[0] <= top_z - floor_z <= heights[1]
 
 
-def raycasting_scene(mesh: trimesh.Trimesh) -> Any:
-    """An Open3D ray-casting scene of ``mesh`` (distances to it, rays against it)."""
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
-    )
-    return scene
-
-
 def observation_disagreement(points: np.ndarray, mesh: trimesh.Trimesh, distance: float) -> float:
     """Share of the observed ``points`` farther than ``distance`` from the surface of ``mesh`` (world frame)."""
     if len(points) == 0 or len(mesh.faces) == 0:
         return 0.0
-    dist = raycasting_scene(mesh).compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
-    return float(np.mean(dist > distance))
+    return float(np.mean(surface_distances(points, mesh) > distance))
 
 
 #: At most this many viewpoints (evenly spaced) judge which of a model's surface could be seen.

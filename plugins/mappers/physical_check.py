@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import Field
 
 from stratamap.core import Mapper, PipelineData, StageConfig, hookimpl
+from stratamap.core.geometry.meshes import surface_distances
 from stratamap.core.geometry.transforms import yaw_of
-from stratamap.core.lazy import lazy_module
 from stratamap.core.map.augmented import augmented_scene
 from stratamap.core.map.layers import ContactGraph, ObjectInstances, OrientedBox
 from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
@@ -40,9 +40,6 @@ from stratamap.core.simulation.physics import (
     world_mesh,
 )
 from stratamap.plugins.mappers._floor import floor_height
-
-o3d = lazy_module("open3d")
-o3c = lazy_module("open3d.core")
 
 
 class PhysicalCheckConfig(StageConfig):
@@ -141,13 +138,13 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
             else {(int(p), int(c)) for c in graph.support if isinstance(p := graph.parent(c), (int, np.integer))}
         )
         modelled = {inst.id for inst in instances if inst.completion is not None}
-        observed = {inst.id for inst in instances} - modelled
-        free = [i for i in undone if instances[i].class_name in set(cfg.movable_classes)]
+        movable = set(cfg.movable_classes)
+        free = [i for i in undone if instances[i].class_name in movable]
         fixed = [i for i in undone if i not in free]
         rejected = sorted(
-            set(conflicting(instances, undone, against=modelled))
-            | set(conflicting(instances, free, against=observed))
-            | set(contradicting(instances, fixed, against=observed))
+            set(conflicting(instances, free))
+            | set(conflicting(instances, fixed, against=modelled))
+            | set(contradicting(instances, fixed, against={inst.id for inst in instances} - modelled))
         )
         reason = "penetrates a neighbour where it was seen"
         all_rejected: list[int] = []
@@ -275,10 +272,10 @@ class PhysicalCheckMapper(Mapper[PhysicalCheckConfig]):
                 continue
             if np.allclose(inst.completion.pose, old.completion.pose, atol=1e-6):
                 continue
-            explained = distances_to(old.points, old.completion.world_mesh()) <= cfg.observed_distance
+            explained = surface_distances(old.points, old.completion.world_mesh()) <= cfg.observed_distance
             if not explained.any():
                 continue
-            away = distances_to(inst.points[explained], inst.completion.world_mesh()) > cfg.observed_distance
+            away = surface_distances(inst.points[explained], inst.completion.world_mesh()) > cfg.observed_distance
             if float(np.mean(away)) > cfg.observed_share:
                 inst.completion = old.completion
                 undone.append(inst.id)
@@ -326,17 +323,6 @@ def swapped_surface(parent: Any, child: Any) -> float | None:
     tops = [float(s.top_at(xy)[0]) for s in mesh_shells(world_mesh(parent))]
     tops = [t for t in tops if np.isfinite(t)]
     return max(tops) if tops else None
-
-
-def distances_to(points: np.ndarray, mesh: Any) -> np.ndarray:
-    """Distance of each of ``points`` from the surface of ``mesh`` (world frame); infinite without faces."""
-    if len(points) == 0 or len(mesh.faces) == 0:
-        return np.full(len(points), np.inf)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3c.Tensor(np.asarray(mesh.vertices, dtype=np.float32)), o3c.Tensor(np.asarray(mesh.faces, dtype=np.uint32))
-    )
-    return scene.compute_distance(o3c.Tensor(np.asarray(points, dtype=np.float32))).numpy()
 
 
 @hookimpl
