@@ -13,6 +13,7 @@ kitchens made of other people's models (IAI apartment, PartNet-Mobility) stay ou
 (``configs/bench/articulation.yaml``).
 
     python scripts/train_fronts.py --out plugins/completers/fronts/models   # about 10 minutes on 2 cores
+    python scripts/train_fronts.py --instances detector --cache out/fronts --workers 2 --out out/fronts_detector
 """
 
 from __future__ import annotations
@@ -78,8 +79,23 @@ def label_of(front, face, parts: list[dict]) -> str:
     return label if cover.get(label, 0.0) >= 0.5 else "panel"
 
 
-def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None) -> list[tuple]:
-    """(X, E, relations, labels) of every storage object's face in one procedural kitchen walk."""
+#: The stages before ``fronts`` that make the instances it reads: the scenes' own (``oracle``), or
+#: those of ``configs/rgbd.yaml`` (``detector``: boxes too large or too small, names wrong, a unit
+#: split in two or joined to the next, as the stage meets them in use).
+INSTANCE_STAGES = {
+    "oracle": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.02}}],
+    "detector": [
+        {"plugin": "detector"},
+        {"plugin": "tsdf", "params": {"voxel_size": 0.02, "instances": "masks"}},
+        {"plugin": "clusters", "params": {"keep_instances": True, "recognize": True, "naming": "rules_then_model"}},
+    ],
+}
+
+
+def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None, instances: str = "oracle") -> list[tuple]:
+    """(X, E, relations, labels) of every face the ``fronts`` stage would cut in one procedural
+    kitchen walk: storage objects' with ``oracle`` instances, every object's that the stage looks at
+    (``may_have_fronts``) with ``detector`` ones."""
     from stratamap.core.config import validate
     from stratamap.core.furniture.faces import front_graph, level2_features
     from stratamap.core.map.priors import WITH_FRONTS
@@ -89,11 +105,12 @@ def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None) -> 
     from stratamap.core.simulation.virtual_scan import LEVEL2
     from stratamap.core.synthetic.scene import generate_scene
     from stratamap.core.synthetic.spec import SceneSpec
+    from stratamap.plugins.completers.fronts import may_have_fronts
     from stratamap.plugins.completers.fronts.fronts import FaceParams, observe_object
 
     doc = {
         "source": {"plugin": "synthetic", "params": {"scene_file": str(SCENE), "seed": seed, "frames": frames}},
-        "stages": [{"plugin": "oracle"}, {"plugin": "tsdf", "params": {"voxel_size": 0.02}}],
+        "stages": INSTANCE_STAGES[instances],
     }
     pipe = Pipeline(validate(doc, base_dir=REPO))
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,7 +123,7 @@ def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None) -> 
     floor = floor_height(data.map)
     graphs = []
     for inst in data.map.instances:
-        if inst.class_name not in WITH_FRONTS:
+        if not (inst.class_name in WITH_FRONTS if instances == "oracle" else may_have_fronts(inst, None)):
             continue
         found = observe_object(inst.box, cloud, views, data.stream, floor, FaceParams(fixture_model=fixture_model))
         if found is None or not found[2]:
@@ -116,6 +133,35 @@ def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None) -> 
         E, rel = front_graph(fronts)
         graphs.append((level2_features(fronts, floor), E, rel, y))
     return graphs
+
+
+def cached_graphs(job: tuple) -> list[tuple]:
+    """One walk's graphs, read from or written to the cache folder when there is one."""
+    import pickle
+
+    seed, frames, fixture_model, instances, cache = job
+    if cache is None:
+        return kitchen_graphs(seed, frames, fixture_model, instances)
+    name = f"{instances}-{'model' if fixture_model else 'thresholds'}-{frames}-{seed}.pkl"
+    path = Path(cache) / name
+    if path.exists():
+        return pickle.loads(path.read_bytes())
+    graphs = kitchen_graphs(seed, frames, fixture_model, instances)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.with_suffix(".tmp").write_bytes(pickle.dumps(graphs))
+    path.with_suffix(".tmp").replace(path)
+    return graphs
+
+
+def walk_graphs(jobs: list[tuple], workers: int):
+    """Each job's graphs, in the jobs' order (``workers`` processes at a time)."""
+    if workers <= 1:
+        yield from map(cached_graphs, jobs)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as pool:
+        yield from pool.map(cached_graphs, jobs)
 
 
 def main() -> None:
@@ -133,6 +179,20 @@ def main() -> None:
         help="How the fronts' handles and knobs are found (the stage's `fixtures`): thresholds (the shipped CRF's) "
         "or the fixture model.",
     )
+    parser.add_argument(
+        "--instances",
+        choices=["oracle", "detector", "both"],
+        default="oracle",
+        help="Whose instances the fronts are cut from: the scenes' own (oracle), configs/rgbd.yaml's (detector), "
+        "or both walks' fronts together.",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="Folder keeping each walk's fronts, so a refit does not map again (empty it after changing the code).",
+    )
+    parser.add_argument("--workers", type=int, default=1, help="Walks mapped at once (one process each).")
     args = parser.parse_args()
 
     from stratamap.core.furniture.crf import CRF
@@ -141,14 +201,22 @@ def main() -> None:
     from stratamap.plugins.completers.fronts import SHIPPED_FIXTURES
 
     fixture_model = str(SHIPPED_FIXTURES) if args.fixtures == "model" else None
+    kinds = ["oracle", "detector"] if args.instances == "both" else [args.instances]
     t0 = time.perf_counter()
+    jobs = [
+        (seed, args.frames, fixture_model, kind, args.cache)
+        for seed in range(100, 100 + args.kitchens)
+        for kind in kinds
+    ]
     train: list[tuple] = []
-    for k, seed in enumerate(range(100, 100 + args.kitchens)):
-        train += kitchen_graphs(seed, args.frames, fixture_model)
+    for k, graphs in enumerate(walk_graphs(jobs, args.workers)):
+        train += graphs
         done = sum(len(g[3]) for g in train)
-        print(f"kitchen {k + 1}/{args.kitchens}: {done} fronts ({time.perf_counter() - t0:.0f} s)", flush=True)
+        print(f"walk {k + 1}/{len(jobs)}: {done} fronts ({time.perf_counter() - t0:.0f} s)", flush=True)
     crf = CRF(LEVEL2, level2_feature_count(), len(L2_RELATIONS)).fit(train, args.l2, args.edge_l2)
-    held = [g for seed in range(args.held_out) for g in kitchen_graphs(seed, args.frames, fixture_model)]
+    # Judged on the fronts the shipped pipeline cuts: the last kind listed.
+    held_jobs = [(seed, args.frames, fixture_model, kinds[-1], args.cache) for seed in range(args.held_out)]
+    held = [g for graphs in walk_graphs(held_jobs, args.workers) for g in graphs]
     truth = np.concatenate([g[3] for g in held]) if held else np.zeros(0, np.int64)
     pred = np.concatenate([crf.predict(g[0], g[1], g[2]) for g in held]) if held else np.zeros(0, np.int64)
     per_label = {}
@@ -163,6 +231,7 @@ def main() -> None:
         "level2": crf.to_dict(),
         "training": {
             "kitchens": f"seeds 100-{99 + args.kitchens}",
+            "instances": args.instances,
             "frames": args.frames,
             "fixtures": args.fixtures,
             "fronts": {name: int(c) for name, c in zip(LEVEL2, counts, strict=True)},
@@ -171,6 +240,7 @@ def main() -> None:
         },
         "held_out": {
             "kitchens": f"seeds 0-{args.held_out - 1}",
+            "instances": kinds[-1],
             "accuracy": round(float((pred == truth).mean()), 3) if len(truth) else None,
             "per_label": per_label,
         },
