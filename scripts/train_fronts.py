@@ -92,7 +92,9 @@ INSTANCE_STAGES = {
 }
 
 
-def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None, instances: str = "oracle") -> list[tuple]:
+def kitchen_graphs(
+    seed: int, frames: int, fixture_model: str | None = None, instances: str = "oracle", scene: Path = SCENE
+) -> list[tuple]:
     """(X, E, relations, labels) of every face the ``fronts`` stage would cut in one procedural
     kitchen walk: storage objects' with ``oracle`` instances, every object's that the stage looks at
     (``may_have_fronts``) with ``detector`` ones."""
@@ -109,14 +111,14 @@ def kitchen_graphs(seed: int, frames: int, fixture_model: str | None = None, ins
     from stratamap.plugins.completers.fronts.fronts import FaceParams, observe_object
 
     doc = {
-        "source": {"plugin": "synthetic", "params": {"scene_file": str(SCENE), "seed": seed, "frames": frames}},
+        "source": {"plugin": "synthetic", "params": {"scene_file": str(scene), "seed": seed, "frames": frames}},
         "stages": INSTANCE_STAGES[instances],
     }
     pipe = Pipeline(validate(doc, base_dir=REPO))
     with tempfile.TemporaryDirectory() as tmp:
         pipe.run(Path(tmp) / "run")
     data = pipe.data
-    spec = SceneSpec.from_yaml(SCENE).model_copy(update={"seed": seed})
+    spec = SceneSpec.from_yaml(scene).model_copy(update={"seed": seed})
     parts = moving_parts(generate_scene(spec))
     cloud = np.asarray(data.map.geometry.points, float)
     views = sensor_viewpoints(data.stream, cloud)
@@ -139,14 +141,15 @@ def cached_graphs(job: tuple) -> list[tuple]:
     """One walk's graphs, read from or written to the cache folder when there is one."""
     import pickle
 
-    seed, frames, fixture_model, instances, cache = job
+    seed, frames, fixture_model, instances, cache, scene = job
     if cache is None:
-        return kitchen_graphs(seed, frames, fixture_model, instances)
-    name = f"{instances}-{'model' if fixture_model else 'thresholds'}-{frames}-{seed}.pkl"
+        return kitchen_graphs(seed, frames, fixture_model, instances, scene)
+    stem = "" if Path(scene) == SCENE else f"{Path(scene).stem}-"
+    name = f"{stem}{instances}-{'model' if fixture_model else 'thresholds'}-{frames}-{seed}.pkl"
     path = Path(cache) / name
     if path.exists():
         return pickle.loads(path.read_bytes())
-    graphs = kitchen_graphs(seed, frames, fixture_model, instances)
+    graphs = kitchen_graphs(seed, frames, fixture_model, instances, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.with_suffix(".tmp").write_bytes(pickle.dumps(graphs))
     path.with_suffix(".tmp").replace(path)
@@ -192,6 +195,13 @@ def main() -> None:
         default=None,
         help="Folder keeping each walk's fronts, so a refit does not map again (empty it after changing the code).",
     )
+    parser.add_argument(
+        "--also",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="Scene files of more training kitchens (each walked with the same seeds as the procedural ones).",
+    )
     parser.add_argument("--workers", type=int, default=1, help="Walks mapped at once (one process each).")
     args = parser.parse_args()
 
@@ -204,7 +214,8 @@ def main() -> None:
     kinds = ["oracle", "detector"] if args.instances == "both" else [args.instances]
     t0 = time.perf_counter()
     jobs = [
-        (seed, args.frames, fixture_model, kind, args.cache)
+        (seed, args.frames, fixture_model, kind, args.cache, scene)
+        for scene in [SCENE, *[p.resolve() for p in args.also]]
         for seed in range(100, 100 + args.kitchens)
         for kind in kinds
     ]
@@ -215,7 +226,7 @@ def main() -> None:
         print(f"walk {k + 1}/{len(jobs)}: {done} fronts ({time.perf_counter() - t0:.0f} s)", flush=True)
     crf = CRF(LEVEL2, level2_feature_count(), len(L2_RELATIONS)).fit(train, args.l2, args.edge_l2)
     # Judged on the fronts the shipped pipeline cuts: the last kind listed.
-    held_jobs = [(seed, args.frames, fixture_model, kinds[-1], args.cache) for seed in range(args.held_out)]
+    held_jobs = [(seed, args.frames, fixture_model, kinds[-1], args.cache, SCENE) for seed in range(args.held_out)]
     held = [g for graphs in walk_graphs(held_jobs, args.workers) for g in graphs]
     truth = np.concatenate([g[3] for g in held]) if held else np.zeros(0, np.int64)
     pred = np.concatenate([crf.predict(g[0], g[1], g[2]) for g in held]) if held else np.zeros(0, np.int64)
@@ -231,6 +242,7 @@ def main() -> None:
         "level2": crf.to_dict(),
         "training": {
             "kitchens": f"seeds 100-{99 + args.kitchens}",
+            "also": [p.name for p in args.also],
             "instances": args.instances,
             "frames": args.frames,
             "fixtures": args.fixtures,

@@ -24,7 +24,7 @@ def test_fronts_from_the_detector_pipelines_instances_are_labelled_by_the_scenes
     is labelled from the kitchen's own moving parts (some open); the cache gives the same graphs back
     without mapping again."""
     train = _script()
-    job = (0, 24, None, "detector", tmp_path)
+    job = (0, 24, None, "detector", tmp_path, train.SCENE)
     graphs = train.cached_graphs(job)
     labels = np.concatenate([g[3] for g in graphs])
     assert len(graphs) >= 1 and len(labels) >= 3
