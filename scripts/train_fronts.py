@@ -103,7 +103,7 @@ def kitchen_graphs(
     from stratamap.core.map.priors import WITH_FRONTS
     from stratamap.core.map.sensors import sensor_viewpoints
     from stratamap.core.pipeline import Pipeline
-    from stratamap.core.simulation.structure import floor_height
+    from stratamap.core.simulation.structure import floor_height, room_structure
     from stratamap.core.simulation.virtual_scan import LEVEL2
     from stratamap.core.synthetic.scene import generate_scene
     from stratamap.core.synthetic.spec import SceneSpec
@@ -123,11 +123,14 @@ def kitchen_graphs(
     cloud = np.asarray(data.map.geometry.points, float)
     views = sensor_viewpoints(data.stream, cloud)
     floor = floor_height(data.map)
+    walls = [b for b in room_structure(data.map) if b.class_name == "wall"]  # as the stage chooses its faces
     graphs = []
     for inst in data.map.instances:
         if not (inst.class_name in WITH_FRONTS if instances == "oracle" else may_have_fronts(inst, None)):
             continue
-        found = observe_object(inst.box, cloud, views, data.stream, floor, FaceParams(fixture_model=fixture_model))
+        found = observe_object(
+            inst.box, cloud, views, data.stream, floor, FaceParams(fixture_model=fixture_model), walls
+        )
         if found is None or not found[2]:
             continue
         face, _, fronts = found

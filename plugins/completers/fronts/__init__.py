@@ -41,7 +41,7 @@ from stratamap.core.geometry.transforms import invert
 from stratamap.core.map.instances import SHAPE
 from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
-from stratamap.core.simulation.structure import floor_height
+from stratamap.core.simulation.structure import floor_height, room_structure
 
 #: The shipped front classifier and fixture classifier (models/README.md).
 SHIPPED = Path(__file__).resolve().parent / "models" / "fronts_crf.json"
@@ -152,6 +152,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
         cloud = np.asarray(data.map.geometry.points, float)  # type: ignore[union-attr]
         views = sensor_viewpoints(data.stream, cloud) if len(cloud) else np.zeros((0, 3))
         floor_z = floor_height(data.map)
+        walls = [b for b in room_structure(data.map) if b.class_name == "wall"]
         classes = set(cfg.classes) if cfg.classes is not None else None
         params = BodyParams(door_opening=cfg.door_opening, drawer_travel=cfg.drawer_travel)
         face_params = FaceParams(
@@ -179,7 +180,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 continue
             summary["objects"] += 1
             box = inst.box
-            found = observe_object(box, cloud, views, data.stream, floor_z, face_params)
+            found = observe_object(box, cloud, views, data.stream, floor_z, face_params, walls)
             if found is None:
                 per_object[inst.id] = {"class": inst.class_name, "face": None}
                 continue

@@ -8,7 +8,9 @@ points joined it), and the side is kept where that plane's points cover enough o
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +26,16 @@ FACE_SEARCH = (-0.4, 0.15)
 COVERAGE_CELL = 0.04
 #: Sensors this far (m) in front of a side, or farther, saw it.
 SEEN_FROM = 0.3
+#: A side's opposite side stands against a wall when one of the room's wall planes, parallel to it
+#: (within BACKED_TILT_DEG), lies at most BACKED_BY (m) behind it (or BACKED_INSIDE inside: a fitted
+#: box reaches into a wall's noise) along BACKED_SHARE of its width. Storage furniture stands with its
+#: back to a wall and opens to the room; a fridge's or an oven's exposed side, however well seen and
+#: whatever noise stands out of it, does not. Planes, not points: an object hides the wall right
+#: behind it from every view, and the plane runs on behind it from what was seen either side.
+BACKED_BY = 0.3
+BACKED_INSIDE = 0.1
+BACKED_TILT_DEG = 15.0
+BACKED_SHARE = 0.5
 
 
 @dataclass
@@ -50,6 +62,31 @@ def _side_frame(box: OrientedBox, axis: int, sign: float) -> tuple[np.ndarray, f
     normal = sign * rot[:, axis]
     half = np.asarray(box.size, float) / 2
     return normal, float(half[axis]), float(half[1 - axis])
+
+
+def backed_by_wall(box: OrientedBox, face: Face, walls: Sequence[Any]) -> bool:
+    """Whether the side of ``box`` opposite ``face`` stands against one of ``walls`` (the room's wall
+    slabs, :func:`stratamap.core.simulation.structure.room_structure`: local x along the wall,
+    local -y out of the room)."""
+    normal, half, half_along = _side_frame(box, face.side, face.sign)
+    back = np.asarray(box.center, float) - normal * half
+    side_along = np.array([-normal[1], normal[0], 0.0])
+    for wall in walls:
+        rot = np.asarray(wall.pose)[:3, :3]
+        along, outward = rot[:, 0], -rot[:, 1]
+        if float(-normal @ outward) < np.cos(np.radians(BACKED_TILT_DEG)):
+            continue
+        surface = float(np.asarray(wall.pose)[:3, 3] @ outward) - float(wall.size[1]) / 2
+        gap = surface - float(back @ outward)
+        if not -BACKED_INSIDE < gap < BACKED_BY:
+            continue
+        # How much of the side's width the wall runs behind.
+        ends = [float((back + k * half_along * side_along) @ along) for k in (-1, 1)]
+        mid = float(np.asarray(wall.pose)[:3, 3] @ along)
+        overlap = min(max(ends), mid + float(wall.size[0]) / 2) - max(min(ends), mid - float(wall.size[0]) / 2)
+        if overlap >= BACKED_SHARE * 2 * half_along:
+            return True
+    return False
 
 
 def find_faces(

@@ -9,7 +9,9 @@ gets the paper's level-2 features and the CRF labels it, and a door hinges oppos
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +30,7 @@ from stratamap.core.furniture.fixtures import Fixture
 from stratamap.core.map.layers import OrientedBox
 from stratamap.core.map.priors import FRONT_MAX_WIDTH
 from stratamap.core.simulation.virtual_scan import LEVEL2
-from stratamap.plugins.completers.fronts.face import ON_FACE, Face, find_faces
+from stratamap.plugins.completers.fronts.face import ON_FACE, Face, backed_by_wall, find_faces
 from stratamap.plugins.completers.fronts.relief import (
     CELL_MIN,
     FACE_CELL,
@@ -246,7 +248,13 @@ OBJECT_REACH = 0.15
 
 
 def observe_object(
-    box: OrientedBox, cloud: np.ndarray, viewpoints: np.ndarray, stream, floor_z: float, p: FaceParams
+    box: OrientedBox,
+    cloud: np.ndarray,
+    viewpoints: np.ndarray,
+    stream,
+    floor_z: float,
+    p: FaceParams,
+    walls: Sequence[Any] = (),
 ) -> tuple[Face, HeightMap, list[FrontCandidate]] | None:
     """:func:`observe_front` on the map's points ``cloud`` around the object in ``box``: up to
     OBJECT_REACH beyond its sides (handles stand out of a face a fitted box may stop at)."""
@@ -258,18 +266,25 @@ def observe_object(
         & (cloud[:, 2] >= box.bottom_z - 0.02)
         & (cloud[:, 2] <= box.bottom_z + box.size[2] + 0.02)
     )
-    return observe_front(box, cloud[near], viewpoints, stream, floor_z, p)
+    return observe_front(box, cloud[near], viewpoints, stream, floor_z, p, walls)
 
 
 def observe_front(
-    box: OrientedBox, cloud: np.ndarray, viewpoints: np.ndarray, stream, floor_z: float, p: FaceParams
+    box: OrientedBox,
+    cloud: np.ndarray,
+    viewpoints: np.ndarray,
+    stream,
+    floor_z: float,
+    p: FaceParams,
+    walls: Sequence[Any] = (),
 ) -> tuple[Face, HeightMap, list[FrontCandidate]] | None:
     """The front face of the object in ``box`` (``cloud``: the map's points around it), its height
     map (from the depth frames of ``stream`` when it has posed ones that saw the face, else from
     ``cloud``) and its unlabelled fronts; None when no face was seen. The front face is the seen
-    side with the most fixtures (handles and knobs are what a front is opened by), the largest
-    covered one among equals."""
-    best = None
+    side whose opposite side stands against a wall (``walls``: the room's wall slabs), then the one
+    with the most fixtures (handles and knobs are what a front is opened by), then the largest
+    covered one."""
+    best, best_key = None, None
     for face, idx in find_faces(box, cloud, viewpoints, p.min_coverage, floor_z):
         seen = (
             frame_points(stream, face, p.max_frames, p.max_range, lines=p.fixture_model is not None)
@@ -282,6 +297,7 @@ def observe_front(
             # A fused map's points lie on a voxel grid: cells of 2.5 spacings are never empty between them.
             hm = height_map(cloud, face, 2.5 * point_spacing(cloud[idx]))
         candidates = candidate_fronts(face, hm, floor_z, p.standoff, p.gap_depth, p.min_front, p.fixture_model)
-        if best is None or len(face.fixtures) > len(best[0].fixtures):
-            best = (face, hm, candidates)
+        key = (backed_by_wall(box, face, walls), len(face.fixtures))
+        if best is None or key > best_key:
+            best, best_key = (face, hm, candidates), key
     return best

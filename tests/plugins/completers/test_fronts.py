@@ -247,3 +247,35 @@ def test_the_body_ends_a_worktop_over_its_face_not_at_the_top_of_its_box():
     assert body.world_mesh().bounds[1][2] <= 0.89 + TOP_OVER_FACE + 1e-6
     low = OrientedBox(np.array([0.0, 0.3, 0.45]), 0.0, np.array([2.0, 0.6, 0.9]))
     assert object_frame(face, low, 0.6)[1][2] == pytest.approx(0.9)
+
+
+def test_the_front_is_the_side_whose_back_stands_against_a_wall_not_the_better_seen_one():
+    """A fridge at the end of a run: its exposed side is seen whole, its front only in part, and the
+    front is the face whose opposite side stands against the room's wall. With no wall behind it (none,
+    one a metre away, one running behind a tenth of its width) the better seen side wins, as before."""
+    from stratamap.core.geometry.transforms import make_pose
+    from stratamap.core.simulation.structure import StaticBox
+    from stratamap.plugins.completers.fronts.fronts import FaceParams, observe_front
+
+    rng = np.random.default_rng(3)
+    box = OrientedBox(np.array([0.0, 0.0, 0.85]), 0.0, np.array([0.6, 0.6, 1.7]))
+    n = 6000
+    # The front (-y) seen over its lower 60 %, the side (+x) whole.
+    front = np.stack([rng.uniform(-0.3, 0.3, n), np.full(n, -0.3), rng.uniform(0.0, 1.0, n)], 1)
+    side = np.stack([np.full(n, 0.3), rng.uniform(-0.3, 0.3, n), rng.uniform(0.0, 1.7, n)], 1)
+    cloud = np.vstack([front, side]) + rng.normal(0.0, 0.001, (2 * n, 3))
+    views = np.array([[0.0, -2.5, 1.3], [2.5, 0.0, 1.3]])
+    params = FaceParams(max_frames=0)
+
+    def chosen(walls):
+        face, _, _ = observe_front(box, cloud, views, None, -0.05, params, walls)
+        return np.round(face.normal, 1).tolist()
+
+    def wall(y, x=0.0, length=4.0):
+        # Parallel to the fridge's back (+y side), its surface at y: local x along it, local -y out of the room.
+        return StaticBox("wall", "wall", make_pose((x, y + 0.05, 1.3), np.pi), np.array([length, 0.1, 2.6]))
+
+    assert chosen([]) == [1.0, 0.0, 0.0]
+    assert chosen([wall(0.32)]) == [0.0, -1.0, 0.0]
+    assert chosen([wall(1.3)]) == [1.0, 0.0, 0.0]
+    assert chosen([wall(0.32, x=-1.27, length=2.0)]) == [1.0, 0.0, 0.0]
