@@ -12,7 +12,8 @@ The shipped CRF uses only stratamap's own procedural kitchens (``configs/scenes/
 seeds): kitchens made of other people's models (IAI apartment, PartNet-Mobility) stay out for
 evaluation (``configs/bench/articulation.yaml``). ``--also`` adds other scene files' walks to the
 training data (never the benchmark's held-out models); ``--instances detector`` cuts the fronts
-from ``configs/rgbd.yaml``'s own instances (docs/experiments/2026-12-07-fronts-trained-on-the-pipelines-own-instances.md).
+from ``configs/rgbd.yaml``'s own instances
+(docs/experiments/2026-12-07-fronts-trained-on-the-pipelines-own-instances.md).
 
     python scripts/train_fronts.py --out plugins/completers/fronts/models   # about 10 minutes on 2 cores
     python scripts/train_fronts.py --instances detector --cache out/fronts --workers 2 --out out/fronts_detector
