@@ -29,7 +29,6 @@ import dataclasses
 import hashlib
 import inspect
 import re
-import tempfile
 from collections.abc import Callable, Iterable
 from functools import lru_cache
 from pathlib import Path
@@ -40,6 +39,7 @@ from pydantic import BaseModel, ValidationError
 
 from stratamap.core.hookspecs import Observer
 from stratamap.core.lazy import lazy_module
+from stratamap.core.paths import scratch_dir
 from stratamap.core.stages import KIND_BASES, KINDS, LAYERS, PipelineData, Stage
 
 nx = lazy_module("networkx")
@@ -178,7 +178,7 @@ def run_stage(stage_cls: type[Stage], data: PipelineData | None = None) -> tuple
     if data is None:
         data = example_data(set(stage_cls.requires) | set(stage_cls.optional))
     stage = make_stage(stage_cls)
-    out_dir = Path(tempfile.mkdtemp(prefix=f"stratamap-check-{stage_cls.name}-")) if stage.kind == "exporters" else None
+    out_dir = scratch_dir(f"stratamap-check-{stage_cls.name}-") if stage.kind == "exporters" else None
     return stage.run(data, out_dir), data, out_dir
 
 

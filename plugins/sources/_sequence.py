@@ -316,8 +316,7 @@ def example_sequence(
 ) -> Path:
     """A new temporary folder holding a tiny synthetic room seen from an orbit, written by
     ``write(stream, folder)`` in a source's own format: the example input of the conformance kit."""
-    import tempfile
-
+    from stratamap.core.paths import scratch_dir
     from stratamap.core.synthetic import SceneSpec, SyntheticWorld
 
     spec = SceneSpec.model_validate(
@@ -328,6 +327,6 @@ def example_sequence(
             "trajectory": {"type": "orbit", "frames": frames},
         }
     )
-    folder = Path(tempfile.mkdtemp(prefix=f"stratamap-{prefix}-"))
+    folder = scratch_dir(f"stratamap-{prefix}-")
     write(SyntheticWorld(spec).stream(), folder)
     return folder

@@ -273,13 +273,13 @@ class PointCloudSource(Source[PointCloudConfig]):
 
     @classmethod
     def example_params(cls) -> dict:
-        import tempfile
+        from stratamap.core.paths import scratch_dir
 
         rng = np.random.default_rng(0)
         floor = np.c_[rng.uniform(0, 2, (3000, 2)), np.zeros(3000)]
         box = rng.uniform([0.8, 0.8, 0.0], [1.2, 1.2, 0.4], (800, 3))
         arr = np.vstack([np.c_[floor, np.full(3000, 1)], np.c_[box, np.full(800, 20)]])
-        path = Path(tempfile.mkdtemp(prefix="stratamap-cloud-")) / "cloud.npy"
+        path = scratch_dir("stratamap-cloud-") / "cloud.npy"
         np.save(path, arr)
         return {"path": str(path), "label_scheme": "mosd"}
 

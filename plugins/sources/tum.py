@@ -89,12 +89,11 @@ class TUMSource(SequenceSource[TUMConfig]):
     @classmethod
     def example_params(cls) -> dict:
         """For the conformance kit: a tiny synthetic sequence written in the TUM layout."""
-        import tempfile
-
+        from stratamap.core.paths import scratch_dir
         from stratamap.core.synthetic import SceneSpec, SyntheticWorld
         from stratamap.core.synthetic.writer import write_sequence
 
-        folder = Path(tempfile.mkdtemp(prefix="stratamap-tum-example-")) / "seq"
+        folder = scratch_dir("stratamap-tum-example-") / "seq"
         spec = SceneSpec.model_validate(
             {
                 "type": "room",

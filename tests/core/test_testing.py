@@ -1,5 +1,7 @@
 """Every built-in stage passes the conformance kit that plugin authors run on theirs."""
 
+from pathlib import Path
+
 import pytest
 
 from stratamap.core.registry import build_registry
@@ -19,3 +21,27 @@ def test_builtin_stage_conforms(stage_cls, check):
     if stage_cls.name in EXTRA_MODULES:
         pytest.importorskip(EXTRA_MODULES[stage_cls.name])
     check(stage_cls)
+
+
+@pytest.mark.slow
+def test_the_kit_and_the_example_recordings_leave_no_folder_behind():
+    """The conformance kit's export folders and a source's example recording outlive the call that
+    made them (the checks read them; a cached stage's parameters name them) and are gone when the
+    process exits: each `make test` used to leave some 40 behind in the temporary folder."""
+    import subprocess
+    import sys
+
+    code = (
+        "from stratamap.core.testing import run_stage, example_params\n"
+        "from stratamap.plugins.exporters.ply import PLYExporter\n"
+        "from stratamap.plugins.sources.pointcloud import PointCloudSource\n"
+        "_, _, out = run_stage(PLYExporter)\n"
+        "cloud = example_params(PointCloudSource)['path']\n"
+        "import pathlib\n"
+        "assert any(out.iterdir()) and pathlib.Path(cloud).is_file()\n"
+        "print(out); print(cloud)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    out, cloud = (Path(line) for line in run.stdout.split())
+    assert not out.exists() and not cloud.parent.exists()
