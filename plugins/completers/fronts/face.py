@@ -10,13 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from stratamap.core.furniture.faces import face_coords, plane_axes
 from stratamap.core.furniture.fixtures import Fixture
 from stratamap.core.map.layers import OrientedBox
+from stratamap.core.simulation.structure import StaticBox
 
 #: How far (m) out of and behind a box side the face may lie (handles and a worktop's overhang push
 #: a fitted box's side out of the face they stand on; a box a few degrees off the face puts its
@@ -64,26 +64,24 @@ def _side_frame(box: OrientedBox, axis: int, sign: float) -> tuple[np.ndarray, f
     return normal, float(half[axis]), float(half[1 - axis])
 
 
-def backed_by_wall(box: OrientedBox, face: Face, walls: Sequence[Any]) -> bool:
+def backed_by_wall(box: OrientedBox, face: Face, walls: Sequence[StaticBox]) -> bool:
     """Whether the side of ``box`` opposite ``face`` stands against one of ``walls`` (the room's wall
     slabs, :func:`stratamap.core.simulation.structure.room_structure`: local x along the wall,
     local -y out of the room)."""
     normal, half, half_along = _side_frame(box, face.side, face.sign)
     back = np.asarray(box.center, float) - normal * half
-    side_along = np.array([-normal[1], normal[0], 0.0])
     for wall in walls:
-        rot = np.asarray(wall.pose)[:3, :3]
+        rot, centre = wall.pose[:3, :3], wall.pose[:3, 3]
         along, outward = rot[:, 0], -rot[:, 1]
         if float(-normal @ outward) < np.cos(np.radians(BACKED_TILT_DEG)):
             continue
-        surface = float(np.asarray(wall.pose)[:3, 3] @ outward) - float(wall.size[1]) / 2
-        gap = surface - float(back @ outward)
+        gap = float((centre - back) @ outward) - float(wall.size[1]) / 2
         if not -BACKED_INSIDE < gap < BACKED_BY:
             continue
-        # How much of the side's width the wall runs behind.
-        ends = [float((back + k * half_along * side_along) @ along) for k in (-1, 1)]
-        mid = float(np.asarray(wall.pose)[:3, 3] @ along)
-        overlap = min(max(ends), mid + float(wall.size[0]) / 2) - max(min(ends), mid - float(wall.size[0]) / 2)
+        # How much of the side's width, seen along the wall, the wall runs behind.
+        offset = float((back - centre) @ along)
+        reach = half_along * abs(float(normal[1] * along[0] - normal[0] * along[1]))
+        overlap = min(offset + reach, wall.size[0] / 2) - max(offset - reach, -wall.size[0] / 2)
         if overlap >= BACKED_SHARE * 2 * half_along:
             return True
     return False

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from stratamap.core.furniture.faces import (
 from stratamap.core.furniture.fixtures import Fixture
 from stratamap.core.map.layers import OrientedBox
 from stratamap.core.map.priors import FRONT_MAX_WIDTH
+from stratamap.core.simulation.structure import StaticBox
 from stratamap.core.simulation.virtual_scan import LEVEL2
 from stratamap.plugins.completers.fronts.face import ON_FACE, Face, backed_by_wall, find_faces
 from stratamap.plugins.completers.fronts.relief import (
@@ -254,7 +254,7 @@ def observe_object(
     stream,
     floor_z: float,
     p: FaceParams,
-    walls: Sequence[Any] = (),
+    walls: Sequence[StaticBox] = (),
 ) -> tuple[Face, HeightMap, list[FrontCandidate]] | None:
     """:func:`observe_front` on the map's points ``cloud`` around the object in ``box``: up to
     OBJECT_REACH beyond its sides (handles stand out of a face a fitted box may stop at)."""
@@ -276,7 +276,7 @@ def observe_front(
     stream,
     floor_z: float,
     p: FaceParams,
-    walls: Sequence[Any] = (),
+    walls: Sequence[StaticBox] = (),
 ) -> tuple[Face, HeightMap, list[FrontCandidate]] | None:
     """The front face of the object in ``box`` (``cloud``: the map's points around it), its height
     map (from the depth frames of ``stream`` when it has posed ones that saw the face, else from
