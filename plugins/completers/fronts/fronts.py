@@ -116,6 +116,33 @@ def fixtures_of(hm: HeightMap, face: Face, standoff: tuple[float, float], max_ha
     return out
 
 
+def off_edges(
+    hm: HeightMap, face: Face, fixtures: list[Fixture], standoff: tuple[float, float], longest_handle: float = 0.6
+) -> list[Fixture]:
+    """``fixtures`` less those lying along a proud edge of the face: a line of cells standing out
+    of it as far as a fixture's cells do (:func:`fixtures_of`'s lower, hysteresis level) along
+    GAP_COVERAGE of the face's width or height, and longer than ``longest_handle``: a worktop's
+    lip over a run of doors, a rail along a plinth. In pieces such a line is a row of "handles"
+    that keeps the fronts under it from being cut apart (the real kitchen's back counter run)."""
+    if not fixtures:
+        return fixtures
+    level = max(standoff[0], NOISE_MARGIN * hm.noise) / 2
+    proud = lines_only(np.nan_to_num(hm.relief, nan=0.0) > level, 5)
+    edges = []
+    for axis in (0, 1):  # 0: rows, horizontal edges at a height; 1: columns, vertical ones at a u
+        cells = proud.sum(axis=1 - axis)
+        lines = np.flatnonzero((cells >= GAP_COVERAGE * proud.shape[1 - axis]) & (cells * hm.cell > longest_handle))
+        edges.append((hm.z0 if axis == 0 else hm.u0) + (lines + 0.5) * hm.cell)
+    kept = []
+    for f in fixtures:
+        vertical = f.kind == "handle" and f.direction is not None and abs(float(f.direction[2])) >= 0.5
+        lines, at = (edges[1], float(f.center @ face.u_axis)) if vertical else (edges[0], float(f.center[2]))
+        if len(lines) and np.min(np.abs(lines - at)) <= 2 * hm.cell:
+            continue
+        kept.append(f)
+    return kept
+
+
 def contrast_handles(
     hm: HeightMap, face: Face, known: list[Fixture], max_handle: float = MAX_SHADE_HANDLE
 ) -> list[Fixture]:
@@ -147,6 +174,107 @@ def contrast_handles(
     return out
 
 
+#: A cell is on a thin line when at least this share of the frames' measurements of it were marked
+#: light or dark by :func:`~.relief.thin_lines` (a steel bar on a red door shows in about one
+#: frame in five on the real kitchen, light and shade coming and going with the viewpoint).
+LINE_SHARE = 0.1
+#: How far (m) beyond a bar's ends its line must be gone: a handle ends, an edge goes on.
+LINE_END = 0.04
+#: Bars of one row: centres at most this far apart (m) across the row, lengths within this ratio.
+ROW_ALIGN = 0.03
+ROW_LENGTHS = 1.5
+
+
+def line_handles(
+    hm: HeightMap, face: Face, known: list[Fixture], max_handle: float = MAX_SHADE_HANDLE
+) -> list[Fixture]:
+    """Handles that only the frames' thin light or dark lines show (a 1 cm steel bar that neither
+    the depth nor the averaged colour resolves, colour not registered with the depth), trusted where
+    a run of fronts repeats them: bars along a face axis, 8 cm to ``max_handle`` long and four
+    times as long as wide, whose line stops within LINE_END beyond both ends (an edge between
+    fronts, a worktop's lip, goes on), in rows of at least two alike (centres level within
+    ROW_ALIGN, lengths within ROW_LENGTHS) with no line between them; not where a fixture in
+    ``known`` already is."""
+    from scipy import ndimage
+
+    if hm.light_lines is None or hm.dark_lines is None:
+        return []
+    bars = []
+    for share in (hm.light_lines, hm.dark_lines):
+        lit = np.nan_to_num(share, nan=0.0)
+        labels, count = ndimage.label(lines_only(lit >= LINE_SHARE, 3), structure=np.ones((3, 3)))
+        for _blob, mean, axis2, length, width in blobs(labels, count, hm):
+            along = int(np.argmax(np.abs(axis2)))  # 0: along u (a horizontal bar), 1: along z
+            if abs(axis2[along]) < np.cos(np.radians(10)) or not (0.08 <= length <= max_handle and length >= 4 * width):
+                continue
+            if _line_goes_on(lit, hm, mean, along, length):
+                continue
+            bars.append((along, mean, length, lit))
+    known_uz = [(float(f.center @ face.u_axis), float(f.center[2])) for f in known]
+    out: list[Fixture] = []
+    for k, (along, mean, length, lit) in enumerate(bars):
+        row = [
+            b
+            for j, b in enumerate(bars)
+            if j != k
+            and b[0] == along
+            and abs(b[1][1 - along] - mean[1 - along]) <= ROW_ALIGN
+            and max(b[2], length) <= ROW_LENGTHS * min(b[2], length)
+            and abs(b[1][along] - mean[along]) >= (b[2] + length) / 2 + LINE_END
+            and not _line_between(lit, hm, (mean, length), (b[1], b[2]), along)
+        ]
+        if not row:
+            continue
+        if any(abs(u - mean[0]) < length / 2 + 0.03 and abs(z - mean[1]) < 0.05 for u, z in known_uz):
+            continue
+        center = mean[0] * face.u_axis - face.d * face.normal
+        center[2] = mean[1]
+        direction = face.u_axis if along == 0 else np.array([0.0, 0.0, 1.0])
+        out.append(Fixture("handle", center, direction, length, 0.0, 0))
+    return out
+
+
+def _cells_along(hm: HeightMap, mean: np.ndarray, along: int, start: float, stop: float) -> tuple:
+    """The height map's cells on the line through ``mean`` along face axis ``along`` (0: u, 1: z),
+    from ``start`` to ``stop`` metres of it."""
+    steps = np.arange(start, stop, hm.cell)
+    uz = np.repeat(mean[None, :], len(steps), axis=0)
+    uz[:, along] += steps
+    j = np.floor((uz[:, 0] - hm.u0) / hm.cell).astype(int)
+    i = np.floor((uz[:, 1] - hm.z0) / hm.cell).astype(int)
+    ok = (i >= 0) & (i < hm.relief.shape[0]) & (j >= 0) & (j < hm.relief.shape[1])
+    return i[ok], j[ok]
+
+
+def _line_goes_on(lit: np.ndarray, hm: HeightMap, mean: np.ndarray, along: int, length: float) -> bool:
+    """Whether the thin line of a bar centred at ``mean`` goes on beyond either of its ends (on its
+    own row of cells or one beside it: a bar is a cell or two wide)."""
+    for sign in (-1.0, 1.0):
+        a, b = sorted((sign * (length / 2 + hm.cell), sign * (length / 2 + LINE_END)))
+        i, j = _cells_along(hm, mean, along, a, b)
+        if not len(i):
+            continue
+        rows = [np.clip(i + d * (along == 0), 0, lit.shape[0] - 1) for d in (-1, 0, 1)]
+        cols = [np.clip(j + d * (along == 1), 0, lit.shape[1] - 1) for d in (-1, 0, 1)]
+        if max(float(np.mean(lit[r, c] >= LINE_SHARE)) for r, c in zip(rows, cols, strict=True)) >= 0.5:
+            return True
+    return False
+
+
+def _line_between(lit: np.ndarray, hm: HeightMap, a: tuple, b: tuple, along: int) -> bool:
+    """Whether a thin line runs along half the way between the ends of two bars (``(centre,
+    length)`` each) facing each other: they are pieces of one edge."""
+    (first, first_length), (second, second_length) = sorted((a, b), key=lambda bar: float(bar[0][along]))
+    start = float(first[along]) + first_length / 2 + hm.cell
+    stop = float(second[along]) - second_length / 2 - hm.cell
+    if stop <= start:
+        return True
+    origin = (first + second) / 2
+    origin[along] = start
+    i, j = _cells_along(hm, origin, along, 0.0, stop - start)
+    return bool(len(i)) and float(np.mean(lit[i, j] >= LINE_SHARE)) >= 0.5
+
+
 def candidate_fronts(
     face: Face,
     hm: HeightMap,
@@ -164,8 +292,9 @@ def candidate_fronts(
 
         fixtures = load_fixture_model(str(fixture_model)).fixtures(hm, face, standoff)
     else:
-        fixtures = fixtures_of(hm, face, standoff)
+        fixtures = off_edges(hm, face, fixtures_of(hm, face, standoff), standoff)
         fixtures += contrast_handles(hm, face, fixtures)
+        fixtures += line_handles(hm, face, fixtures)
     # Where a face meets the floor, the floor's points and the sensor's mixed pixels stand off it;
     # nothing is opened by a handle that low.
     face.fixtures = [f for f in fixtures if f.center[2] >= floor_z + LOWEST_FIXTURE]
@@ -287,7 +416,7 @@ def observe_front(
     best, best_key = None, None
     for face, idx in find_faces(box, cloud, viewpoints, p.min_coverage, floor_z):
         seen = (
-            frame_points(stream, face, p.max_frames, p.max_range, lines=p.fixture_model is not None)
+            frame_points(stream, face, p.max_frames, p.max_range, lines=True)
             if p.max_frames and stream is not None
             else None
         )

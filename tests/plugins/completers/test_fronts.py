@@ -10,7 +10,13 @@ from stratamap.core.furniture.fixtures import Fixture
 from stratamap.core.map.layers import OrientedBox
 from stratamap.plugins.completers.fronts.body import articulated_body
 from stratamap.plugins.completers.fronts.face import Face, find_faces
-from stratamap.plugins.completers.fronts.fronts import candidate_fronts, contrast_handles, fixtures_of
+from stratamap.plugins.completers.fronts.fronts import (
+    candidate_fronts,
+    contrast_handles,
+    fixtures_of,
+    line_handles,
+    off_edges,
+)
 from stratamap.plugins.completers.fronts.relief import height_map
 
 
@@ -61,6 +67,69 @@ def test_a_flush_handle_is_found_in_the_colour_images():
     # Without colour, no contrast handle; with one already found by depth there, no second one.
     assert contrast_handles(height_map(points, face, 0.01), face, []) == []
     assert contrast_handles(hm, face, handles) == []
+
+
+def _lined_face(bars, width=1.6, height=0.7):
+    """A flat face with thin-line marks (light share 0.25 per cell) on ``bars``: (u0, u1, z) each."""
+    points = _face_points(np.zeros((int(round(height * 100)), int(round(width * 100)))))
+    u, z = points[:, 1], points[:, 2]
+    light = np.zeros(len(points))
+    for u0, u1, zb in bars:
+        light[(np.abs(z - zb) < 0.011) & (u > u0) & (u < u1)] = 0.25
+    columns = [points, np.full(len(points), 0.5), light, np.zeros(len(points))]
+    face = _face(width, height)
+    return face, height_map(np.column_stack(columns), face, 0.01)
+
+
+def test_a_row_of_bars_seen_only_as_thin_lines_in_the_frames_is_a_row_of_handles():
+    # Four doors' steel bars, 20 cm long, level, 40 cm apart: only the frames' thin lines show them.
+    face, hm = _lined_face([(c - 0.1, c + 0.1, 0.65) for c in (0.2, 0.6, 1.0, 1.4)])
+    assert fixtures_of(hm, face, (0.012, 0.07)) == [] and contrast_handles(hm, face, []) == []
+    handles = line_handles(hm, face, [])
+    assert len(handles) == 4 and all(h.kind == "handle" and 0.17 < h.length < 0.23 for h in handles)
+    assert sorted(round(float(h.center[1]), 1) for h in handles) == [0.2, 0.6, 1.0, 1.4]
+    fronts = candidate_fronts(face, hm, floor_z=0.0, standoff=(0.012, 0.07), gap_depth=(0.008, 0.06), min_front=0.06)
+    assert len(fronts) == 4  # cut between the handles
+
+
+def test_a_lone_bar_an_edge_in_pieces_and_bars_of_unlike_rows_are_no_handles():
+    # One bar alone: a run of fronts repeats its handle, one line is as likely a reflection.
+    face, hm = _lined_face([(0.5, 0.7, 0.65)])
+    assert line_handles(hm, face, []) == []
+    # An edge's line broken into pieces: the pieces' ends meet the line going on.
+    face, hm = _lined_face([(0.1, 0.4, 0.65), (0.42, 0.7, 0.65), (0.72, 1.0, 0.65)])
+    assert line_handles(hm, face, []) == []
+    # Two bars at heights 10 cm apart, or one twice the other's length, are not one row.
+    face, hm = _lined_face([(0.2, 0.4, 0.65), (0.8, 1.0, 0.55)])
+    assert line_handles(hm, face, []) == []
+    face, hm = _lined_face([(0.2, 0.3, 0.65), (0.8, 1.05, 0.65)])
+    assert line_handles(hm, face, []) == []
+    # Without the frames' line marks (a static cloud), none.
+    face, _ = _lined_face([])
+    plain = height_map(_face_points(np.zeros((70, 160))), face, 0.01)
+    assert line_handles(plain, face, []) == []
+
+
+def test_a_worktops_lip_in_pieces_is_an_edge_not_a_row_of_handles():
+    # 1.6 m of doors under a worktop whose lip stands 2 cm proud along the top, broken in three
+    # by the sensor's gaps; two real bars, 20 cm, stand out below it.
+    relief = np.zeros((70, 160))
+    for a, b in ((2, 50), (56, 110), (116, 158)):
+        relief[64:67, a:b] = 0.02
+    relief[55, 30:50] = relief[55, 110:130] = 0.02
+    face = _face(1.6, 0.7)
+    hm = height_map(_face_points(relief), face, 0.01)
+    found = fixtures_of(hm, face, (0.012, 0.07))
+    on_lip = [f for f in found if f.center[2] > 0.7]
+    assert len(on_lip) >= 2  # the lip's pieces alone look like handles
+    kept = off_edges(hm, face, found, (0.012, 0.07))
+    assert sorted(round(float(f.center[1]), 1) for f in kept) == [0.4, 1.2]
+    # A handle as long as the face is wide is no edge unless longer than any handle.
+    short = _face(0.5, 0.4)
+    bar = np.zeros((40, 50))
+    bar[20, 5:45] = 0.02
+    hm = height_map(_face_points(bar), short, 0.01)
+    assert len(off_edges(hm, short, fixtures_of(hm, short, (0.012, 0.07)), (0.012, 0.07))) == 1
 
 
 def test_noise_alone_makes_no_fixture():
