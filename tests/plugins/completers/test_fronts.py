@@ -140,6 +140,18 @@ def test_noise_alone_makes_no_fixture():
     assert fixtures_of(hm, face, (0.012, 0.07)) == []
 
 
+def test_the_face_ends_where_its_fronts_stop_spanning_it_not_at_what_stands_on_the_worktop():
+    rng = np.random.default_rng(3)
+    box = OrientedBox(np.array([0.0, 0.0, 0.6]), 0.0, np.array([2.0, 0.6, 1.2]))
+    # Fronts on the -y side from the floor to 0.9 m; picture stands 0.2 m wide at the worktop's
+    # front edge, in the same plane, up to 1.15 m.
+    fronts = np.stack([rng.uniform(-1.0, 1.0, 20000), np.full(20000, -0.3), rng.uniform(0.05, 0.9, 20000)], 1)
+    stand = np.stack([rng.uniform(-0.5, -0.3, 1500), np.full(1500, -0.3), rng.uniform(0.9, 1.15, 1500)], 1)
+    faces = find_faces(box, np.vstack([fronts, stand]), np.array([[0.0, -2.0, 1.2]]), 0.35, floor_z=0.0)
+    face = faces[0][0]
+    assert abs(face.rect[3] - 0.9) <= 0.05  # the 99.5th percentile of its points would say 1.14
+
+
 def test_the_face_is_a_side_the_sensor_stood_in_front_of():
     rng = np.random.default_rng(2)
     box = OrientedBox(np.array([0.0, 0.0, 0.4]), 0.0, np.array([1.0, 0.6, 0.8]))
