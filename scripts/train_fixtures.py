@@ -153,7 +153,7 @@ def kitchen_candidates(args: tuple[int, int, float, bool, bool]) -> tuple[np.nda
         for found, _ in find_faces(box, cloud[near], views, p.min_coverage, floor):
             u0, u1, z0, z1 = found.rect
             for face, stream in itertools.product((found, replace(found, rect=(u0, u1, z0, z1 + RAISED_TOP))), streams):
-                seen = frame_points(stream, face, p.max_frames, p.max_range, lines=True)
+                seen = frame_points(stream, face, p.max_frames, p.max_range)
                 if seen is None or len(seen) < 1000:
                     continue
                 hm = height_map(seen, face, FACE_CELL, CELL_MIN)

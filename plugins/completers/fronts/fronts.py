@@ -160,18 +160,26 @@ def contrast_handles(
     threshold = max(CONTRAST_MIN, NOISE_MARGIN * spread)
     mask = lines_only(np.abs(np.nan_to_num(hm.contrast, nan=0.0)) > threshold, 3)
     labels, count = ndimage.label(mask, structure=np.ones((3, 3)))
-    known_uz = [(float(f.center @ face.u_axis), float(f.center[2])) for f in known]
     out: list[Fixture] = []
     for blob, mean, axis2, length, width in blobs(labels, count, hm):
         if not (0.08 <= length <= max_handle and length >= 4 * width):
             continue
-        if any(abs(u - mean[0]) < length / 2 + 0.03 and abs(z - mean[1]) < 0.05 for u, z in known_uz):
+        if _where_known(known, face, mean, length):
             continue
         center = mean[0] * face.u_axis - face.d * face.normal
         center[2] = mean[1]
         direction = axis2[0] * face.u_axis + np.array([0.0, 0.0, axis2[1]])
         out.append(Fixture("handle", center, direction / np.linalg.norm(direction), length, 0.0, int(blob.sum())))
     return out
+
+
+def _where_known(known: list[Fixture], face: Face, mean: np.ndarray, length: float) -> bool:
+    """Whether a blob centred at ``mean`` (face coordinates), ``length`` long, lies where one of
+    the fixtures ``known`` already is."""
+    return any(
+        abs(float(f.center @ face.u_axis) - mean[0]) < length / 2 + 0.03 and abs(float(f.center[2]) - mean[1]) < 0.05
+        for f in known
+    )
 
 
 #: A cell is on a thin line when at least this share of the frames' measurements of it were marked
@@ -210,7 +218,6 @@ def line_handles(
             if _line_goes_on(lit, hm, mean, along, length):
                 continue
             bars.append((along, mean, length, lit))
-    known_uz = [(float(f.center @ face.u_axis), float(f.center[2])) for f in known]
     out: list[Fixture] = []
     for k, (along, mean, length, lit) in enumerate(bars):
         row = [
@@ -225,7 +232,7 @@ def line_handles(
         ]
         if not row:
             continue
-        if any(abs(u - mean[0]) < length / 2 + 0.03 and abs(z - mean[1]) < 0.05 for u, z in known_uz):
+        if _where_known(known, face, mean, length):
             continue
         center = mean[0] * face.u_axis - face.d * face.normal
         center[2] = mean[1]
@@ -415,11 +422,7 @@ def observe_front(
     covered one."""
     best, best_key = None, None
     for face, idx in find_faces(box, cloud, viewpoints, p.min_coverage, floor_z):
-        seen = (
-            frame_points(stream, face, p.max_frames, p.max_range, lines=True)
-            if p.max_frames and stream is not None
-            else None
-        )
+        seen = frame_points(stream, face, p.max_frames, p.max_range) if p.max_frames and stream is not None else None
         if seen is not None and len(seen) >= 1000:
             hm = height_map(seen, face, FACE_CELL, CELL_MIN)
         else:

@@ -153,12 +153,10 @@ def thin_lines(shade: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-def frame_points(
-    stream, face: Face, max_frames: int, max_range: float, reach: float = 0.1, lines: bool = False
-) -> np.ndarray | None:
+def frame_points(stream, face: Face, max_frames: int, max_range: float, reach: float = 0.1) -> np.ndarray | None:
     """The depth frames' points on ``face``'s rectangle (``reach`` m around it, within SLAB of it),
-    (N, 4): x, y, z and the colour image's luminance there (NaN without a colour image of the
-    depth's size); with ``lines``, (N, 6) with whether :func:`thin_lines` marked it light or dark;
+    (N, 6): x, y, z, the colour image's luminance there and whether :func:`thin_lines` marked it
+    light or dark (NaN without a colour image of the depth's size);
     from the frames that saw it most squarely and closest (at most ``max_frames``, within ``max_range`` m):
     over many frames a cell's median falls from a far sensor's centimetres of noise to millimetres.
     None without posed depth frames that saw it."""
@@ -217,8 +215,7 @@ def frame_points(
         # Luminance where the colour image matches the depth image's size (registered RGB-D).
         if rgb.ndim == 3 and rgb.shape[:2] == np.asarray(frame.depth).shape:
             shade = rgb[va:vb, ua:ub, :3].astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32) / 255.0
-            if lines:
-                light, dark = (m.astype(np.float32) for m in thin_lines(shade))
+            light, dark = (m.astype(np.float32) for m in thin_lines(shade))
         else:
             shade = np.full(depth.shape, np.nan, np.float32)
             light = dark = shade
@@ -237,11 +234,8 @@ def frame_points(
             & (fz > z0 - reach)
             & (fz < z1 + reach)
         )
-        columns = [world[keep], shade[ok][keep]]
-        if lines:
-            columns += [light[ok][keep], dark[ok][keep]]
-        clouds.append(np.column_stack(columns))
-    cloud = np.concatenate(clouds) if clouds else np.zeros((0, 6 if lines else 4))
+        clouds.append(np.column_stack([world[keep], shade[ok][keep], light[ok][keep], dark[ok][keep]]))
+    cloud = np.concatenate(clouds) if clouds else np.zeros((0, 6))
     return cloud if len(cloud) else None
 
 
