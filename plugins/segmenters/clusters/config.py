@@ -32,6 +32,7 @@ DEFAULT_PASSES = (
     "join_enclosed",
     "split_oversized",
     "split_seen_apart",
+    "cut_below_supports",
     "name_by_model",
     "rename_by_priors",
     "counters_need_a_kitchen",

@@ -306,7 +306,13 @@ class DetectorSegmenter(Segmenter[DetectorConfig]):
                 out.frames.append(FrameSegmentation(frame.index, cls.astype(np.uint16), ins.astype(np.int32)))
         self.note("model", {"path": str(path), "floor_height": round(float(floor), 4), "detections": counts})
         self.note(
-            "keyframes", {"labelled": labelled, "frames": len(out.frames), "new_surface": cfg.keyframes.new_surface}
+            "keyframes",
+            {
+                "labelled": labelled,
+                "frames": len(out.frames),
+                "new_surface": cfg.keyframes.new_surface,
+                "views": cfg.keyframes.views,
+            },
         )
         return {"frame_labels": out}
 

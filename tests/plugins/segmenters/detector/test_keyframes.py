@@ -80,7 +80,12 @@ def test_the_detector_labels_keyframes_only_and_the_tsdf_fuses_every_frame(walk)
     labelled = [seg.labelled for seg in labels.frames]
     assert len(labelled) == len(walk.stream.frames) and labelled[0]
     assert 1 < sum(labelled) < len(labelled)
-    assert data.notes["detector"]["keyframes"] == {"labelled": sum(labelled), "frames": 16, "new_surface": 0.3}
+    assert data.notes["detector"]["keyframes"] == {
+        "labelled": sum(labelled),
+        "frames": 16,
+        "new_surface": 0.3,
+        "views": 1,
+    }
     data.frame_labels = labels
     out = TSDFMapper(voxel_size=0.04).run(data)
     assert len(out["geometry"]) > 0
