@@ -50,7 +50,6 @@ def cut_below_supports(lab: Labelling) -> None:
     if not surfaces:
         return
     class_ids, new_ids = lab.class_ids.copy(), instance_ids.copy()
-    stuff = lab.stuff_ids[lab.layout.labels[lab.cell_of_point]]
     notes = []
     for iid, members in enumerate(by_instance):
         if iid == 0 or not len(members):
@@ -65,7 +64,7 @@ def cut_below_supports(lab: Labelling) -> None:
             below = members[over & (z < height - tolerance)]
             if not len(below):
                 continue
-            class_ids[below], new_ids[below] = stuff[below], 0
+            class_ids[below], new_ids[below] = lab.stuff_ids[lab.layout.labels[lab.cell_of_point[below]]], 0
             notes.append({"instance": iid, "points": int(len(below)), "surface_height": round(height, 3)})
     lab.class_ids, lab.instance_ids = class_ids, new_ids
     lab.note("cut_below_supports", notes)

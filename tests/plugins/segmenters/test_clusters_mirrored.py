@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stratamap.plugins.segmenters.clusters import ClustersSegmenter
 from stratamap.plugins.segmenters.clusters.config import DEFAULT_PASSES
-from tests.plugins.segmenters.test_clusters_recognition import VOCAB, in_room, recognized
+from tests.plugins.segmenters.test_clusters_recognition import in_room, recognized
 from tests.plugins.segmenters.test_layout_planes import box_surface, chair, solids, table
 
 WORKTOP = 0.9
@@ -51,21 +50,8 @@ def test_without_the_pass_the_image_stays_in_the_box():
     objects, names = counter_with_a_mirrored_box()
     points, names = in_room((objects, names))
     passes = [p for p in DEFAULT_PASSES if p != "cut_below_supports"]
-    from stratamap.core.map.layers import Geometry, Semantics
-    from stratamap.core.stages import PipelineData
-
-    classes = np.zeros(len(points), np.int32)
-    instances = np.zeros(len(points), np.int32)
-    for name in ("floor", "wall", "ceiling"):
-        classes[names == name] = VOCAB.id(name)
-    for iid, (mask, class_name) in enumerate(
-        [(names == "counter", "counter"), ((names == "box") | (names == "image"), "box")], start=1
-    ):
-        classes[mask], instances[mask] = VOCAB.id(class_name), iid
-    data = PipelineData()
-    data.map.geometry = Geometry(points=points, voxel_size=0.02)
-    data.map.semantics = Semantics(classes, instances, VOCAB)
-    out = ClustersSegmenter(keep_instances=True, recognize=True, passes=passes).run(data)
+    masks = [(names == "counter", "counter"), ((names == "box") | (names == "image"), "box")]
+    out = recognized(points, names, masks, passes=passes)
     sem = out["semantics"]
     box_id = int(np.bincount(sem.instance_ids[names == "box"]).argmax())
     assert (sem.instance_ids[names == "image"] == box_id).mean() > 0.5

@@ -307,9 +307,9 @@ def in_room(*parts: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarr
     return points, names
 
 
-def recognized(points: np.ndarray, names: np.ndarray, masks: list[tuple[np.ndarray, str]]) -> dict:
-    """clusters {keep_instances, recognize} on a map whose frames voted the room's stuff and, as
-    instances 1, 2, ..., each mask with its class."""
+def recognized(points: np.ndarray, names: np.ndarray, masks: list[tuple[np.ndarray, str]], **params) -> dict:
+    """clusters {keep_instances, recognize, and ``params``} on a map whose frames voted the room's
+    stuff and, as instances 1, 2, ..., each mask with its class."""
     classes = np.zeros(len(points), np.int32)
     instances = np.zeros(len(points), np.int32)
     for name in ("floor", "wall", "ceiling"):
@@ -319,7 +319,7 @@ def recognized(points: np.ndarray, names: np.ndarray, masks: list[tuple[np.ndarr
     data = PipelineData()
     data.map.geometry = Geometry(points=points, voxel_size=0.02)
     data.map.semantics = Semantics(classes, instances, VOCAB)
-    return ClustersSegmenter(keep_instances=True, recognize=True).run(data)
+    return ClustersSegmenter(keep_instances=True, recognize=True, **params).run(data)
 
 
 @pytest.mark.parametrize("front_vote", ["chair", "monitor"])
