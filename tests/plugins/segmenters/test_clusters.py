@@ -53,7 +53,7 @@ def check_room(points: np.ndarray, names: np.ndarray, out: dict) -> None:
 
 
 def test_room_layout_is_stuff_and_objects_are_instances():
-    points, names = synthetic_room(0.02)
+    points, names = synthetic_room(0.02, tight=True)
     check_room(points, names, segment(points, 0.02))
 
 
@@ -375,8 +375,8 @@ def test_a_cup_near_the_table_edge_is_its_own_instance():
     from tests.plugins.segmenters.test_layout_planes import room_shell, solids, table
 
     spacing = 0.02
-    layout = room_shell(spacing)
     objects, names = solids(table(3.0, 2.5) + [("cup", (3.5, 2.4, 0.75), (3.58, 2.48, 0.85))], spacing)
+    layout = room_shell(spacing, around=objects)
     points = np.concatenate([p for _, p in layout] + [objects])
     names = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
     out = segment(points, spacing)
@@ -394,9 +394,9 @@ def test_a_ring_of_table_top_a_cups_mask_took_goes_back_to_the_table(trim):
     from tests.plugins.segmenters.test_layout_planes import chair, room_shell, solids, table
 
     spacing = 0.02
-    layout = room_shell(spacing)
     cup_lo, cup_hi = (3.46, 2.46, 0.75), (3.54, 2.54, 0.85)
     objects, names = solids(table(3.0, 2.5) + chair(3.0, 3.3) + [("cup", cup_lo, cup_hi)], spacing)
+    layout = room_shell(spacing, around=objects)
     points = np.concatenate([p for _, p in layout] + [objects])
     names = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
     classes = np.array([VOCAB.id(n) for n in names], np.int32)

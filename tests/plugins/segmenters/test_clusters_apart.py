@@ -45,7 +45,8 @@ def counter_and_shelf(frames: bool) -> tuple[PipelineData, np.ndarray]:
     shelf, shelf_names = solids([("shelf", *SHELF)], 0.02)
     shelf_part = (shelf[:, 0] > 1e-6, shelf_names)
     keep = shelf_part[0]
-    points, names = in_room(unit_row(0.02, with_tall_unit=False), (shelf[keep], shelf_names[keep]))
+    # The whole ROOM: the frames are ray-cast in it.
+    points, names = in_room(unit_row(0.02, with_tall_unit=False), (shelf[keep], shelf_names[keep]), whole_room=True)
     classes = np.zeros(len(points), np.int32)
     instances = np.zeros(len(points), np.int32)
     for name in ("floor", "wall", "ceiling"):

@@ -57,8 +57,8 @@ def test_a_shorter_list_in_order_validates():
 def cup_ring_scene() -> PipelineData:
     """A table with a cup whose mask took a 6 cm ring of the table top along (test_clusters' scene)."""
     spacing = 0.03
-    layout = room_shell(spacing)
     objects, names = solids(table(3.0, 2.5) + [("cup", (3.45, 2.45, 0.75), (3.55, 2.55, 0.87))], spacing)
+    layout = room_shell(spacing, around=objects)
     points = np.concatenate([p for _, p in layout] + [objects])
     names = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
     classes = np.array([VOCAB.id(n) for n in names], np.int32)

@@ -135,12 +135,13 @@ def test_a_unit_over_knee_space_is_a_desk_and_one_closed_to_the_floor_is_not():
     assert prior_class(shape_on_legs._replace(solid=True), VOCAB)[0] != "desk"
 
 
-def kitchen_room(spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """A room with a table (a cup on it), a chair, and a counter unit against the x=0 wall."""
-    layout = room_shell(spacing)
+def kitchen_room(spacing: float, tight: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A room with a table (a cup on it), a chair, and a counter unit against the x=0 wall; its
+    walls 1 m around them (``tight``) or the whole ROOM's."""
     parts = table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35)
     parts.append(("counter", (0.02, 1.0, 0.0), (0.62, 2.6, 0.9)))  # its back 2 cm off the wall
     objects, names = solids(parts, spacing)
+    layout = room_shell(spacing, around=objects if tight else None)
     # Nothing of an object is seen where it stands on the floor, nor the counter's back on the wall.
     keep = (objects[:, 2] > 1e-6) & ~((names == "counter") & (objects[:, 0] < 0.03))
     points = np.concatenate([p for _, p in layout] + [objects[keep]])
@@ -189,7 +190,7 @@ def test_a_frame_with_no_box_leaves_objects_things_though_their_feet_were_voted_
     """A detector that boxed nothing: the frames voted only floor, wall and ceiling, and the floor's
     votes spilled onto the bottom 4 cm of the counter and the chair's legs. Those objects stay things
     (named by their shape), while a thin bump of floor the layout left out, voted floor, is floor."""
-    points, names = kitchen_room(0.02)
+    points, names = kitchen_room(0.02, tight=False)  # the mat lies beyond a tight room's wall
     mat = (points[:, 0] > 4.5) & (points[:, 0] < 5.5) & (points[:, 1] > 0.5) & (points[:, 1] < 1.5)
     mat &= names == "floor"
     points = points.copy()
@@ -299,9 +300,9 @@ def test_units_side_by_side_are_split_where_the_top_steps():
     assert split_at_step(points, 0.0) is None
 
 
-def in_room(*parts: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """The room shell with objects' (points, names) in it."""
-    layout = room_shell(0.02)
+def in_room(*parts: tuple[np.ndarray, np.ndarray], whole_room: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """A room shell 1 m around objects' (points, names), or the whole ROOM's, with them in it."""
+    layout = room_shell(0.02, around=None if whole_room else np.concatenate([p for p, _ in parts]))
     points = np.concatenate([p for _, p in layout] + [p for p, _ in parts])
     names = np.concatenate([np.full(len(p), n) for n, p in layout] + [n for _, n in parts])
     return points, names

@@ -25,8 +25,8 @@ def seat(x0: float, x1: float, y0: float, depth: float = 0.85) -> list:
 
 def seating_map(objects: list[list]) -> PipelineData:
     """A 2 cm map of the room with ``objects`` (each a list of boxes), each its own instance voted chair."""
-    shell = room_shell(0.02)
     things = [solids(parts, 0.02)[0] for parts in objects]
+    shell = room_shell(0.02, around=np.concatenate(things))
     points = np.concatenate([p for _, p in shell] + things)
     classes = np.concatenate(
         [np.full(len(p), VOCAB.id(n)) for n, p in shell] + [np.full(len(p), VOCAB.id("chair")) for p in things]

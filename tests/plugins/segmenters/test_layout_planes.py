@@ -62,26 +62,35 @@ def chair(x: float, y: float) -> list:
     return parts
 
 
-def room_shell(spacing: float) -> list[tuple[str, np.ndarray]]:
-    """The empty ROOM's floor, ceiling and four walls as (name, points on a grid of ``spacing``)."""
-    lx, ly, lz = ROOM
+def room_shell(spacing: float, around: np.ndarray | None = None, margin: float = 1.0) -> list[tuple[str, np.ndarray]]:
+    """The empty ROOM's floor, ceiling and four walls as (name, points on a grid of ``spacing``).
+
+    With ``around`` (objects' points), the walls stand ``margin`` beyond the objects' footprint
+    instead of at the ROOM's far sides (never outside the ROOM, so a unit against a ROOM wall stays
+    against it): the same scene in a smaller room, a third of the points or fewer to cluster."""
+    lo, hi = np.zeros(2), np.array(ROOM[:2])
+    if around is not None and len(around):
+        lo = np.clip(around[:, :2].min(axis=0) - margin, lo, hi)
+        hi = np.clip(around[:, :2].max(axis=0) + margin, lo, hi)
+    (x0, y0), (x1, y1), lz = lo, hi, ROOM[2]
     return [
-        ("floor", box_surface((0, 0, 0), (lx, ly, 0), spacing, "z")),
-        ("ceiling", box_surface((0, 0, lz), (lx, ly, lz), spacing, "Z")),
-        ("wall", box_surface((0, 0, 0), (0, ly, lz), spacing, "x")),
-        ("wall", box_surface((lx, 0, 0), (lx, ly, lz), spacing, "X")),
-        ("wall", box_surface((0, 0, 0), (lx, 0, lz), spacing, "y")),
-        ("wall", box_surface((0, ly, 0), (lx, ly, lz), spacing, "Y")),
+        ("floor", box_surface((x0, y0, 0), (x1, y1, 0), spacing, "z")),
+        ("ceiling", box_surface((x0, y0, lz), (x1, y1, lz), spacing, "Z")),
+        ("wall", box_surface((x0, y0, 0), (x0, y1, lz), spacing, "x")),
+        ("wall", box_surface((x1, y0, 0), (x1, y1, lz), spacing, "X")),
+        ("wall", box_surface((x0, y0, 0), (x1, y0, lz), spacing, "y")),
+        ("wall", box_surface((x0, y1, 0), (x1, y1, lz), spacing, "Y")),
     ]
 
 
-def synthetic_room(spacing: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """A 6 x 5 x 2.6 m room (floor, four walls, ceiling) with a table, a cup on it and a chair;
-    points on a grid of ``spacing`` (as a TSDF map of that voxel size), and a name per point."""
-    layout = room_shell(spacing)
+def synthetic_room(spacing: float = 0.02, tight: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """A 6 x 5 x 2.6 m room (floor, four walls, ceiling; with ``tight``, walls 1 m around the
+    furniture) with a table, a cup on it and a chair; points on a grid of ``spacing`` (as a TSDF map
+    of that voxel size), and a name per point."""
     objects, names = solids(
         table(3.0, 2.5) + [("cup", (3.2, 2.4, 0.75), (3.28, 2.48, 0.85))] + chair(3.0, 3.35), spacing
     )
+    layout = room_shell(spacing, around=objects if tight else None)
     points = np.concatenate([p for _, p in layout] + [objects])
     labels = np.concatenate([np.full(len(p), n) for n, p in layout] + [names])
     return points, labels
