@@ -73,6 +73,15 @@ def _runs(ordered: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ordered[starts], starts, np.diff(np.r_[starts, len(ordered)])
 
 
+def _by_cell_then_value(cells: np.ndarray, values: np.ndarray, n_cells: int) -> np.ndarray:
+    """The order that sorts by cell, then by value within a cell (``np.lexsort((values, cells))``'s
+    values in each cell, in half its time: a sort of the values, then a stable radix sort of the
+    cells as 16-bit integers where they fit)."""
+    by_value = np.argsort(values)
+    small = np.uint16 if n_cells <= np.iinfo(np.uint16).max + 1 else np.int64
+    return by_value[np.argsort(cells[by_value].astype(small), kind="stable")]
+
+
 def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) -> HeightMap:
     """The median height out of ``face`` of ``points`` per cell of its rectangle (and, when the
     points carry a fourth column, their median luminance as ``contrast`` to the cell's
@@ -93,7 +102,7 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
     heights = np.full(shape[0] * shape[1], np.nan)
     shades = np.full(shape[0] * shape[1], np.nan)
     if len(flat):
-        order = np.lexsort((h, flat))
+        order = _by_cell_then_value(flat, h, heights.size)
         cells, starts, counts = _runs(flat[order])
         keep = counts >= min_count
         heights[cells[keep]] = h[order][starts[keep] + counts[keep] // 2]
@@ -101,7 +110,7 @@ def height_map(points: np.ndarray, face: Face, cell: float, min_count: int = 1) 
             lum = shade_values[ok]
             has = np.isfinite(lum)
             if has.sum():
-                order = np.lexsort((lum[has], flat[has]))
+                order = _by_cell_then_value(flat[has], lum[has], heights.size)
                 cells, starts, counts = _runs(flat[has][order])
                 keep = counts >= min_count
                 shades[cells[keep]] = lum[has][order][starts[keep] + counts[keep] // 2]

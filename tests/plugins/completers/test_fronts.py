@@ -360,3 +360,18 @@ def test_the_front_is_the_side_whose_back_stands_against_a_wall_not_the_better_s
     assert chosen([wall(0.32)]) == [0.0, -1.0, 0.0]
     assert chosen([wall(1.3)]) == [1.0, 0.0, 0.0]
     assert chosen([wall(0.32, x=-1.27, length=2.0)]) == [1.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("n_cells", [50, 70_000])  # cells as 16-bit integers, and too many for them
+def test_cells_then_values_orders_each_cells_values_as_lexsort_does(n_cells):
+    """The height map's per-cell medians come from this order: within every cell the values must run
+    as ``np.lexsort`` sorts them, ties and repeated values included."""
+    from stratamap.plugins.completers.fronts.relief import _by_cell_then_value
+
+    rng = np.random.default_rng(3)
+    cells = rng.integers(0, n_cells, 20_000)
+    values = np.round(rng.normal(0.0, 0.01, cells.size), 3)  # rounded: many ties
+    order = _by_cell_then_value(cells, values, n_cells)
+    expected = np.lexsort((values, cells))
+    assert np.array_equal(cells[order], cells[expected])
+    assert np.array_equal(values[order], values[expected])
