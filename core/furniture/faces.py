@@ -234,20 +234,23 @@ def groups_inside(groups: list[dict], rect: tuple[float, float, float, float]) -
 
 def hinge_side(front: FrontCandidate) -> str:
     """Opposite the handle; without one, a flap (wider than tall) hinges at the top, a door on
-    the side where its face ends (or left)."""
+    the side where its face ends (or left). A centred handle says nothing about the side: on a
+    tall front labelled an appliance (an oven's, a dishwasher's door) or not labelled, it hinges
+    at the bottom; on a tall front labelled a cupboard door, on a side, as one without a handle."""
     u_axis, _ = plane_axes(front.normal)
     cu, cz = (front.u_range[0] + front.u_range[1]) / 2, (front.z_range[0] + front.z_range[1]) / 2
     hw, hh = max(front.width / 2, 1e-3), max(front.height / 2, 1e-3)
     handles = [f for f in front.fixtures if f.kind == "handle"] or front.fixtures
+    tall = front.height > 1.3 * front.width
     if handles:
         f = max(handles, key=lambda f: abs(float(f.center @ u_axis) - cu) / hw)
         du, dz = (float(f.center @ u_axis) - cu) / hw, (float(f.center[2]) - cz) / hh
-        # A tall door hinges on a side unless its handle is centred (an appliance's door, hinged
-        # at the bottom); square and wide fronts need the handle well off the centre line.
-        if abs(du) >= (0.1 if front.height > 1.3 * front.width else 0.3):
+        # Square and wide fronts need the handle well off the centre line.
+        if abs(du) >= (0.1 if tall else 0.3):
             return "left" if du > 0 else "right"
-        return "bottom" if dz > 0 else "top"
-    if front.width > 1.3 * front.height:
+        if not (tall and front.label == "cupboard"):
+            return "bottom" if dz > 0 else "top"
+    elif front.width > 1.3 * front.height:
         return "top"
     at_left = front.u_range[0] - front.face_u_range[0] < 0.05
     at_right = front.face_u_range[1] - front.u_range[1] < 0.05

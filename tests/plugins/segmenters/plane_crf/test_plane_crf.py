@@ -170,6 +170,27 @@ def test_hinge_opposite_the_handle_and_flaps_hinge_on_top():
     assert faces.hinge_side(_front((0.4, 0.8), (0.1, 0.9), [], face=(0.0, 0.8))) == "right"  # at the face's right end
 
 
+def test_a_cupboard_door_with_a_centred_handle_hinges_on_a_side_an_appliance_door_at_the_bottom():
+    """A centred handle near the top of a tall front: the oven's or dishwasher's door the CRF labels
+    an appliance hinges at the bottom; a cupboard door with such a handle (the real kitchen's base
+    units) on a side, where its face ends, not at the bottom, where it would swing 0.7 m out."""
+    top_centre = Fixture("handle", np.array([0.52, 0.225, 0.85]), np.array([0, 1.0, 0]), 0.12)
+    appliance = _front((0.0, 0.45), (0.1, 0.9), [top_centre])
+    appliance.label = "appliance"
+    assert faces.hinge_side(appliance) == "bottom"
+    door = _front((0.0, 0.45), (0.1, 0.9), [top_centre])
+    door.label = "cupboard"
+    assert faces.hinge_side(door) == "left"
+    centred = Fixture("handle", np.array([0.52, 0.575, 0.85]), np.array([0, 1.0, 0]), 0.12)
+    door_at_the_right_end = _front((0.35, 0.8), (0.1, 0.9), [centred], face=(0.0, 0.8))
+    door_at_the_right_end.label = "cupboard"
+    assert faces.hinge_side(door_at_the_right_end) == "right"
+    # Square and wide cupboard fronts keep the handle's word: a flap with its handle centred below.
+    flap = _front((0.0, 0.8), (1.5, 1.9), [Fixture("handle", np.array([0.52, 0.4, 1.55]), np.array([0, 1.0, 0]), 0.2)])
+    flap.label = "cupboard"
+    assert faces.hinge_side(flap) == "top"
+
+
 def test_table_iv_counts_segments_and_fronts():
     t = per_label(["floor", "table", "table", "ceiling"], ["floor", "table", "floor", "ceiling"], ks.LEVEL1_HORIZONTAL)
     assert t["table"]["precision"] == 0.5 and t["floor"]["recall"] == 0.5 and t["ceiling"]["f1"] == 1.0
