@@ -218,12 +218,21 @@ def _face_plane(points: np.ndarray, side_normal: np.ndarray, rng) -> tuple[np.nd
         if inliers.sum() <= best_score:
             continue
         u = xy[inliers] @ np.array([-n2[1], n2[0]])
-        score = len(np.unique(np.stack([np.floor(u / 0.04), np.floor(points[inliers, 2] / 0.04)], 1), axis=0))
+        score = _cells_filled(u, points[inliers, 2], 0.04)
         if score > best_score:
             best, best_score = inliers, score
     if best is None or best.sum() < 10:
         return None
     return _fit_plane(points[best], side_normal)
+
+
+def _cells_filled(u: np.ndarray, z: np.ndarray, cell: float) -> int:
+    """How many ``cell``-sized squares of a face the points (``u`` along it, ``z`` up) fall in (one
+    integer key per square: a 1-D unique, ten times faster than unique rows of floats)."""
+    iu, iz = np.floor(u / cell).astype(np.int64), np.floor(z / cell).astype(np.int64)
+    iu -= iu.min()
+    iz -= iz.min()
+    return len(np.unique(iu * (int(iz.max()) + 1) + iz))
 
 
 #: Points this far (m) from the fitted face plane lie on it.

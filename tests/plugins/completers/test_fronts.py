@@ -375,3 +375,15 @@ def test_cells_then_values_orders_each_cells_values_as_lexsort_does(n_cells):
     expected = np.lexsort((values, cells))
     assert np.array_equal(cells[order], cells[expected])
     assert np.array_equal(values[order], values[expected])
+
+
+def test_a_faces_filled_cells_are_counted_as_unique_rows_of_cells_count_them():
+    """The face plane's RANSAC scores a line by the 4 cm cells its inliers fill: one integer key per
+    cell must count exactly what unique (u, z) rows of cell indices count, negative cells included."""
+    from stratamap.plugins.completers.fronts.face import _cells_filled
+
+    rng = np.random.default_rng(5)
+    for n in (1, 7, 3000):
+        u, z = rng.uniform(-1.3, 2.1, n), rng.uniform(-0.2, 1.9, n)
+        rows = np.stack([np.floor(u / 0.04), np.floor(z / 0.04)], 1)
+        assert _cells_filled(u, z, 0.04) == len(np.unique(rows, axis=0))

@@ -28,10 +28,10 @@ VOCAB = Vocabulary.default()
 
 
 def furnished_map() -> tuple[PipelineData, np.ndarray, np.ndarray]:
-    """A 2 cm fused map of the room with a table, a chair and a cabinet against a wall, each voted its
+    """A 2 cm fused map of a room with a table, a chair and a cabinet against a wall, each voted its
     class by a detector's masks (instances 1-3); the floor, walls and ceiling voted theirs."""
-    cabinet = [("cabinet", (0.0, 3.4, 0.0), (0.5, 4.2, 0.8))]
-    furniture, names = solids(table(2.5, 2.0) + chair(4.0, 2.0) + cabinet, 0.02)
+    cabinet = [("cabinet", (1.5, 0.0, 0.0), (2.3, 0.5, 0.8))]
+    furniture, names = solids(table(2.5, 2.0) + chair(3.6, 2.0) + cabinet, 0.02)
     shell = room_shell(0.02, around=furniture)
     points = np.concatenate([p for _, p in shell] + [furniture])
     names = np.concatenate([np.full(len(p), n) for n, p in shell] + [names])
