@@ -28,6 +28,10 @@ spatial = lazy_module("scipy.spatial")
 #: that open on a hinge.
 OPENS = ("cupboard", "drawer", "appliance")
 HINGED = ("cupboard", "appliance")
+#: Labels of hinged fronts that hinge on a side wherever their handle is (a cupboard's door, its
+#: handle centred near the top or not); the other hinged fronts with a centred handle hinge at the
+#: bottom or the top (an oven's or a dishwasher's door, a flap).
+SIDE_HINGED = ("cupboard",)
 
 #: The CRF weights both stages ship (trained on virtual scans of procedural kitchens by
 #: ``scripts/train_plane_crf.py``): level 1 labels planes, level 2 labels fronts.
@@ -248,7 +252,7 @@ def hinge_side(front: FrontCandidate) -> str:
         # Square and wide fronts need the handle well off the centre line.
         if abs(du) >= (0.1 if tall else 0.3):
             return "left" if du > 0 else "right"
-        if not (tall and front.label == "cupboard"):
+        if not (tall and front.label in SIDE_HINGED):
             return "bottom" if dz > 0 else "top"
     elif front.width > 1.3 * front.height:
         return "top"
