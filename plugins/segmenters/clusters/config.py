@@ -11,8 +11,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from stratamap.core import StageConfig
 from stratamap.plugins.segmenters.clusters.layout import LayoutParams
 
-#: The passes in the order they run by default, which is the order ``clusters`` always had
-#: (docs/algorithms/segmenters-clusters.md says what each does).
+#: The passes in the order they run by default (docs/algorithms/segmenters-clusters.md says what
+#: each does). The splits come before the joins, so that the pieces a split makes are joined to what
+#: they are part of as every other piece is.
 DEFAULT_PASSES = (
     "layout",
     "grow_supports",
@@ -26,12 +27,12 @@ DEFAULT_PASSES = (
     "trim_feet",
     "split_beside_tops",
     "split_units",
+    "split_oversized",
+    "split_seen_apart",
     "join_parts",
     "assemble_chairs",
     "join_seating",
     "join_enclosed",
-    "split_oversized",
-    "split_seen_apart",
     "cut_below_supports",
     "name_by_model",
     "rename_by_priors",

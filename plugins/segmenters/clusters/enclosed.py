@@ -1,12 +1,13 @@
-"""Pass ``join_enclosed`` (``recognize``): a piece lying within a larger floor-standing object's box
-is a part of it (a chair's slat or post, a fridge's handle, a worktop's edge that frames boxed on
-their own)."""
+"""Pass ``join_enclosed`` (``recognize``): a piece lying within a larger floor-standing object's box,
+its centre within that object's outline, is a part of it (a chair's slat or post, a fridge's handle,
+a worktop's edge that frames boxed on their own)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from stratamap.core.map.priors import ON_SUPPORTS, SEATING, UNNAMED
+from stratamap.plugins.segmenters.clusters.grid import hull_equations
 from stratamap.plugins.segmenters.clusters.labelling import Labelling
 from stratamap.plugins.segmenters.clusters.shapes import FLOOR_GAP, fits_class, on_a_support, thin
 
@@ -17,12 +18,13 @@ ENCLOSED_MARGIN_VOXELS = 2.5
 
 
 def join_enclosed(lab: Labelling) -> None:
-    """A piece within ENCLOSED_SHARE of a larger floor-standing object's box (grown by
-    ENCLOSED_MARGIN_VOXELS) joins that object, whose class must still fit it, unless it is an object
-    of its own there: a small thing standing on a support surface (a cup on the worktop, or on the
-    table a chair is pushed under), or at the height of a support surface of the object around it;
-    or furniture standing on the floor, whose class its shape fits, within anything but seating (a
-    chair under a table or a desk). Sets ``instance_ids`` and ``class_ids``; each join is noted
+    """A piece within ENCLOSED_SHARE of a larger floor-standing object's box, its centre within the
+    object's outline (the convex hull of its points, top view; both grown by ENCLOSED_MARGIN_VOXELS),
+    joins that object, whose class must still fit it, unless it is an object of its own there: a
+    small thing standing on a support surface (a cup on the worktop, or on the table a chair is
+    pushed under), or at the height of a support surface of the object around it; or furniture
+    standing on the floor, whose class its shape fits, within anything but seating (a chair under a
+    table or a desk). Sets ``instance_ids`` and ``class_ids``; each join is noted
     (``enclosed_joined``); a join that would make an object larger than any class allows is refused
     and noted (``joins_refused``)."""
     from scipy.spatial import cKDTree
@@ -37,10 +39,11 @@ def join_enclosed(lab: Labelling) -> None:
     info = lab.thing_shapes()
     # Floor-standing objects hold pieces, each as the class it will have: its own where its shape
     # fits it, else the one its shape makes most likely (a unit a detector called a table).
-    holders, kind = {}, {}
+    holders, outlines, kind = {}, {}, {}
     for iid, (name, shape, sel) in info.items():
         if shape.bottom <= FLOOR_GAP:
             holders[iid] = gravity_aligned_box(points[sel])
+            outlines[iid] = hull_equations(points[sel, :2])
             fits = name != UNNAMED and fits_class(name, shape)
             kind[iid] = name if fits else lab.prior(shape, np.zeros(0))[0]
     if not holders:
@@ -80,8 +83,13 @@ def join_enclosed(lab: Labelling) -> None:
                 continue
             if furniture and kind[holder] not in SEATING:
                 continue
-            within = holders[holder].contains(points[sel], ENCLOSED_MARGIN_VOXELS * voxel).mean()
-            if within < ENCLOSED_SHARE:
+            margin = ENCLOSED_MARGIN_VOXELS * voxel
+            # Within its body, not only its box: an L of units frames floor between its arms, where a
+            # chair may stand; a part of an object (an armchair's arm) has its centre in its outline.
+            a, b = outlines[holder]
+            centre = points[sel, :2].mean(axis=0)
+            within = holders[holder].contains(points[sel], margin).mean()
+            if within < ENCLOSED_SHARE or (a @ centre + b > margin).any():
                 continue
             if level and kind[holder] not in SEATING:
                 held = support_of_point[h_sel] >= 0

@@ -72,10 +72,16 @@ def plane_box_matched(mapped):
     return run(PlaneBoxMatchCompleter(), mapped)[0]
 
 
+@pytest.fixture(scope="module")
+def icp_matched(mapped):
+    """icp_match on the mapped office, run once for the tests below: (data, the stage's output)."""
+    return run(ICPMatchCompleter(), mapped)
+
+
 @pytest.mark.slow
-def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
+def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched, icp_matched):
     boxes, _ = run(BBoxCompleter(), mapped)
-    icp, _ = run(ICPMatchCompleter(), mapped)
+    icp, _ = icp_matched
     pbm = plane_box_matched
     cd_box, cd_icp, cd_pbm = chair_chamfer(boxes), chair_chamfer(icp), chair_chamfer(pbm)
     assert cd_icp < cd_box and cd_pbm < cd_box
@@ -87,8 +93,8 @@ def test_model_matching_beats_boxes_on_chairs(mapped, plane_box_matched):
 
 
 @pytest.mark.slow
-def test_augmented_scene_replaces_observed_fragments(mapped):
-    data, out = run(ICPMatchCompleter(), mapped)
+def test_augmented_scene_replaces_observed_fragments(mapped, icp_matched):
+    data, out = icp_matched
     aug = out["augmented"]
     completed = data.map.instances.completed()
     scene = o3d.t.geometry.RaycastingScene()
