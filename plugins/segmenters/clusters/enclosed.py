@@ -54,6 +54,7 @@ def join_enclosed(lab: Labelling) -> None:
     # A seat's surface holds pieces of its chair far more often than things: it spares none.
     seats = [h for h, k in kind.items() if k in SEATING]
     joined, refused = [], []
+    margin = ENCLOSED_MARGIN_VOXELS * voxel
     for iid in sorted(info, key=lambda i: (len(info[i][2]), i)):
         name, shape, sel = info[iid]
         heights = np.zeros(0)
@@ -77,17 +78,16 @@ def join_enclosed(lab: Labelling) -> None:
         furniture = (
             name in NOT_STACKED and fits_class(name, shape) and shape.bottom <= FLOOR_GAP and not thin(points[sel])
         )
+        centre = points[sel, :2].mean(axis=0)
         for holder in sorted(holders, key=lambda i: (-len(info[i][2]), i)):
             h_name, _, h_sel = info[holder]
             if holder == iid or len(h_sel) <= len(sel):
                 continue
             if furniture and kind[holder] not in SEATING:
                 continue
-            margin = ENCLOSED_MARGIN_VOXELS * voxel
             # Within its body, not only its box: an L of units frames floor between its arms, where a
             # chair may stand; a part of an object (an armchair's arm) has its centre in its outline.
             a, b = outlines[holder]
-            centre = points[sel, :2].mean(axis=0)
             within = holders[holder].contains(points[sel], margin).mean()
             if within < ENCLOSED_SHARE or (a @ centre + b > margin).any():
                 continue
