@@ -4,8 +4,14 @@ from pathlib import Path
 
 import pytest
 
+from stratamap.core import Completer, PipelineData, StageConfig
 from stratamap.core.registry import build_registry
-from stratamap.core.testing import parametrize_with_checks
+from stratamap.core.testing import (
+    check_deterministic,
+    check_inputs_untouched,
+    check_verb_contract,
+    parametrize_with_checks,
+)
 
 BUILTIN_STAGES = [info.cls for info in build_registry(eps=[], extra_modules=[], autoload=True).all()]
 #: Built-in stages whose library comes with an extra: checked where it is installed, skipped elsewhere.
@@ -21,6 +27,45 @@ def test_builtin_stage_conforms(stage_cls, check):
     if stage_cls.name in EXTRA_MODULES:
         pytest.importorskip(EXTRA_MODULES[stage_cls.name])
     check(stage_cls)
+
+
+class _Shifting(Completer[StageConfig]):
+    """Moves every object's points 1 cm in place (a fault the kit must catch)."""
+
+    name = "shifting"
+    Config = StageConfig
+
+    def complete(self, data: PipelineData) -> dict:
+        for inst in data.map.instances:
+            inst.points += 0.01
+        return {"instances": data.map.instances.copy()}
+
+
+class _Counting(Completer[StageConfig]):
+    """Drops as many objects as it has run before (a fault the kit must catch)."""
+
+    name = "counting"
+    Config = StageConfig
+    runs = 0
+
+    def complete(self, data: PipelineData) -> dict:
+        type(self).runs += 1
+        insts = data.map.instances.copy()
+        return {"instances": type(insts)(list(insts)[type(self).runs :])}
+
+
+def test_the_checks_that_share_a_run_still_catch_a_stage_that_edits_its_inputs_or_drifts():
+    """The verb-contract, untouched-inputs and determinism checks share the stage's first run: in the
+    kit's order each still fails the stage it is there to fail, and passes the other."""
+    check_verb_contract(_Shifting)
+    with pytest.raises(AssertionError, match="modified its input layers"):
+        check_inputs_untouched(_Shifting)
+    check_deterministic(_Shifting)
+    check_verb_contract(_Counting)
+    check_inputs_untouched(_Counting)
+    with pytest.raises(AssertionError, match="different outputs"):
+        check_deterministic(_Counting)
+    assert _Counting.runs == 2
 
 
 @pytest.mark.slow

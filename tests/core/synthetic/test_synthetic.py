@@ -132,6 +132,18 @@ def test_partnet_mobility_folders_load():
 # ---------------------------------------------------------------- scenes
 
 
+def test_an_objects_world_parts_are_made_once_per_pose_and_follow_a_move():
+    obj = generate_scene(SceneSpec(type="office", seed=4)).objects[0]
+    first, again = obj.world_parts(), obj.world_parts()
+    assert len(first) == len(again) > 0 and all(a is b for (_, a), (_, b) in zip(first, again))
+    lo = np.min([m.bounds[0] for _, m in first], axis=0)
+    obj.pose = obj.pose.copy()
+    obj.pose[0, 3] += 0.5
+    moved = np.min([m.bounds[0] for _, m in obj.world_parts()], axis=0)
+    assert np.allclose(moved - lo, [0.5, 0.0, 0.0])
+    assert np.allclose(np.min([m.bounds[0] for _, m in first], axis=0), lo)  # the first call's meshes stay put
+
+
 @pytest.mark.parametrize("scene_type", SCENE_TYPES)
 def test_scene_types_place_their_objects_without_interpenetration(scene_type):
     scene = generate_scene(SceneSpec(type=scene_type, seed=4))

@@ -154,6 +154,45 @@ def test_a_map_of_millions_of_points():
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss < 8 * 1024 * 1024  # kB: under 8 GB
 
 
+def test_the_support_prefilter_keeps_every_pair_whose_points_reach_over_a_hull():
+    """``cut_below_supports`` tests an instance's points against a support's hull only where its box
+    may reach over it: on random instances and hulls (some thin slivers with sharp corners), no pair
+    with a point over the hull and above the height is left out, and most far pairs are."""
+    from stratamap.plugins.segmenters.clusters.grid import hull_equations
+    from stratamap.plugins.segmenters.clusters.mirrored import HULL_MARGIN, _within_reach
+
+    rng = np.random.default_rng(7)
+    centres = rng.uniform(0, 6, (40, 2))
+    chunks = [c + rng.normal(0, rng.uniform(0.05, 0.4), (60, 2)) for c in centres]
+    points = np.vstack([np.c_[xy, rng.uniform(0, 1.2, len(xy))] for xy in chunks])
+    by_instance = [np.zeros(0, np.int64)] + [np.arange(60 * k, 60 * (k + 1)) for k in range(40)]
+    surfaces, grazing = [], []
+    for k in range(25):
+        c, direction = rng.uniform(0, 6, 2), rng.normal(size=2)
+        sliver = c + np.outer(rng.uniform(-0.8, 0.8, 6), direction) + rng.normal(0, 0.01, (6, 2))
+        blob = c + rng.normal(0, 0.3, (12, 2))
+        a, b = hull_equations(sliver if k % 2 else blob)
+        surfaces.append((float(rng.uniform(0.2, 1.0)), a, b, 0))
+        # A few points just outside one edge, within the margin: over the hull as the pass counts it.
+        corners = sliver if k % 2 else blob
+        edge = int(rng.integers(len(a)))
+        on_edge = corners[np.argsort(np.abs(corners @ a[edge] + b[edge]))[:2]].mean(axis=0)
+        on_edge -= (on_edge @ a[edge] + b[edge]) * a[edge]
+        xy = on_edge + a[edge] * rng.uniform(0.6, 0.95) * HULL_MARGIN + rng.normal(0, 1e-4, (5, 2))
+        grazing.append(np.c_[xy, np.full(5, 1.5)])
+    points = np.vstack([points, *grazing])
+    by_instance += [np.arange(2400 + 5 * k, 2400 + 5 * (k + 1)) for k in range(25)]
+    reach = _within_reach(points, by_instance, surfaces, 0.02)
+    assert not reach[0].any()
+    assert all(reach[41 + k, k] for k in range(25))
+    for iid in range(1, len(by_instance)):
+        xy, z = points[by_instance[iid], :2], points[by_instance[iid], 2]
+        for s, (height, a, b, _) in enumerate(surfaces):
+            over = ((xy @ a.T + b) <= HULL_MARGIN).all(axis=1) & (z > height - 0.02)
+            assert reach[iid, s] or not over.any(), (iid, s)
+    assert reach.mean() < 0.5
+
+
 def test_patch_graph_keys_do_not_overflow_on_large_maps():
     """Patch-pair keys of more than 46,341 patches do not overflow int32."""
     cfg = ClustersConfig()
