@@ -41,6 +41,7 @@ from stratamap.core.geometry.transforms import invert
 from stratamap.core.map.instances import SHAPE
 from stratamap.core.map.priors import WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
+from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
 from stratamap.core.simulation.structure import floor_height, room_structure
 
 #: The shipped front classifier and fixture classifier (models/README.md).
@@ -112,6 +113,14 @@ class FrontsConfig(StageConfig):
         ),
     )
     max_range: float = Field(default=5.0, gt=0.0, description="Farthest depth (m) used from a frame for a face.")
+    room_to_open: bool = Field(
+        default=True,
+        description=(
+            "A side-hinged door whose swing, on the side its handle or its face's end chose, runs into the box of a "
+            "fixed neighbour (an object of no movable class, or a wall) and on the other side into less than half as "
+            "much hinges on the other side (swing.py; noted per object as 'hinges_turned')."
+        ),
+    )
     keep_articulated: bool = Field(
         default=False,
         description=(
@@ -145,6 +154,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
     def complete(self, data: PipelineData) -> dict[str, Any]:
         from stratamap.plugins.completers.fronts.body import BodyParams, articulated_body, depth_behind, object_frame
         from stratamap.plugins.completers.fronts.fronts import FaceParams, label_fronts, observe_object
+        from stratamap.plugins.completers.fronts.swing import room_to_open
 
         cfg = self.config
         crf = load_front_crf(Path(cfg.model).expanduser() if cfg.model else SHIPPED)
@@ -173,6 +183,9 @@ class FrontsCompleter(Completer[FrontsConfig]):
             "joints": {"revolute": 0, "prismatic": 0},
         }
         per_object = {}
+        # What a door may not swing into: the walls and the objects the exported scene keeps in place.
+        fixed = [(w.pose, w.size) for w in walls]
+        fixed_objects = {i.id: (i.box.pose, i.box.size) for i in insts if i.class_name not in DEFAULT_MOVABLE_CLASSES}
         for inst in insts:
             if not may_have_fronts(inst, classes):
                 continue
@@ -199,6 +212,10 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 )
                 for f in fronts
             ]
+            turned: list[dict[str, Any]] = []
+            if cfg.room_to_open:
+                neighbours = fixed + [b for i, b in fixed_objects.items() if i != inst.id]
+                rects, turned = room_to_open(rects, -float(size[1]) / 2, cfg.door_opening, pose, neighbours)
             shallow = depth < cfg.min_depth and any(f.label in OPENS for f in fronts)
             completion = (
                 None if shallow else articulated_body(size, rects, to_object, pose, self.name, face.coverage, params)
@@ -210,6 +227,7 @@ class FrontsCompleter(Completer[FrontsConfig]):
                 "fixtures": len(face.fixtures),
                 "depth": round(depth, 3),
                 **({"opens": f"nothing: {depth:.2f} m deep, min_depth {cfg.min_depth:g}"} if shallow else {}),
+                **({"hinges_turned": turned} if turned else {}),
             }
             inst.attributes["fronts"] = [
                 {
