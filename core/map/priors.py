@@ -133,6 +133,10 @@ WITH_FRONTS: tuple[str, ...] = ("cabinet", "counter", *DOOR_APPLIANCES)
 #: fridge's or a wardrobe's up to 0.9 m; drawers up to 1.2 m).
 FRONT_MAX_WIDTH: dict[str, float] = {"cupboard": 1.0, "appliance": 1.0, "drawer": 1.2}
 
+#: Things a robot or a person moves: exported as free bodies by default, and no obstacle a door's
+#: swing must keep clear of.
+MOVABLE: tuple[str, ...] = ("cup", "bottle", "book", "box", "chair")
+
 #: Things the shape rules name when they stand on a support surface, by size.
 ON_SUPPORTS: tuple[str, ...] = ("cup", "bottle", "box")
 

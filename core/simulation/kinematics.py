@@ -22,7 +22,7 @@ from stratamap.core.geometry.hulls import convex_hull
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.lazy import lazy_module
 from stratamap.core.map.layers import ContactGraph, ObjectInstance, ObjectInstances
-from stratamap.core.map.priors import class_body, material_volume
+from stratamap.core.map.priors import MOVABLE, class_body, material_volume
 
 trimesh = lazy_module("trimesh")
 
@@ -36,8 +36,8 @@ class Inertial:
     inertia: np.ndarray  # (3, 3) about the center, link axes
 
 
-#: Classes exported as free bodies by default (things a robot or a person moves).
-DEFAULT_MOVABLE_CLASSES = ("cup", "bottle", "book", "box", "chair")
+#: Classes exported as free bodies by default (the class facts' movable things).
+DEFAULT_MOVABLE_CLASSES = MOVABLE
 
 #: How far a door or flap found on a scan opens (radians) and a drawer slides out (metres).
 FRONT_OPENING = float(np.pi / 2)

@@ -39,9 +39,8 @@ from stratamap.core.errors import DataError
 from stratamap.core.furniture.faces import OPENS, level2_feature_count
 from stratamap.core.geometry.transforms import invert
 from stratamap.core.map.instances import SHAPE
-from stratamap.core.map.priors import WITHOUT_FRONTS
+from stratamap.core.map.priors import MOVABLE, WITHOUT_FRONTS
 from stratamap.core.map.sensors import sensor_viewpoints
-from stratamap.core.simulation.kinematics import DEFAULT_MOVABLE_CLASSES
 from stratamap.core.simulation.structure import floor_height, room_structure
 
 #: The shipped front classifier and fixture classifier (models/README.md).
@@ -183,9 +182,11 @@ class FrontsCompleter(Completer[FrontsConfig]):
             "joints": {"revolute": 0, "prismatic": 0},
         }
         per_object = {}
-        # What a door may not swing into: the walls and the objects the exported scene keeps in place.
-        fixed = [(w.pose, w.size) for w in walls]
-        fixed_objects = {i.id: (i.box.pose, i.box.size) for i in insts if i.class_name not in DEFAULT_MOVABLE_CLASSES}
+        # What a door may not swing into: the walls and the objects no one moves away.
+        fixed, fixed_objects = [], {}
+        if cfg.room_to_open:
+            fixed = [(w.pose, w.size) for w in walls]
+            fixed_objects = {i.id: (i.box.pose, i.box.size) for i in insts if i.class_name not in MOVABLE}
         for inst in insts:
             if not may_have_fronts(inst, classes):
                 continue
