@@ -394,10 +394,15 @@ class MatchingCompleter(Completer[MatcherConfigT]):
     provides = frozenset({"instances", "augmented"})
 
     def match(
-        self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData | None
+        self,
+        inst: ObjectInstance,
+        base: np.ndarray,
+        index: ModelIndex,
+        data: PipelineData | None,
+        views: np.ndarray | None = None,
     ) -> Match | None:
-        """The best model for one object standing at ``base``. Runs in a thread or a Ray task: ``data``
-        is None (see :meth:`map_objects`)."""
+        """The best model for one object standing at ``base``; ``views``: where the sensor stood (V, 3),
+        or None. Runs in a thread or a Ray task: ``data`` is None (see :meth:`map_objects`)."""
         raise NotImplementedError
 
     def select(self, insts: ObjectInstances, index: ModelIndex) -> list[ObjectInstance]:
@@ -569,8 +574,13 @@ class MatchingCompleter(Completer[MatcherConfigT]):
         insts = data.map.instances.copy()  # type: ignore[union-attr]
         self.recognize(insts, index, data)
         todo = self.select(insts, index)
-        # match gets data=None: per-object work sees only what a Ray task is shipped.
-        results = self.map_objects(todo, "match", index, data, None)
+        # match gets data=None: per-object work sees only what a Ray task is shipped (with where the
+        # sensor stood, for matchers that turn a model's front towards it).
+        seen = data.map.geometry.points if data.map.geometry is not None else np.zeros((0, 3))
+        if not len(seen) and len(insts):
+            seen = np.concatenate([inst.points for inst in insts])
+        views = sensor_viewpoints(data.stream, seen) if len(seen) else None
+        results = self.map_objects(todo, "match", index, data, None, views)
         for inst, match in results:
             if match is None:
                 self.warn(f"object {inst.id} ({inst.class_name}): no model could be aligned; left uncompleted")

@@ -70,6 +70,15 @@ class ICPMatchConfig(MatcherConfig):
             "(core/map/priors.py), else 0.85-1.15."
         ),
     )
+    front_tie: float = Field(
+        default=0.005,
+        ge=0.0,
+        description=(
+            "Coarse rotations whose mean distance is within this of the best (metres) fit alike (a box seen from one "
+            "side fits turned half round as well); among them the one that turns the model's front (-y, the "
+            "library's canonical front) most towards where the object was seen from wins. 0: the best fit alone."
+        ),
+    )
     footprint_scales: list[float] = Field(
         default_factory=lambda: [0.85, 0.92, 1.0, 1.08, 1.15],
         description=(
@@ -89,6 +98,28 @@ def to_model(points: np.ndarray, yaw: float, t: np.ndarray, scale: float) -> np.
     q = points - np.append(t, 0.0)
     xy = q[:, :2] @ rot2(yaw)  # rotate by -yaw
     return np.c_[xy, q[:, 2]] / scale
+
+
+def seen_from(points: np.ndarray, views: np.ndarray | None) -> np.ndarray:
+    """The mean of the top-view unit directions from the points' centre to the sensor viewpoints: long
+    when the object was seen from one side (a cabinet against a wall), short when from all round."""
+    if views is None or not len(views):
+        return np.zeros(2)
+    offsets = np.asarray(views, float)[:, :2] - points[:, :2].mean(axis=0)
+    reach = np.linalg.norm(offsets, axis=1)
+    offsets = offsets[reach > 1e-6] / reach[reach > 1e-6, None]
+    return offsets.mean(axis=0) if len(offsets) else np.zeros(2)
+
+
+def seen_front_yaw(coarse: np.ndarray, yaws: np.ndarray, towards: np.ndarray, tie: float) -> int:
+    """The index of the rotation to refine: of those within ``tie`` of the best coarse fit, the one
+    whose model front (-y) points most along ``towards`` (the first best fit when ``towards`` is nil)."""
+    best = int(np.argmin(coarse))
+    if tie <= 0 or not np.any(towards):
+        return best
+    tied = np.flatnonzero(coarse <= coarse[best] + tie)
+    facing = [float(towards @ (rot2(float(yaws[k])) @ np.array([0.0, -1.0]))) for k in tied]
+    return int(tied[int(np.argmax(facing))])
 
 
 def icp_yaw(
@@ -121,7 +152,14 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
     name = "icp_match"
     Config = ICPMatchConfig
 
-    def match(self, inst: ObjectInstance, base: np.ndarray, index: ModelIndex, data: PipelineData) -> Match | None:
+    def match(
+        self,
+        inst: ObjectInstance,
+        base: np.ndarray,
+        index: ModelIndex,
+        data: PipelineData | None,
+        views: np.ndarray | None = None,
+    ) -> Match | None:
         cfg = self.config
         obs = inst.points - base
         if len(obs) > cfg.max_points:
@@ -158,7 +196,7 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
             dist = ref.tree.query(to_model(sparse, y, t, s_ref), workers=1)[0] * s_ref
             coarse.append(float(np.mean(np.minimum(dist, cfg.outlier_distance))))
             shifts.append(t)
-        best_yaw = int(np.argmin(coarse))
+        best_yaw = seen_front_yaw(np.asarray(coarse), yaws, seen_from(inst.points, views), cfg.front_tie)
         yaw, t, _ = icp_yaw(obs, ref, float(yaws[best_yaw]), shifts[best_yaw], s_ref, cfg.icp_iterations)
 
         best: Match | None = None

@@ -379,3 +379,52 @@ def test_recognition_takes_no_class_for_a_strip_of_a_models_surface():
     assert out[1].class_name == "object" and "class" not in record
     assert out[2].class_name == "fridge" and out[2].attributes["recognition"]["coverage"] >= 0.3
     assert "seeable surface" in out[2].attributes["naming"]["why"]
+
+
+def _front_of(completion) -> np.ndarray:
+    """The top-view direction of a completed model's front (-y of the model frame) in the world."""
+    return completion.pose[:2, :2] @ np.array([0.0, -1.0])
+
+
+@pytest.mark.parametrize("heading", [0.3, 2.0, 3.6, 5.2])
+def test_a_model_seen_only_from_above_turns_its_front_to_where_it_was_seen_from(heading):
+    """A drawer cabinet of which only the top was seen (between counters, from above): its library
+    model fits as well turned half round, drawers to the wall; the match turns the front towards
+    where the sensor stood."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.geometry.transforms import make_pose
+    from stratamap.core.map.sensors import RGBDFrame, SensorStream
+
+    cabinet = make_model("cabinet", 0, 3)
+    assert any(j.type == "prismatic" for j in cabinet.joints)
+    name = register_library("front-seen cabinet", ModelLibrary([model_to_library(cabinet)]))
+    pts = trimesh.sample.sample_surface(cabinet.mesh(), 4000, seed=1)[0]
+    pts = pts[pts[:, 2] > pts[:, 2].max() - 0.01]
+    pose = make_pose([2.0, 1.0, 0.0], heading)
+    pts = pts @ pose[:3, :3].T + pose[:3, 3]
+    front = pose[:2, :2] @ np.array([0.0, -1.0])
+    # Camera positions 1.5-2.5 m in front of it, spread across its width.
+    side = np.array([-front[1], front[0]])
+    stops = [np.r_[[2.0, 1.0] + d * front + w * side, 1.4] for d in (1.5, 2.5) for w in (-0.8, 0.0, 0.8)]
+    blank = np.zeros((2, 2), np.float32)
+    colour = np.zeros((2, 2, 3), np.uint8)
+    frames = [RGBDFrame(k, float(k), colour, blank, make_pose(at, 0.0)) for k, at in enumerate(stops)]
+    data = PipelineData(stream=SensorStream("front", frames=frames))
+    data.map.instances = ObjectInstances([ObjectInstance(1, "cabinet", pts, gravity_aligned_box(pts))])
+    c = ICPMatchCompleter(library=name).run(data)["instances"][1].completion
+    assert c is not None
+    assert float(_front_of(c) @ front) > 0.9, (heading, _front_of(c), front)
+    np.testing.assert_allclose(c.pose[:2, 3], [2.0, 1.0], atol=0.08)
+
+
+def test_the_front_breaks_only_ties_of_the_fit():
+    from stratamap.plugins.completers.icp_match import seen_front_yaw
+
+    yaws = np.arange(4) * np.pi / 2  # fronts along -y, +x, +y, -x
+    coarse = np.array([0.020, 0.050, 0.021, 0.060])
+    towards = np.array([0.0, 1.0])  # seen from +y
+    assert seen_front_yaw(coarse, yaws, towards, tie=0.005) == 2  # the tie goes to the front facing +y
+    assert seen_front_yaw(coarse, yaws, towards, tie=0.0) == 0  # no tie allowed: the best fit
+    assert seen_front_yaw(coarse, yaws, np.zeros(2), tie=0.005) == 0  # seen from all round: the best fit
+    # Seen from +x, a little from +y: the front along +x fits 3 cm worse and is not taken.
+    assert seen_front_yaw(coarse, yaws, np.array([1.0, 0.3]), tie=0.005) == 2
