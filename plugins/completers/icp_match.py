@@ -34,6 +34,9 @@ from stratamap.plugins.completers._matching import Match, MatcherConfig, Matchin
 
 spatial = lazy_module("scipy.spatial")
 
+#: Joints that open a model's front: a model with one has its doors or drawers where it faces the room.
+OPENING_JOINTS = ("revolute", "prismatic")
+
 #: Height scale range for classes without a size prior.
 FALLBACK_SCALE_RANGE = (0.85, 1.15)
 
@@ -75,8 +78,9 @@ class ICPMatchConfig(MatcherConfig):
         ge=0.0,
         description=(
             "Coarse rotations whose mean distance is within this of the best (metres) fit alike (a box seen from one "
-            "side fits turned half round as well); among them the one that turns the model's front (-y, the "
-            "library's canonical front) most towards where the object was seen from wins. 0: the best fit alone."
+            "side fits turned half round as well); when the class's shortlisted models have doors or drawers "
+            "(revolute or prismatic joints), the one that turns the model's front (-y, the library's canonical "
+            "front) most towards where the object was seen from wins. 0: the best fit alone."
         ),
     )
     footprint_scales: list[float] = Field(
@@ -196,7 +200,11 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
             dist = ref.tree.query(to_model(sparse, y, t, s_ref), workers=1)[0] * s_ref
             coarse.append(float(np.mean(np.minimum(dist, cfg.outlier_distance))))
             shifts.append(t)
-        best_yaw = seen_front_yaw(np.asarray(coarse), yaws, seen_from(inst.points, views), cfg.front_tie)
+        # Doors and drawers open into the room the sensor stood in; a model with nothing that opens
+        # has no such front (an unseen cup handle more likely faces away from the sensor).
+        opens = any(j.type in OPENING_JOINTS for mid in cands for j in index.library.get(mid).joints)
+        towards = seen_from(inst.points, views) if opens else np.zeros(2)
+        best_yaw = seen_front_yaw(np.asarray(coarse), yaws, towards, cfg.front_tie)
         yaw, t, _ = icp_yaw(obs, ref, float(yaws[best_yaw]), shifts[best_yaw], s_ref, cfg.icp_iterations)
 
         best: Match | None = None

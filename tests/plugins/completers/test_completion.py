@@ -386,35 +386,52 @@ def _front_of(completion) -> np.ndarray:
     return completion.pose[:2, :2] @ np.array([0.0, -1.0])
 
 
+def _seen_from_above(model, heading: float, library: str, cameras: bool):
+    """``model`` at ``heading``, only its top seen, matched against a library of it alone; with
+    ``cameras``, posed frames 1.5-2.5 m in front of it. Returns (completion, the true front)."""
+    from stratamap.core.geometry.boxes import gravity_aligned_box
+    from stratamap.core.geometry.transforms import make_pose
+    from stratamap.core.map.sensors import RGBDFrame, SensorStream
+
+    name = register_library(library, ModelLibrary([model_to_library(model)]))
+    pts = trimesh.sample.sample_surface(model.mesh(), 4000, seed=1)[0]
+    pts = pts[pts[:, 2] > pts[:, 2].max() - 0.01]
+    pose = make_pose([2.0, 1.0, 0.0], heading)
+    pts = pts @ pose[:3, :3].T + pose[:3, 3]
+    front = pose[:2, :2] @ np.array([0.0, -1.0])
+    data = PipelineData()
+    if cameras:
+        side = np.array([-front[1], front[0]])
+        stops = [np.r_[[2.0, 1.0] + d * front + w * side, 1.4] for d in (1.5, 2.5) for w in (-0.8, 0.0, 0.8)]
+        blank, colour = np.zeros((2, 2), np.float32), np.zeros((2, 2, 3), np.uint8)
+        frames = [RGBDFrame(k, float(k), colour, blank, make_pose(at, 0.0)) for k, at in enumerate(stops)]
+        data = PipelineData(stream=SensorStream("front", frames=frames))
+    data.map.instances = ObjectInstances([ObjectInstance(1, model.class_name, pts, gravity_aligned_box(pts))])
+    return ICPMatchCompleter(library=name).run(data)["instances"][1].completion, front
+
+
 @pytest.mark.parametrize("heading", [0.3, 2.0, 3.6, 5.2])
 def test_a_model_seen_only_from_above_turns_its_front_to_where_it_was_seen_from(heading):
     """A drawer cabinet of which only the top was seen (between counters, from above): its library
     model fits as well turned half round, drawers to the wall; the match turns the front towards
     where the sensor stood."""
-    from stratamap.core.geometry.boxes import gravity_aligned_box
-    from stratamap.core.geometry.transforms import make_pose
-    from stratamap.core.map.sensors import RGBDFrame, SensorStream
-
     cabinet = make_model("cabinet", 0, 3)
     assert any(j.type == "prismatic" for j in cabinet.joints)
-    name = register_library("front-seen cabinet", ModelLibrary([model_to_library(cabinet)]))
-    pts = trimesh.sample.sample_surface(cabinet.mesh(), 4000, seed=1)[0]
-    pts = pts[pts[:, 2] > pts[:, 2].max() - 0.01]
-    pose = make_pose([2.0, 1.0, 0.0], heading)
-    pts = pts @ pose[:3, :3].T + pose[:3, 3]
-    front = pose[:2, :2] @ np.array([0.0, -1.0])
-    # Camera positions 1.5-2.5 m in front of it, spread across its width.
-    side = np.array([-front[1], front[0]])
-    stops = [np.r_[[2.0, 1.0] + d * front + w * side, 1.4] for d in (1.5, 2.5) for w in (-0.8, 0.0, 0.8)]
-    blank = np.zeros((2, 2), np.float32)
-    colour = np.zeros((2, 2, 3), np.uint8)
-    frames = [RGBDFrame(k, float(k), colour, blank, make_pose(at, 0.0)) for k, at in enumerate(stops)]
-    data = PipelineData(stream=SensorStream("front", frames=frames))
-    data.map.instances = ObjectInstances([ObjectInstance(1, "cabinet", pts, gravity_aligned_box(pts))])
-    c = ICPMatchCompleter(library=name).run(data)["instances"][1].completion
+    c, front = _seen_from_above(cabinet, heading, "front-seen cabinet", cameras=True)
     assert c is not None
     assert float(_front_of(c) @ front) > 0.9, (heading, _front_of(c), front)
     np.testing.assert_allclose(c.pose[:2, 3], [2.0, 1.0], atol=0.08)
+
+
+@pytest.mark.parametrize("family", ["box", "rectangular_table"])
+def test_a_model_with_nothing_that_opens_keeps_its_best_fit(family):
+    """Where the sensor stood says nothing of the front of a model with no door or drawer (a box's
+    "front" may as well face away): the same pose with cameras or none."""
+    model = make_model(family, 0, 0)
+    assert not any(j.type in ("revolute", "prismatic") for j in model.joints)
+    seen, _ = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=True)
+    unseen, _ = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=False)
+    np.testing.assert_array_equal(seen.pose, unseen.pose)
 
 
 def test_the_front_breaks_only_ties_of_the_fit():
