@@ -205,6 +205,7 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
         opens = any(j.type in OPENING_JOINTS for mid in cands for j in index.library.get(mid).joints)
         towards = seen_from(inst.points, views) if opens else np.zeros(2)
         best_yaw = seen_front_yaw(np.asarray(coarse), yaws, towards, cfg.front_tie)
+        turned = best_yaw != int(np.argmin(coarse))
         yaw, t, _ = icp_yaw(obs, ref, float(yaws[best_yaw]), shifts[best_yaw], s_ref, cfg.icp_iterations)
 
         best: Match | None = None
@@ -226,7 +227,12 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
                 base + np.append(tt, 0.0),
                 s,
                 score,
-                {"fit_m": fit, "coverage_m": float(out_xy + out_z), "candidates": len(cands)},
+                {
+                    "fit_m": fit,
+                    "coverage_m": float(out_xy + out_z),
+                    "candidates": len(cands),
+                    "front_towards_sensor": int(turned),
+                },
             )
             scored.append(candidate)
             if best is None or score < best.score - 1e-12:
@@ -264,6 +270,18 @@ class ICPMatchCompleter(MatchingCompleter[ICPMatchConfig]):
 
     def complete(self, data: PipelineData) -> dict:
         out = super().complete(data)
+        # Which completions the sensor's side turned (front_tie): a user checking a door that opens
+        # the wrong way starts here.
+        self.note(
+            "fronts_towards_sensor",
+            [
+                inst.id
+                for inst in out["instances"]
+                if inst.completion is not None
+                and inst.completion.completer == self.name
+                and inst.attributes.get("match", {}).get("front_towards_sensor")
+            ],
+        )
         self.note(
             "scales",
             {

@@ -388,7 +388,8 @@ def _front_of(completion) -> np.ndarray:
 
 def _seen_from_above(model, heading: float, library: str, cameras: bool):
     """``model`` at ``heading``, only its top seen, matched against a library of it alone; with
-    ``cameras``, posed frames 1.5-2.5 m in front of it. Returns (completion, the true front)."""
+    ``cameras``, posed frames 1.5-2.5 m in front of it. Returns (completion, the true front, the
+    completer's notes)."""
     from stratamap.core.geometry.boxes import gravity_aligned_box
     from stratamap.core.geometry.transforms import make_pose
     from stratamap.core.map.sensors import RGBDFrame, SensorStream
@@ -407,7 +408,8 @@ def _seen_from_above(model, heading: float, library: str, cameras: bool):
         frames = [RGBDFrame(k, float(k), colour, blank, make_pose(at, 0.0)) for k, at in enumerate(stops)]
         data = PipelineData(stream=SensorStream("front", frames=frames))
     data.map.instances = ObjectInstances([ObjectInstance(1, model.class_name, pts, gravity_aligned_box(pts))])
-    return ICPMatchCompleter(library=name).run(data)["instances"][1].completion, front
+    completion = ICPMatchCompleter(library=name).run(data)["instances"][1].completion
+    return completion, front, data.notes["icp_match"]
 
 
 @pytest.mark.parametrize("heading", [0.3, 2.0, 3.6, 5.2])
@@ -417,10 +419,13 @@ def test_a_model_seen_only_from_above_turns_its_front_to_where_it_was_seen_from(
     where the sensor stood."""
     cabinet = make_model("cabinet", 0, 3)
     assert any(j.type == "prismatic" for j in cabinet.joints)
-    c, front = _seen_from_above(cabinet, heading, "front-seen cabinet", cameras=True)
+    c, front, notes = _seen_from_above(cabinet, heading, "front-seen cabinet", cameras=True)
     assert c is not None
     assert float(_front_of(c) @ front) > 0.9, (heading, _front_of(c), front)
     np.testing.assert_allclose(c.pose[:2, 3], [2.0, 1.0], atol=0.08)
+    # The notes name it where the best fit alone (no cameras) would have turned it the other way.
+    blind, _, _ = _seen_from_above(cabinet, heading, "front-seen cabinet", cameras=False)
+    assert notes["fronts_towards_sensor"] == ([1] if float(_front_of(blind) @ front) < 0.9 else [])
 
 
 @pytest.mark.parametrize("family", ["box", "rectangular_table"])
@@ -429,9 +434,10 @@ def test_a_model_with_nothing_that_opens_keeps_its_best_fit(family):
     "front" may as well face away): the same pose with cameras or none."""
     model = make_model(family, 0, 0)
     assert not any(j.type in ("revolute", "prismatic") for j in model.joints)
-    seen, _ = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=True)
-    unseen, _ = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=False)
+    seen, _, notes = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=True)
+    unseen, _, _ = _seen_from_above(model, 2.0, f"front-seen {family}", cameras=False)
     np.testing.assert_array_equal(seen.pose, unseen.pose)
+    assert notes["fronts_towards_sensor"] == []
 
 
 def test_the_front_breaks_only_ties_of_the_fit():
