@@ -162,7 +162,11 @@ ObserveOption = Annotated[
 
 
 def _run(
-    config: Path, out: Path | None, overrides: list[str] | None, observe: list[str] | None = None
+    config: Path,
+    out: Path | None,
+    overrides: list[str] | None,
+    observe: list[str] | None = None,
+    resume: bool = False,
 ) -> tuple[dict, Path]:
     """Run a pipeline file; return its report and the folder it was written to."""
     from stratamap.core.config import load_pipeline
@@ -178,7 +182,7 @@ def _run(
         observer = RichProgress(console)
         registry.plugin_manager.register(observer, name="rich-progress")
         try:
-            report = pipeline.run(out)
+            report = pipeline.run(out, resume=resume)
         except StratamapError as exc:
             _fail(exc)
         finally:
@@ -215,9 +219,19 @@ def run(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (map/, export/, report.json).")] = None,
     overrides: SetOption = None,
     observe: ObserveOption = None,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help=(
+                "Checkpoint after each stage (beside the output); if a run of the same pipeline, settings and input "
+                "into the same folder was interrupted or failed, start after its last finished stage."
+            ),
+        ),
+    ] = False,
 ) -> None:
     """Run a pipeline: read, segment, map, complete, export; write map/, export/ and report.json."""
-    report, written = _run(config, out, overrides, observe)
+    report, written = _run(config, out, overrides, observe, resume)
     _print_report(report, written)
 
 

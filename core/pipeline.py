@@ -19,6 +19,7 @@ from typing import Any
 import pluggy
 
 from stratamap.core.atomic import atomic_directory, check_output_folder, raise_if_interrupted, write_json
+from stratamap.core.checkpoints import Checkpoints, checkpoint_folder
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
 from stratamap.core.errors import ConfigError, PluginError
 from stratamap.core.hookspecs import Observer
@@ -265,8 +266,11 @@ class Pipeline:
         )
         self.hook.stratamap_stage_end(pipeline=self, stage=stage, index=index, seconds=seconds)
 
-    def run(self, out_dir: str | Path | None = None) -> dict[str, Any]:
-        """Run every stage; write map, exports and report under ``out_dir``; return the report."""
+    def run(self, out_dir: str | Path | None = None, resume: bool = False) -> dict[str, Any]:
+        """Run every stage; write map, exports and report under ``out_dir``; return the report.
+        ``resume``: checkpoint the run after each stage before the first exporter, and start after
+        the latest checkpoint an interrupted or failed run of the same pipeline, settings and input
+        into the same output left (``core/checkpoints.py``); the checkpoints go once the run is done."""
         spec = self.validated.spec
         out = out_dir or spec.output.dir
         if out is None:
@@ -281,11 +285,15 @@ class Pipeline:
         self.observers = [resolved.instantiate() for resolved in self.validated.observers]
         # Everything is written into a staging folder beside the output and swapped in at the end:
         # a failed or interrupted run leaves the previous output exactly as it was, and no new folder.
+        checkpoints = Checkpoints(
+            checkpoint_folder(final), self.validated.source, self.validated.stages, package_versions()
+        )
         with atomic_directory(final) as staging:
             self.out_dir = staging
             with self._observed():
-                report = self._run_into(staging, shown)
+                report = self._run_into(staging, shown, checkpoints if resume else None)
         self.out_dir = shown
+        checkpoints.clear()  # this output is complete: no run of it resumes any more
         return report
 
     @contextmanager
@@ -306,7 +314,7 @@ class Pipeline:
                     manager.unregister(observer)
                 observer.close()
 
-    def _run_into(self, staging: Path, shown: Path) -> dict[str, Any]:
+    def _run_into(self, staging: Path, shown: Path, checkpoints: Checkpoints | None = None) -> dict[str, Any]:
         spec = self.validated.spec
         data = self.data = PipelineData()
         self.records = []
@@ -314,10 +322,25 @@ class Pipeline:
         t_start = time.perf_counter()
 
         self._run_stage(self.validated.source, -1, data)
+        source_stream, start, resumed = data.stream, 0, None
+        found = checkpoints.latest() if checkpoints is not None else None
+        if found is not None:
+            index, data, self.records = found
+            self.data = data
+            if data.stream is None:  # the source's frames, read again (the checkpoint leaves them out)
+                data.stream = source_stream
+            start, resumed = index + 1, self.validated.stages[index].path
+            self.hook.stratamap_pipeline_step(pipeline=self, description=f"resumed after {resumed}")
         for i, resolved in enumerate(self.validated.stages):
+            if i < start:
+                continue
             raise_if_interrupted()
             self._run_stage(resolved, i, data)
+            if checkpoints is not None:
+                checkpoints.save(i, data, self.records, source_stream)
         raise_if_interrupted()
+        if checkpoints is not None and checkpoints.failed:
+            data.warnings.append(f"pipeline: {checkpoints.failed}; a resumed run starts before it")
 
         if data.ground_truth is not None:
             data.map.vocabulary = data.ground_truth.vocabulary
@@ -329,6 +352,8 @@ class Pipeline:
             record.outputs = [_renamed(o, staging, shown) for o in record.outputs]
 
         report = self._report(data, time.perf_counter() - t_start)
+        if resumed is not None:
+            report["resumed_after"] = resumed
         if spec.output.report:
             write_json(staging / "report.json", report)
         write_json(staging / RUN_MARKER, {"pipeline": self.validated.origin})

@@ -43,6 +43,7 @@ CORE_RANKS = {
     "config": 4,
     "schema": 4,
     "pipeline": 4,
+    "checkpoints": 4,
     "testing": 4,
     "evaluation": 5,
     "viewer": 5,
