@@ -221,6 +221,12 @@ class LazyFrames(_LazySequence):
     def _item(self, k: int) -> RGBDFrame:
         return self.world.frame(k)[0]
 
+    @property
+    def poses(self) -> list[np.ndarray]:
+        """Each frame's pose as the frame reports it, without rendering the frame (where the sensor
+        stood: ``core/map/sensors.sensor_viewpoints``); copies."""
+        return [pose.copy() for pose in self.world.reported_poses]
+
 
 class LazyLabels(_LazySequence):
     def _item(self, k: int) -> FrameSegmentation:

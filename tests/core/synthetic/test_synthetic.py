@@ -368,3 +368,19 @@ def test_varied_fixtures_change_only_the_handles_and_knobs():
     assert parts(varied[0], lambda s: s in fixture) != parts(plain, lambda s: s in fixture)
     bars = [p.mesh.extents for p in plain.parts if p.name.endswith("_bar")]
     assert bars and all(np.isclose(sorted(e)[0], 0.012) for e in bars)  # the default 12 mm bar
+
+
+def test_where_the_frames_were_taken_is_known_without_rendering_them(monkeypatch):
+    """The sensor's positions (what completers and clusters turn things towards) come from the
+    reported poses; rendering every frame of a walk for them cost seconds per stage."""
+    from stratamap.core.map.sensors import sensor_viewpoints
+
+    world = SyntheticWorld(SceneSpec.model_validate({"type": "office", "seed": 1, "trajectory": {"frames": 6}}))
+    stream = world.stream()
+    rendered = [np.asarray(stream.frames[k].pose) for k in range(len(stream.frames))]
+    monkeypatch.setattr(world, "frame", lambda k: pytest.fail(f"frame {k} rendered"))
+    np.testing.assert_array_equal(np.array(stream.frames.poses), np.array(rendered))
+    views = sensor_viewpoints(stream, np.zeros((1, 3)))
+    np.testing.assert_array_equal(views, np.array(rendered)[:, :3, 3])
+    stream.frames.poses[0][:3, 3] = 99.0  # copies: the walk's own poses stay
+    assert not np.any(stream.frames.poses[0][:3, 3] == 99.0)
