@@ -36,6 +36,11 @@ def checkpoint_folder(final: Path) -> Path:
     return final.parent / f".{final.name}.checkpoints"
 
 
+def clear_checkpoints(final: Path) -> None:
+    """Remove the checkpoints of the output folder ``final``: a run into it finished."""
+    shutil.rmtree(checkpoint_folder(final), ignore_errors=True)
+
+
 def _inputs(config: Any) -> list[Any]:
     """The size and modification time of every existing file or folder a config's strings name (the
     recording a source reads): a checkpoint of changed input is not taken."""
@@ -121,7 +126,3 @@ class Checkpoints:
         for old in self.folder.iterdir():
             if old != target:
                 old.unlink(missing_ok=True)
-
-    def clear(self) -> None:
-        """Remove the folder: the run it belongs to finished."""
-        shutil.rmtree(self.folder, ignore_errors=True)

@@ -19,7 +19,7 @@ from typing import Any
 import pluggy
 
 from stratamap.core.atomic import atomic_directory, check_output_folder, raise_if_interrupted, write_json
-from stratamap.core.checkpoints import Checkpoints, checkpoint_folder
+from stratamap.core.checkpoints import Checkpoints, checkpoint_folder, clear_checkpoints
 from stratamap.core.config import ResolvedStage, ValidatedPipeline
 from stratamap.core.errors import ConfigError, PluginError
 from stratamap.core.hookspecs import Observer
@@ -285,15 +285,17 @@ class Pipeline:
         self.observers = [resolved.instantiate() for resolved in self.validated.observers]
         # Everything is written into a staging folder beside the output and swapped in at the end:
         # a failed or interrupted run leaves the previous output exactly as it was, and no new folder.
-        checkpoints = Checkpoints(
-            checkpoint_folder(final), self.validated.source, self.validated.stages, package_versions()
+        checkpoints = (
+            Checkpoints(checkpoint_folder(final), self.validated.source, self.validated.stages, package_versions())
+            if resume
+            else None
         )
         with atomic_directory(final) as staging:
             self.out_dir = staging
             with self._observed():
-                report = self._run_into(staging, shown, checkpoints if resume else None)
+                report = self._run_into(staging, shown, checkpoints)
         self.out_dir = shown
-        checkpoints.clear()  # this output is complete: no run of it resumes any more
+        clear_checkpoints(final)  # this output is complete: no run of it resumes any more
         return report
 
     @contextmanager
