@@ -116,6 +116,14 @@ class LayoutParams(BaseModel):
             "cells: a wall hides what lies behind it."
         ),
     )
+    doorway_max_width: float = Field(
+        default=2.0,
+        gt=0.0,
+        description=(
+            "Widest doorway (m; double doors): a wall candidate's run of empty columns at most this wide is an "
+            "opening the sensor may see through, a wider one a gap between two things in one plane."
+        ),
+    )
     support_heights: tuple[float, float] = Field(
         default=(0.3, 1.4), description="Heights above the floor of table, desk, counter and shelf tops, metres."
     )
@@ -353,7 +361,10 @@ def find_layout(
             # surface and does not count.
             limits = (p.outlier_share * wide.sum(), p.seen_beyond_share * len(m))
             if views is not None and _too_much_beyond(outside, cell_label, *limits):
-                outside = outside[~through_openings(cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size)]
+                through = through_openings(
+                    cells[outside], views, n, d, tangent, cells[m], 2.0 * voxel_size, p.doorway_max_width
+                )
+                outside = outside[~through]
             if _too_much_beyond(outside, cell_label, *limits):
                 continue
             on_wall = band & (np.abs(offset) <= tol) & (np.abs(normal @ n) >= np.cos(np.radians(30.0)))

@@ -37,6 +37,7 @@ def through_openings(
     tangent: np.ndarray,
     wall: np.ndarray,
     cell: float,
+    doorway_max_width: float = float("inf"),
 ) -> np.ndarray:
     """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
     saw through an opening of it: the sight line crosses the plane within the wall's width and below
@@ -46,7 +47,9 @@ def through_openings(
     doorway's top) or a window. A sensor also sees over a cabinet's front or a partition, but that
     crossing lies above its top, so what lies behind those still counts; so does what it sees over a
     counter's front beside a tall cabinet's, which the plane fit can take for one plane: the
-    crossing lies above the top of the counter's columns, though below the cabinet's."""
+    crossing lies above the top of the counter's columns, though below the cabinet's. A run of empty
+    columns wider than ``doorway_max_width`` is no doorway: the plane fit joined two things that
+    stand apart in one plane (a fridge's side and a chair's across the room)."""
     along = np.floor(wall @ tangent / cell).astype(np.int64)
     up = np.floor(wall[:, 2] / cell).astype(np.int64)
     low = int(up.min()) - 1
@@ -57,6 +60,7 @@ def through_openings(
     column_top = np.full(last - first + 1, np.iinfo(np.int64).min)
     np.maximum.at(column_top, along - first, up)
     empty_column = column_top == np.iinfo(np.int64).min
+    empty_column &= _run_lengths(empty_column) * cell <= doorway_max_width
     seen = np.zeros(len(beyond), bool)
     far = beyond @ normal - offset
     for view in views:
@@ -76,3 +80,12 @@ def through_openings(
         under_wall = empty_column[column] | (z < column_top[column])
         seen[np.flatnonzero(crossing)[inside & empty & under_wall]] = True
     return seen
+
+
+def _run_lengths(flags: np.ndarray) -> np.ndarray:
+    """Per element, the length of the run of equal values it lies in."""
+    if not len(flags):
+        return np.zeros(0, np.int64)
+    starts = np.flatnonzero(np.r_[True, flags[1:] != flags[:-1]])
+    lengths = np.diff(np.r_[starts, len(flags)])
+    return np.repeat(lengths, lengths)

@@ -328,3 +328,37 @@ def test_a_walls_distance_reaches_only_as_far_as_the_wall():
     plane = LayoutPlane(WALL, np.array([0.0, 1.0, 0.0]), 0.0, (-1.0, 0.0))  # along = -x: x in [0, 1]
     points = np.array([[0.5, 0.3, 1.0], [2.0, 0.0, 1.0], [2.0, 0.4, 0.2]])
     assert np.allclose(plane.distance(points), [0.3, 1.0, np.hypot(1.0, 0.4)])
+
+
+def _against_back_wall(spacing: float, unit: tuple[float, float, float, float], extra: list[np.ndarray] = ()):
+    """The room with a unit (x0, x1, depth, height) standing against its y = 0 wall, whose part the
+    unit hides is not seen; the unit's front and sides last in the points."""
+    x0, x1, depth, height = unit
+    shell = room_shell(spacing)
+    back = shell[4][1]
+    hidden = (back[:, 0] > x0) & (back[:, 0] < x1) & (back[:, 2] < height)
+    room = np.concatenate([p for k, (_, p) in enumerate(shell) if k != 4] + [back[~hidden], *extra])
+    front = box_surface((x0, 0.0, 0.0), (x1, depth, height), spacing, "xXY")
+    return room, front
+
+
+def test_a_fridge_side_in_one_plane_with_a_cabinet_across_the_room_is_no_wall():
+    """A fridge against the back wall, its side (x = 2) in one plane with the side of a low cabinet
+    2.6 m away across the room, seen from a walk passing close by the fridge (the room seen up to
+    1.8 m): the plane fit joins the two sides into one candidate whose columns between them are empty.
+    So wide a gap is no doorway; what the sensor sees across it (the fridge's own front, the floor and
+    walls beyond) still counts, and the side is no wall."""
+    spacing = 0.03
+    view = np.array([1.9, 2.0, 1.5])
+    far_side = box_surface((2.0, 3.25, 0.0), (2.0, 3.9, 1.0), spacing, "x")
+    room, fridge = _against_back_wall(spacing, (2.0, 2.6, 0.65, 1.75), [far_side])
+    room = room[room[:, 2] <= 1.8]
+    side = np.isclose(fridge[:, 0], 2.0)
+    points = np.concatenate([room, fridge])
+    layout = find_layout(points, spacing, viewpoints=view[None])
+    assert (layout.labels[-len(fridge) :][side] == WALL).mean() < 0.05
+    assert layout.walls == 4
+    # Every empty column an opening (as before 2026-12-08): the side was a wall with a 2.6 m "doorway".
+    before = LayoutParams(doorway_max_width=10.0)
+    labels = find_layout(points, spacing, viewpoints=view[None], params=before).labels
+    assert (labels[-len(fridge) :][side] == WALL).mean() > 0.7  # its edges: floor, the back wall
