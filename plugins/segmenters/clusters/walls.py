@@ -37,7 +37,7 @@ def through_openings(
     tangent: np.ndarray,
     wall: np.ndarray,
     cell: float,
-    doorway_max_width: float = float("inf"),
+    doorway_max_width: float,
 ) -> np.ndarray:
     """Which points ``beyond`` a wall plane (``normal . x = offset``, its points ``wall``) a viewpoint
     saw through an opening of it: the sight line crosses the plane within the wall's width and below
@@ -83,9 +83,7 @@ def through_openings(
 
 
 def _run_lengths(flags: np.ndarray) -> np.ndarray:
-    """Per element, the length of the run of equal values it lies in."""
-    if not len(flags):
-        return np.zeros(0, np.int64)
+    """Per element of a non-empty array, the length of the run of equal values it lies in."""
     starts = np.flatnonzero(np.r_[True, flags[1:] != flags[:-1]])
     lengths = np.diff(np.r_[starts, len(flags)])
     return np.repeat(lengths, lengths)
